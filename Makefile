@@ -1,0 +1,42 @@
+# Set-up and entry points. `make demo` and `make test` work on a fresh machine:
+# they create .venv, install the package (torch pinned through constraints.txt),
+# install the Debian packages offscreen rendering needs, then run.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+PIP := $(BIN)/python -m pip install --disable-pip-version-check -q -c constraints.txt
+
+.PHONY: demo test install system-deps bench scenes clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+
+$(VENV)/.installed: pyproject.toml constraints.txt | $(BIN)/python
+	$(PIP) torch==2.13.0 -e .
+	touch $@
+
+$(VENV)/.installed-test: $(VENV)/.installed
+	$(PIP) -e ".[test]"
+	touch $@
+
+install: system-deps $(VENV)/.installed
+
+system-deps:
+	@bash tools/install_system_deps.sh
+
+demo: install
+	$(BIN)/mjexplore scene-gen office --seed 0 --size 40x25 --out runs/demo/scene
+	$(BIN)/mjexplore drive --scene runs/demo/scene --duration 120 --out runs/demo/drive
+	@echo "demo outputs in runs/demo/ (scene/preview.png, drive/trajectory.png, drive/summary.json)"
+
+test: system-deps $(VENV)/.installed-test
+	$(BIN)/python -m pytest -n 2 -q
+
+bench: install
+	$(BIN)/python tools/bench_sim.py
+
+scenes: install
+	$(BIN)/python tools/regenerate_scenes.py
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache

@@ -1,0 +1,1 @@
+"""Navigation: controllers that turn goals or sensor readings into (v, omega) commands."""

@@ -1,0 +1,97 @@
+"""The canonical scenes committed under ``scenes_xml/`` and name-or-path resolution.
+
+``tools/regenerate_scenes.py`` rebuilds them from this table bit for bit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import os
+import tempfile
+from pathlib import Path
+
+from mjexplore.errors import UserInputError
+from mjexplore.scenes.scene import SceneFiles, load_scene_files
+
+SCENES_DIR = Path(os.environ.get("MJEXPLORE_SCENES",
+                                 Path(__file__).resolve().parents[2] / "scenes_xml"))
+
+
+@dataclasses.dataclass(frozen=True)
+class CanonicalScene:
+    """How a canonical scene is generated.
+
+    Attributes:
+        family: Generator family (or '+'-joined families).
+        size: (width, height) in metres.
+        seed: Generator seed.
+        role: 'eval', 'train' or 'real' (the real-robot lobby).
+        note: What the scene stands for.
+    """
+
+    family: str
+    size: tuple[float, float]
+    seed: int
+    role: str
+    note: str
+
+
+CANONICAL_SCENES: dict[str, CanonicalScene] = {
+    # The paper's three evaluation scenes (Fig. 6).
+    "loop_with_corridor": CanonicalScene("loop", (24, 24), 3, "eval",
+                                         "Scene 1: loop with corridor, 24 x 24 m"),
+    "maze": CanonicalScene("maze", (20, 20), 0, "eval", "Scene 2: maze, 20 x 20 m"),
+    "office": CanonicalScene("office", (40, 25), 0, "eval", "Scene 3: office, 40 x 25 m"),
+    # Nine training scenes (Fig. 4): basic layouts, combinations and large ones.
+    "train_loop": CanonicalScene("loop", (16, 16), 1, "train", "loop"),
+    "train_narrow_corridor": CanonicalScene("corridor", (20, 12), 2, "train", "narrow corridor"),
+    "train_rooms": CanonicalScene("rooms", (18, 14), 3, "train", "multiple rooms"),
+    "train_office_small": CanonicalScene("office", (24, 16), 4, "train", "small office"),
+    "train_loop_rooms": CanonicalScene("loop+rooms", (30, 18), 5, "train", "loop and rooms"),
+    "train_corridor_rooms": CanonicalScene("corridor+rooms", (28, 16), 6, "train",
+                                           "corridor and rooms"),
+    "train_maze_loop": CanonicalScene("maze+loop", (30, 16), 7, "train", "maze and loop"),
+    "train_large_office": CanonicalScene("office", (50, 30), 8, "train", "large office"),
+    "train_large_combo": CanonicalScene("rooms+loop+corridor", (48, 30), 9, "train",
+                                        "large combination"),
+    # The paper's real-robot setting: a 17.5 x 4 m lobby.
+    "lobby": CanonicalScene("hall", (17.5, 4), 0, "real", "real-robot lobby, 17.5 x 4 m"),
+}
+
+
+def canonical_names(role: str | None = None) -> list[str]:
+    return [n for n, c in CANONICAL_SCENES.items() if role is None or c.role == role]
+
+
+def resolve_scene(scene: str | os.PathLike) -> SceneFiles:
+    """Finds a scene by canonical name, scene folder, MJCF path or map_server YAML path.
+
+    A map_server YAML is imported into a scene folder under the system's temporary
+    directory (keyed by the map's content, so it is built once).
+
+    Raises:
+        UserInputError: no such scene.
+    """
+    text = str(scene)
+    if text in CANONICAL_SCENES:
+        folder = SCENES_DIR / text
+        if not (folder / "scene.xml").is_file():
+            raise UserInputError(f"canonical scene {text!r} is missing from {SCENES_DIR}: run "
+                                 "'python tools/regenerate_scenes.py' to rebuild it.")
+        return load_scene_files(folder)
+    path = Path(text)
+    if path.suffix.lower() in (".yaml", ".yml") and path.is_file():
+        from mjexplore.scenes.importer import scene_from_map_yaml
+        from mjexplore.scenes.scene import write_scene
+
+        digest = hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+        folder = Path(tempfile.gettempdir()) / "mjexplore-scenes" / f"{path.stem}-{digest}"
+        if not (folder / "scene.xml").is_file():
+            write_scene(scene_from_map_yaml(path), folder)
+        return load_scene_files(folder)
+    if not path.exists():
+        raise UserInputError(f"unknown scene {text!r}: give one of "
+                             f"{', '.join(CANONICAL_SCENES)}, a scene folder, an MJCF file or a "
+                             "map_server YAML.")
+    return load_scene_files(path)

@@ -1,0 +1,138 @@
+"""Reading and writing ROS ``map_server`` maps (a YAML file and an image).
+
+Format (ROS wiki ``map_server``): the YAML holds ``image`` (path relative to the YAML),
+``resolution`` (metres per pixel), ``origin`` ([x, y, yaw] of the lower-left pixel),
+``negate``, ``occupied_thresh`` and ``free_thresh``. In ``trinary`` mode a pixel of value
+``v`` has occupancy ``p = (255 - v) / 255`` (``v / 255`` when ``negate``); ``p >
+occupied_thresh`` is occupied, ``p < free_thresh`` is free, anything else unknown. Image
+rows run top (highest y) to bottom. Written maps use ``map_saver``'s values: 254 free,
+0 occupied, 205 unknown.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+
+from mjexplore.errors import UserInputError
+from mjexplore.io.atomic import write_bytes_atomic, write_text_atomic
+from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
+
+PGM_FREE = 254
+PGM_OCCUPIED = 0
+PGM_UNKNOWN = 205
+OCCUPIED_THRESH = 0.65
+FREE_THRESH = 0.196
+
+
+def read_image_gray(path: str | os.PathLike) -> np.ndarray:
+    """Reads an 8-bit image as greyscale (mean of the colour channels, alpha ignored).
+
+    Raises:
+        UserInputError: the file is missing or is not an 8-bit image OpenCV can decode.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise UserInputError(f"map image {str(path)!r} does not exist: check the path (a map "
+                             "YAML's 'image' is relative to the YAML file's folder).")
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None or img.size == 0:
+        raise UserInputError(f"map image {str(path)!r} could not be decoded: give a PGM or PNG "
+                             "image (8 bits per channel); re-save it if it is truncated.")
+    if img.dtype != np.uint8:
+        raise UserInputError(f"map image {str(path)!r} has {img.dtype} pixels: convert it to "
+                             "8 bits per channel.")
+    if img.ndim == 3:
+        channels = img[..., :3] if img.shape[2] >= 3 else img[..., :1]
+        # Mean over channels, rounded like map_server's integer average.
+        img = (channels.astype(np.uint16).sum(axis=2) // channels.shape[2]).astype(np.uint8)
+    return img
+
+
+def _require(meta: dict, key: str, path: Path):
+    if key not in meta:
+        raise UserInputError(f"map YAML {str(path)!r} has no {key!r} entry: a map_server YAML "
+                             "needs image, resolution and origin.")
+    return meta[key]
+
+
+def read_map(yaml_path: str | os.PathLike) -> GridMap:
+    """Reads a map_server map into a :class:`GridMap` (trinary interpretation).
+
+    Raises:
+        UserInputError: a missing or malformed YAML or image, with what to fix.
+    """
+    yaml_path = Path(yaml_path)
+    if not yaml_path.is_file():
+        raise UserInputError(f"map YAML {str(yaml_path)!r} does not exist: check the path.")
+    try:
+        meta = yaml.safe_load(yaml_path.read_text())
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise UserInputError(f"map YAML {str(yaml_path)!r} is not valid YAML ({exc}): fix "
+                             "the file or re-save the map with map_saver.") from None
+    if not isinstance(meta, dict):
+        raise UserInputError(f"map YAML {str(yaml_path)!r} is not a mapping of keys: it must "
+                             "hold image, resolution, origin, ...")
+    image = _require(meta, "image", yaml_path)
+    try:
+        resolution = float(_require(meta, "resolution", yaml_path))
+        origin = [float(v) for v in _require(meta, "origin", yaml_path)]
+        negate = int(meta.get("negate", 0))
+        occ_th = float(meta.get("occupied_thresh", OCCUPIED_THRESH))
+        free_th = float(meta.get("free_thresh", FREE_THRESH))
+    except (TypeError, ValueError) as exc:
+        raise UserInputError(f"map YAML {str(yaml_path)!r} has a non-numeric value ({exc}): "
+                             "resolution and thresholds are numbers, origin is [x, y, yaw].")
+    if not resolution > 0 or len(origin) != 3:
+        raise UserInputError(f"map YAML {str(yaml_path)!r}: resolution must be > 0 and origin "
+                             "must be [x, y, yaw].")
+    if origin[2] != 0.0:
+        raise UserInputError(f"map YAML {str(yaml_path)!r}: origin yaw {origin[2]} is not "
+                             "supported; rotate the image instead so that yaw is 0.")
+    if not 0.0 <= free_th < occ_th <= 1.0:
+        raise UserInputError(f"map YAML {str(yaml_path)!r}: need 0 <= free_thresh < "
+                             "occupied_thresh <= 1.")
+    gray = read_image_gray(yaml_path.parent / str(image))
+    occupancy = gray.astype(np.float64) / 255.0 if negate else (255.0 - gray) / 255.0
+    data = np.full(gray.shape, UNKNOWN, dtype=np.int8)
+    data[occupancy > occ_th] = OCCUPIED
+    data[occupancy < free_th] = FREE
+    return GridMap(np.ascontiguousarray(data[::-1]), resolution, (origin[0], origin[1], 0.0))
+
+
+def encode_pgm(grid: GridMap, comment: str = "mjexplore") -> bytes:
+    """Encodes a grid as a binary PGM with map_saver's values (254 free, 0 occ, 205 unknown)."""
+    pixels = np.full(grid.shape, PGM_UNKNOWN, dtype=np.uint8)
+    pixels[grid.free] = PGM_FREE
+    pixels[grid.occupied] = PGM_OCCUPIED
+    rows, cols = grid.shape
+    header = f"P5\n# CREATOR: {comment} {grid.resolution:.3f} m/pix\n{cols} {rows}\n255\n"
+    return header.encode("ascii") + np.ascontiguousarray(pixels[::-1]).tobytes()
+
+
+def map_yaml_text(image_name: str, grid: GridMap) -> str:
+    x, y, yaw = grid.origin
+    return (
+        f"image: {image_name}\n"
+        f"mode: trinary\n"
+        f"resolution: {grid.resolution:.6f}\n"
+        f"origin: [{x:.6f}, {y:.6f}, {yaw:.6f}]\n"
+        f"negate: 0\n"
+        f"occupied_thresh: {OCCUPIED_THRESH}\n"
+        f"free_thresh: {FREE_THRESH}\n"
+    )
+
+
+def write_map(yaml_path: str | os.PathLike, grid: GridMap) -> None:
+    """Writes ``grid`` as a map_server pair: ``NAME.yaml`` and ``NAME.pgm`` beside it.
+
+    The trinary view of the grid (free, occupied, unknown) is what is stored.
+    """
+    yaml_path = Path(yaml_path)
+    pgm_path = yaml_path.with_suffix(".pgm")
+    write_bytes_atomic(pgm_path, encode_pgm(grid))
+    write_text_atomic(yaml_path, map_yaml_text(pgm_path.name, grid))

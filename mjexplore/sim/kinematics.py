@@ -1,0 +1,104 @@
+"""Recording the robot's velocity and acceleration over simulated time."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+
+class GrowableArray:
+    """Row-appendable float array with amortised O(1) appends."""
+
+    def __init__(self, width: int, capacity: int = 1024) -> None:
+        self._buf = np.empty((capacity, width))
+        self._n = 0
+
+    def append(self, row: tuple[float, ...]) -> None:
+        if self._n == len(self._buf):
+            self._buf = np.concatenate([self._buf, np.empty_like(self._buf)])
+        self._buf[self._n] = row
+        self._n += 1
+
+    def clear(self) -> None:
+        self._n = 0
+
+    def __len__(self) -> int:
+        return self._n
+
+    @property
+    def array(self) -> np.ndarray:
+        """A view of the filled rows."""
+        return self._buf[: self._n]
+
+
+@dataclasses.dataclass(frozen=True)
+class KinematicsLog:
+    """Velocity and acceleration of ``base_link`` sampled over simulated time.
+
+    Attributes:
+        t: Sample times in seconds.
+        linear_velocity: Forward speed in m/s (ground truth, ``base_link`` x axis).
+        angular_velocity: Yaw rate in rad/s.
+        linear_acceleration: d(linear_velocity)/dt in m/s^2 (central differences).
+        angular_acceleration: d(angular_velocity)/dt in rad/s^2.
+        cmd_linear: Commanded forward speed after the acceleration limiter, m/s.
+        cmd_angular: Commanded yaw rate after the acceleration limiter, rad/s.
+        pose: (n, 3) ground-truth (x, y, yaw) of ``base_link`` in the ``map`` frame.
+        odom_pose: (n, 3) wheel-odometry (x, y, yaw) of ``base_link`` in the ``odom`` frame.
+    """
+
+    t: np.ndarray
+    linear_velocity: np.ndarray
+    angular_velocity: np.ndarray
+    linear_acceleration: np.ndarray
+    angular_acceleration: np.ndarray
+    cmd_linear: np.ndarray
+    cmd_angular: np.ndarray
+    pose: np.ndarray
+    odom_pose: np.ndarray
+
+    COLUMNS = ("t", "linear_velocity", "angular_velocity", "linear_acceleration",
+               "angular_acceleration", "cmd_linear", "cmd_angular", "x", "y", "yaw",
+               "odom_x", "odom_y", "odom_yaw")
+
+    def as_table(self) -> np.ndarray:
+        """(n, 13) array in the order of :attr:`COLUMNS`."""
+        return np.column_stack([self.t, self.linear_velocity, self.angular_velocity,
+                                self.linear_acceleration, self.angular_acceleration,
+                                self.cmd_linear, self.cmd_angular, self.pose, self.odom_pose])
+
+    def path_length(self) -> float:
+        """Length of the ground-truth path of ``base_link`` in metres."""
+        if len(self.t) < 2:
+            return 0.0
+        return float(np.linalg.norm(np.diff(self.pose[:, :2], axis=0), axis=1).sum())
+
+
+class KinematicsRecorder:
+    """Collects samples (t, v, omega, v_cmd, omega_cmd, pose, odometry pose) during a run."""
+
+    def __init__(self) -> None:
+        self._rows = GrowableArray(11)
+
+    def clear(self) -> None:
+        self._rows.clear()
+
+    def record(self, t: float, v: float, omega: float, cmd: tuple[float, float],
+               pose: tuple[float, float, float], odom: tuple[float, float, float]) -> None:
+        """Appends one sample: time s, speed m/s, yaw rate rad/s, command (v, omega), true
+        pose and odometry pose (x, y, yaw)."""
+        self._rows.append((t, v, omega, cmd[0], cmd[1], *pose, *odom))
+
+    def log(self) -> KinematicsLog:
+        rows = self._rows.array.copy()
+        t = rows[:, 0]
+
+        def derivative(x: np.ndarray) -> np.ndarray:
+            return np.gradient(x, t) if len(t) >= 2 else np.zeros_like(x)
+
+        return KinematicsLog(t=t, linear_velocity=rows[:, 1], angular_velocity=rows[:, 2],
+                             linear_acceleration=derivative(rows[:, 1]),
+                             angular_acceleration=derivative(rows[:, 2]),
+                             cmd_linear=rows[:, 3], cmd_angular=rows[:, 4], pose=rows[:, 5:8],
+                             odom_pose=rows[:, 8:11])

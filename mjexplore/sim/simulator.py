@@ -1,0 +1,310 @@
+"""The MuJoCo simulator core: a diff-drive robot with a 2D lidar in a scene.
+
+Time is simulated time only. Physics runs at the model's time step; three things happen
+on fixed grids of physics steps:
+
+* every sample period (``sample_rate_hz``, default 20 Hz): odometry update, kinematics
+  sample, collision check, and one step of the acceleration limiter: the wheel speed
+  set-points then ramp linearly inside MuJoCo (integrator actuators) to the limited
+  command by the end of the period;
+* every scan period (``LidarConfig.rate_hz``, default 10 Hz): one lidar scan;
+* a controller calls :meth:`Simulator.command` whenever it likes (typically 10 Hz).
+
+Between those instants MuJoCo steps with ``mj_step(..., nstep=k)``, so no Python runs per
+physics step.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+
+import mujoco
+import numpy as np
+
+from mjexplore.errors import UserInputError
+from mjexplore.robot import TURTLEBOT3_WAFFLE, MotionProfile, motion_profile
+from mjexplore.scenes.scene import SceneFiles, load_scene_files
+from mjexplore.sim.kinematics import KinematicsLog, KinematicsRecorder
+from mjexplore.sim.lidar import Lidar, LidarConfig, LaserScan
+from mjexplore.sim.odometry import WheelOdometry
+
+BASE_BODY = "base_link"
+SCAN_SITE = "base_scan"
+WHEEL_JOINTS = ("wheel_left_joint", "wheel_right_joint")
+WHEEL_ACTUATORS = ("wheel_left", "wheel_right")
+UPRIGHT_COS = math.cos(math.radians(30.0))
+# Contacts with walls closer in time than this belong to one collision (a robot pushing
+# against a wall bounces on and off it).
+COLLISION_GAP_S = 0.5
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class SimConfig:
+    """Simulator settings.
+
+    Attributes:
+        profile: Motion profile name ('sim' or 'real'): speed and acceleration limits.
+        lidar: Lidar settings; None uses the defaults with the profile's range.
+        sample_rate_hz: Rate of odometry, kinematics samples, collision checks and the
+            acceleration limiter, in Hz of simulated time. Its period must be a whole
+            number of physics steps.
+        seed: Seed for sensor noise.
+    """
+
+    profile: str = "sim"
+    lidar: LidarConfig | None = None
+    sample_rate_hz: float = 20.0
+    seed: int = 0
+
+    def resolved_lidar(self) -> LidarConfig:
+        return self.lidar or LidarConfig(range_max=motion_profile(self.profile).lidar_range)
+
+
+def _steps_per(period: float, timestep: float, what: str) -> int:
+    steps = period / timestep
+    if steps < 1 or abs(steps - round(steps)) > 1e-6:
+        raise UserInputError(f"{what} period {period:g} s is not a whole number of physics steps "
+                             f"of {timestep:g} s: choose a rate whose period is a multiple of it.")
+    return int(round(steps))
+
+
+def yaw_from_quat(q: np.ndarray) -> float:
+    """Yaw (rotation about z) of a (w, x, y, z) quaternion, radians."""
+    w, x, y, z = q
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+class Simulator:
+    """Steps a scene's MuJoCo model with the robot driven by (v, omega) commands.
+
+    Args:
+        scene: A scene folder, its ``scene.xml``, any MJCF containing the robot, or
+            :class:`SceneFiles`.
+        config: Simulator settings.
+
+    Attributes:
+        model: The compiled ``MjModel``.
+        data: Its ``MjData``.
+        scene: Paths and facts of the loaded scene (ground truth, start pose).
+        profile: The motion profile in force.
+        lidar: The lidar.
+        collisions: Number of collisions with walls since reset; contacts less than
+            ``COLLISION_GAP_S`` apart count as one.
+    """
+
+    def __init__(self, scene: str | os.PathLike | SceneFiles, config: SimConfig | None = None):
+        self.config = config or SimConfig()
+        self.scene = scene if isinstance(scene, SceneFiles) else load_scene_files(scene)
+        try:
+            self.model = mujoco.MjModel.from_xml_path(str(self.scene.xml))
+        except ValueError as exc:
+            raise UserInputError(f"MJCF {str(self.scene.xml)!r} failed to compile: {exc}. Fix the "
+                                 "file or regenerate it with 'mjexplore scene-gen'.") from None
+        self.data = mujoco.MjData(self.model)
+        self.profile: MotionProfile = motion_profile(self.config.profile)
+        m = self.model
+        try:
+            self._base = m.body(BASE_BODY).id
+            self._wheel_qpos = np.array([m.joint(j).qposadr[0] for j in WHEEL_JOINTS])
+            self._act_left, self._act_right = (m.actuator(a).id for a in WHEEL_ACTUATORS)
+            self._actadr_left, self._actadr_right = (m.actuator_actadr[i] for i in (
+                self._act_left, self._act_right))
+            m.site(SCAN_SITE)
+        except KeyError as exc:
+            raise UserInputError(f"MJCF {str(self.scene.xml)!r} lacks the robot's {exc}: include "
+                                 "assets/turtlebot3_waffle/robot.xml.") from None
+        free = m.body_jntadr[self._base]
+        if m.jnt_type[free] != mujoco.mjtJoint.mjJNT_FREE:
+            raise UserInputError("the robot's base_link must have a free joint.")
+        self._qpos0 = m.jnt_qposadr[free]
+        self._qvel0 = m.jnt_dofadr[free]
+        self._z0 = float(m.body_pos[self._base][2])
+        # Walls are static, so any contact with one involves the robot.
+        self._is_wall_geom = (m.geom_bodyid == 0) & (m.geom_group == 0) & (
+            m.geom_type != mujoco.mjtGeom.mjGEOM_PLANE)
+        dt = m.opt.timestep
+        self._sample_every = _steps_per(1.0 / self.config.sample_rate_hz, dt, "sample")
+        lidar_cfg = self.config.resolved_lidar()
+        self._scan_every = _steps_per(1.0 / lidar_cfg.rate_hz, dt, "lidar scan")
+        self._rng = np.random.default_rng(self.config.seed)
+        self.lidar = Lidar(m, SCAN_SITE, lidar_cfg, self._rng)
+        self.odometry = WheelOdometry(TURTLEBOT3_WAFFLE)
+        self._kinematics = KinematicsRecorder()
+        self.reset()
+
+    # ------------------------------------------------------------------ state
+
+    @property
+    def time(self) -> float:
+        """Simulated time since reset in seconds."""
+        return self._steps * self.model.opt.timestep
+
+    @property
+    def pose(self) -> np.ndarray:
+        """Ground-truth (x, y, yaw) of ``base_link`` in the ``map`` (world) frame."""
+        q = self.data.qpos[self._qpos0:self._qpos0 + 7]
+        return np.array([q[0], q[1], yaw_from_quat(q[3:7])])
+
+    @property
+    def velocity(self) -> np.ndarray:
+        """Ground-truth (forward speed m/s, yaw rate rad/s) of ``base_link``."""
+        q = self.data.qpos[self._qpos0 + 3:self._qpos0 + 7]
+        yaw = yaw_from_quat(q)
+        lin = self.data.qvel[self._qvel0:self._qvel0 + 3]
+        return np.array([lin[0] * math.cos(yaw) + lin[1] * math.sin(yaw),
+                         self.data.qvel[self._qvel0 + 5]])
+
+    @property
+    def odom_pose(self) -> np.ndarray:
+        """Wheel-odometry (x, y, yaw) of ``base_link`` in the ``odom`` frame.
+
+        The ``odom`` frame coincides with the start pose at reset (``map -> odom`` is the
+        start pose); it drifts from the truth with wheel slip.
+        """
+        return self.odometry.pose.copy()
+
+    @property
+    def odom_origin(self) -> np.ndarray:
+        """Pose of the ``odom`` frame in the ``map`` frame (the pose at reset)."""
+        return self._start.copy()
+
+    @property
+    def latest_scan(self) -> LaserScan:
+        return self._scan
+
+    @property
+    def is_upright(self) -> bool:
+        """False if the base is tilted more than 30 degrees (tipped over)."""
+        return bool(self.data.xmat[self._base][8] > UPRIGHT_COS)
+
+    @property
+    def in_collision(self) -> bool:
+        return self._in_contact
+
+    @property
+    def command_applied(self) -> np.ndarray:
+        """(v, omega) set-point, after the acceleration limiter, reached at the end of the
+        current sample period."""
+        return np.array(self._cmd)
+
+    def kinematics(self) -> KinematicsLog:
+        """Velocity and acceleration samples since reset."""
+        return self._kinematics.log()
+
+    def warnings(self) -> dict[str, int]:
+        """MuJoCo warnings raised since reset, by kind (empty when none)."""
+        return {mujoco.mjtWarning(i).name: int(w.number)
+                for i, w in enumerate(self.data.warning) if w.number}
+
+    # ------------------------------------------------------------------ control
+
+    def reset(self, pose: tuple[float, float, float] | None = None) -> LaserScan:
+        """Puts the robot at rest at ``pose`` (default: the scene's start) at time 0.
+
+        Returns:
+            The first scan, taken at time 0.
+        """
+        m, d = self.model, self.data
+        mujoco.mj_resetData(m, d)
+        x, y, yaw = self.scene.start if pose is None else pose
+        d.qpos[self._qpos0:self._qpos0 + 7] = [x, y, self._z0, math.cos(yaw / 2), 0, 0,
+                                                math.sin(yaw / 2)]
+        mujoco.mj_forward(m, d)
+        self._start = np.array([x, y, yaw], dtype=float)
+        self._steps = 0
+        self._target = (0.0, 0.0)
+        self._cmd_base = (0.0, 0.0)
+        self._cmd = (0.0, 0.0)
+        self._apply_cmd()
+        self.collisions = 0
+        self._in_contact = False
+        self._last_contact = -math.inf
+        self.odometry.reset(d.qpos[self._wheel_qpos], 0.0)
+        self._kinematics.clear()
+        self._sample()
+        self._scan = self.lidar.scan(d, 0.0)
+        return self._scan
+
+    def command(self, linear: float, angular: float) -> None:
+        """Sets the velocity target (m/s, rad/s), clipped to the profile's limits.
+
+        The applied command approaches the target no faster than the profile's
+        acceleration limits, updated every sample period.
+        """
+        p = self.profile
+        self._target = (min(max(float(linear), -p.max_linear_speed), p.max_linear_speed),
+                        min(max(float(angular), -p.max_angular_speed), p.max_angular_speed))
+        if self._steps % self._sample_every == 0:
+            self._ramp()
+
+    def step(self, duration: float) -> list[LaserScan]:
+        """Advances simulated time by ``duration`` seconds (rounded to physics steps).
+
+        Returns:
+            The scans taken during the step, oldest first.
+        """
+        m, d = self.model, self.data
+        target = self._steps + max(0, round(duration / m.opt.timestep))
+        scans: list[LaserScan] = []
+        while self._steps < target:
+            next_sample = (self._steps // self._sample_every + 1) * self._sample_every
+            next_scan = (self._steps // self._scan_every + 1) * self._scan_every
+            stop = min(next_sample, next_scan, target)
+            mujoco.mj_step(m, d, nstep=stop - self._steps)
+            self._steps = stop
+            if stop % self._sample_every == 0:
+                self._sample()
+                self._cmd_base = self._cmd
+                self._ramp()
+            if stop % self._scan_every == 0:
+                mujoco.mj_kinematics(m, d)
+                self._scan = self.lidar.scan(d, self.time)
+                scans.append(self._scan)
+        return scans
+
+    # ------------------------------------------------------------------ internals
+    # These run every sample period: plain floats, no small numpy arrays.
+
+    def _ramp(self) -> None:
+        p = self.profile
+        period = self._sample_every * self.model.opt.timestep
+        dv = p.max_linear_accel * period
+        dw = p.max_angular_accel * period
+        v0, w0 = self._cmd_base
+        v = v0 + min(max(self._target[0] - v0, -dv), dv)
+        w = w0 + min(max(self._target[1] - w0, -dw), dw)
+        self._cmd = (v, w)
+        self._apply_cmd()
+
+    def _apply_cmd(self) -> None:
+        # The wheel actuators integrate ctrl (wheel acceleration) into their speed
+        # set-point; choose ctrl so that the set-point reaches the wheel speeds of
+        # self._cmd exactly at the end of this sample period.
+        v, w = self._cmd
+        half = TURTLEBOT3_WAFFLE.wheel_separation / 2
+        r = TURTLEBOT3_WAFFLE.wheel_radius
+        d = self.data
+        period = self._sample_every * self.model.opt.timestep
+        d.ctrl[self._act_left] = ((v - w * half) / r - d.act[self._actadr_left]) / period
+        d.ctrl[self._act_right] = ((v + w * half) / r - d.act[self._actadr_right]) / period
+
+    def _sample(self) -> None:
+        d = self.data
+        t = self.time
+        qpos = d.qpos
+        left, right = qpos[self._wheel_qpos[0]], qpos[self._wheel_qpos[1]]
+        self.odometry.update((left, right), t)
+        x, y, _, qw, qx, qy, qz = qpos[self._qpos0:self._qpos0 + 7].tolist()
+        yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+        vx, vy, _, _, _, wz = d.qvel[self._qvel0:self._qvel0 + 6].tolist()
+        v = vx * math.cos(yaw) + vy * math.sin(yaw)
+        self._kinematics.record(t, v, wz, self._cmd, (x, y, yaw), self.odometry.pose_tuple)
+        ncon = d.ncon
+        touching = ncon > 0 and bool(self._is_wall_geom[d.contact.geom[:ncon]].any())
+        if touching:
+            if t - self._last_contact > COLLISION_GAP_S:
+                self.collisions += 1
+            self._last_contact = t
+        self._in_contact = touching

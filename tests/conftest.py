@@ -1,0 +1,44 @@
+"""Shared fixtures: paths and small hand-built scenes."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mjexplore.maps import FREE, OCCUPIED, GridMap
+from mjexplore.scenes.importer import scene_from_grid
+from mjexplore.scenes.scene import write_scene
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("MJEXPLORE_SHARED", REPO.parent / "shared"))
+
+
+def shared_data(*parts: str) -> Path:
+    path = SHARED.joinpath("data", *parts)
+    if not path.exists():
+        pytest.skip(f"reference data {path} is not present (it lives in shared/ beside the repo)")
+    return path
+
+
+def box_room_grid(inner_w: float = 6.0, inner_h: float = 4.0, wall: float = 0.2,
+                  res: float = 0.05) -> tuple[GridMap, tuple[float, float, float, float]]:
+    """A rectangular room: returns the grid and the interior (x0, y0, x1, y1) in metres."""
+    cols = round((inner_w + 2 * wall) / res)
+    rows = round((inner_h + 2 * wall) / res)
+    k = round(wall / res)
+    data = np.full((rows, cols), OCCUPIED, np.int8)
+    data[k:rows - k, k:cols - k] = FREE
+    return GridMap(data, res, (0.0, 0.0, 0.0)), (wall, wall, wall + inner_w, wall + inner_h)
+
+
+@pytest.fixture(scope="session")
+def box_room(tmp_path_factory) -> tuple[Path, tuple[float, float, float, float]]:
+    """A 6 x 4 m box room scene folder and its interior rectangle."""
+    grid, interior = box_room_grid()
+    out = tmp_path_factory.mktemp("box_room") / "scene"
+    write_scene(scene_from_grid(grid, "box_room", {"source": "test"},
+                                start=(1.0, 2.2, 0.0)), out)
+    return out, interior

@@ -1,0 +1,151 @@
+"""Benchmark of the simulator on the office scene; prints one JSON line.
+
+Figures (all in one process on one core, simulated seconds per wall second for RTFs):
+    full_loop_rtf      physics at the model's step + lidar at 10 Hz + a reactive controller
+                       at 10 Hz + 50 Hz odometry/kinematics, through ``Simulator``;
+    physics_rtf        the bound: the same command sequence replayed with ``mj_step`` alone
+                       (no lidar, no Python between control periods);
+    lidar_scans_per_s  scans of the fast path (one ``mj_multiRay`` per scan) at poses from
+                       the run; lidar_rays_per_s is that times the beam count;
+    sensor_scans_per_s the bound: the same scan as 360 MuJoCo rangefinder sensors
+                       (``mj_sensorPos`` after ``mj_kinematics``), same poses;
+    ratios             full_loop_over_physics and lidar_over_sensor.
+
+Usage: python tools/bench_sim.py [--scene office] [--seconds 60]
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("MKL_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import math  # noqa: E402
+import time  # noqa: E402
+
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+
+from mjexplore.navigation.wander import WanderController  # noqa: E402
+from mjexplore.scenes.canonical import resolve_scene  # noqa: E402
+from mjexplore.sim.simulator import SCAN_SITE, Simulator  # noqa: E402
+
+CONTROL_PERIOD = 0.1
+
+
+def sensor_model(xml: str, num_beams: int) -> mujoco.MjModel:
+    """The scene with ``num_beams`` rangefinders on explicit sites at ``base_scan``."""
+    spec = mujoco.MjSpec.from_file(xml)
+    scan = spec.site(SCAN_SITE)
+    body = scan.parent
+    for i, a in enumerate(2 * np.pi * np.arange(num_beams) / num_beams):
+        # Rangefinders look along the site's +z: rotate +z onto (cos a, sin a, 0).
+        quat = np.zeros(4)
+        mujoco.mju_euler2Quat(quat, [0.0, math.pi / 2, a], "XYZ")
+        site = body.add_site(name=f"beam_{i}", pos=scan.pos, quat=quat)
+        sensor = spec.add_sensor(name=f"range_{i}", type=mujoco.mjtSensor.mjSENS_RANGEFINDER,
+                                 objtype=mujoco.mjtObj.mjOBJ_SITE, objname=site.name)
+        sensor.intprm[0] = 1 << int(mujoco.mjtRayDataField.mjRAYDATA_DIST)  # distance only
+    return spec.compile()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scene", default="office")
+    parser.add_argument("--seconds", type=float, default=60.0, help="simulated seconds")
+    args = parser.parse_args()
+    scene = resolve_scene(args.scene)
+    sim = Simulator(scene)
+    controller = WanderController(rng=np.random.default_rng(0))
+    n_periods = int(round(args.seconds / CONTROL_PERIOD))
+
+    # Warm up the lidar tiles the run will visit, so that their one-off build is not timed.
+    t0 = time.perf_counter()
+    commands, poses = [], []
+    for _ in range(n_periods):
+        v, w = controller(sim.latest_scan, sim.pose[2])
+        sim.command(v, w)
+        sim.step(CONTROL_PERIOD)
+    tile_build_s = time.perf_counter() - t0
+
+    sim.reset()
+    controller = WanderController(rng=np.random.default_rng(0))
+    t0 = time.perf_counter()
+    for _ in range(n_periods):
+        v, w = controller(sim.latest_scan, sim.pose[2])
+        sim.command(v, w)
+        sim.step(CONTROL_PERIOD)
+        commands.append(sim.data.ctrl.copy())
+        poses.append(sim.data.qpos.copy())
+    full_wall = time.perf_counter() - t0
+    sim_seconds = sim.time
+    path_m = sim.kinematics().path_length()
+
+    m, d = sim.model, sim.data
+    steps = int(round(CONTROL_PERIOD / m.opt.timestep))
+    mujoco.mj_resetData(m, d)
+    d.qpos[:] = poses[0]
+    t0 = time.perf_counter()
+    for ctrl in commands:
+        d.ctrl[:] = ctrl
+        mujoco.mj_step(m, d, nstep=steps)
+    physics_wall = time.perf_counter() - t0
+
+    sample = poses[:: max(1, len(poses) // 200)]
+    n_rep = 5
+    t0 = time.perf_counter()
+    for _ in range(n_rep):
+        for q in sample:
+            d.qpos[:] = q
+            mujoco.mj_kinematics(m, d)
+            sim.lidar.scan(d, 0.0)
+    lidar_s = (time.perf_counter() - t0) / (n_rep * len(sample))
+
+    sm = sensor_model(str(sim.scene.xml), sim.lidar.config.num_beams)
+    sd = mujoco.MjData(sm)
+    max_diff = 0.0
+    t0 = time.perf_counter()
+    for _ in range(n_rep):
+        for q in sample:
+            sd.qpos[:] = q
+            mujoco.mj_kinematics(sm, sd)
+            mujoco.mj_sensorPos(sm, sd)
+    sensor_s = (time.perf_counter() - t0) / (n_rep * len(sample))
+    for q in sample[:20]:  # Both paths must read the same ranges.
+        d.qpos[:] = q
+        sd.qpos[:] = q
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_kinematics(sm, sd)
+        mujoco.mj_sensorPos(sm, sd)
+        fast = sim.lidar.cast(d).copy()
+        ok = (fast >= 0) & (fast < sim.lidar.config.range_max)
+        max_diff = max(max_diff, float(np.abs(fast[ok] - sd.sensordata[ok]).max(initial=0.0)))
+
+    n_walls = int(sim.lidar.static_scene.geom_ids.size)
+    result = {
+        "scene": args.scene,
+        "sim_seconds": round(sim_seconds, 3),
+        "path_m": round(path_m, 2),
+        "wall_boxes": n_walls,
+        "full_loop_rtf": round(sim_seconds / full_wall, 1),
+        "physics_rtf": round(sim_seconds / physics_wall, 1),
+        "full_loop_over_physics": round(physics_wall / full_wall, 3),
+        "lidar_scans_per_s": round(1.0 / lidar_s, 1),
+        "lidar_rays_per_s": round(sim.lidar.config.num_beams / lidar_s),
+        "sensor_scans_per_s": round(1.0 / sensor_s, 1),
+        "lidar_over_sensor": round(sensor_s / lidar_s, 2),
+        "lidar_vs_sensor_max_abs_diff_m": max_diff,
+        "lidar_tiles_built": len(sim.lidar.static_scene._tiles),
+        "first_run_with_tile_builds_s": round(tile_build_s, 3),
+        "physics_timestep_s": m.opt.timestep,
+        "mujoco": mujoco.__version__,
+    }
+    print(json.dumps(result))
+
+
+if __name__ == "__main__":
+    main()
