@@ -55,7 +55,8 @@ def odom_in_map(origin: np.ndarray, odom: np.ndarray) -> np.ndarray:
     c, s = math.cos(origin[2]), math.sin(origin[2])
     x = origin[0] + c * odom[:, 0] - s * odom[:, 1]
     y = origin[1] + s * odom[:, 0] + c * odom[:, 1]
-    return np.column_stack([x, y, odom[:, 2] + origin[2]])
+    yaw = (odom[:, 2] + origin[2] + math.pi) % (2 * math.pi) - math.pi
+    return np.column_stack([x, y, yaw])
 
 
 def trajectory_image(grid: GridMap, truth: np.ndarray, odom: np.ndarray,
@@ -93,7 +94,7 @@ def run_drive(scene: SceneFiles, config: DriveConfig, out_dir: str | os.PathLike
     period = 1.0 / config.control_rate_hz
     wall_start = time.perf_counter()
     while sim.time < config.duration - 1e-9:
-        v, w = controller(sim.latest_scan, sim.pose[2])
+        v, w = controller(sim.latest_scan, sim.pose)
         sim.command(v, w)
         sim.step(min(period, config.duration - sim.time))
         if not sim.is_upright:

@@ -9,7 +9,10 @@ Figures (all in one process on one core, simulated seconds per wall second for R
                        the run; lidar_rays_per_s is that times the beam count;
     sensor_scans_per_s the bound: the same scan as 360 MuJoCo rangefinder sensors
                        (``mj_sensorPos`` after ``mj_kinematics``), same poses;
-    ratios             full_loop_over_physics and lidar_over_sensor.
+    loop_without_lidar_rtf  the run's commands replayed through ``Simulator`` with scans
+                       skipped and no controller: the share of lidar and controller;
+    ratios             full_loop_over_physics, full_loop_over_loop_without_lidar and
+                       lidar_over_sensor.
 
 Usage: python tools/bench_sim.py [--scene office] [--seconds 60]
 """
@@ -65,9 +68,9 @@ def main() -> None:
 
     # Warm up the lidar tiles the run will visit, so that their one-off build is not timed.
     t0 = time.perf_counter()
-    commands, poses = [], []
+    commands, poses, twists = [], [], []
     for _ in range(n_periods):
-        v, w = controller(sim.latest_scan, sim.pose[2])
+        v, w = controller(sim.latest_scan, sim.pose)
         sim.command(v, w)
         sim.step(CONTROL_PERIOD)
     tile_build_s = time.perf_counter() - t0
@@ -76,9 +79,10 @@ def main() -> None:
     controller = WanderController(rng=np.random.default_rng(0))
     t0 = time.perf_counter()
     for _ in range(n_periods):
-        v, w = controller(sim.latest_scan, sim.pose[2])
+        v, w = controller(sim.latest_scan, sim.pose)
         sim.command(v, w)
         sim.step(CONTROL_PERIOD)
+        twists.append((v, w))
         commands.append(sim.data.ctrl.copy())
         poses.append(sim.data.qpos.copy())
     full_wall = time.perf_counter() - t0
@@ -94,6 +98,16 @@ def main() -> None:
         d.ctrl[:] = ctrl
         mujoco.mj_step(m, d, nstep=steps)
     physics_wall = time.perf_counter() - t0
+
+    # The same commands through the Simulator with scans skipped: what the lidar costs.
+    sim.reset()
+    sim.lidar.scan = lambda data, stamp, last=sim.latest_scan: last  # type: ignore[method-assign]
+    t0 = time.perf_counter()
+    for v, w in twists:
+        sim.command(v, w)
+        sim.step(CONTROL_PERIOD)
+    no_lidar_wall = time.perf_counter() - t0
+    del sim.lidar.scan
 
     sample = poses[:: max(1, len(poses) // 200)]
     n_rep = 5
@@ -134,6 +148,8 @@ def main() -> None:
         "full_loop_rtf": round(sim_seconds / full_wall, 1),
         "physics_rtf": round(sim_seconds / physics_wall, 1),
         "full_loop_over_physics": round(physics_wall / full_wall, 3),
+        "loop_without_lidar_rtf": round(sim_seconds / no_lidar_wall, 1),
+        "full_loop_over_loop_without_lidar": round(no_lidar_wall / full_wall, 3),
         "lidar_scans_per_s": round(1.0 / lidar_s, 1),
         "lidar_rays_per_s": round(sim.lidar.config.num_beams / lidar_s),
         "sensor_scans_per_s": round(1.0 / sensor_s, 1),
