@@ -1,5 +1,7 @@
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy import ndimage
 
 from mjexplore.errors import UserInputError
@@ -100,3 +102,27 @@ def test_canonical_set_has_the_papers_scenes():
 def test_bad_generator_input(args, match):
     with pytest.raises(UserInputError, match=match):
         generate_scene(*args, seed=0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(family=st.sampled_from(["office", "maze", "loop", "corridor", "rooms", "hall",
+                               "rooms+loop", "corridor+maze"]),
+       width=st.floats(14.0, 34.0), height=st.floats(12.0, 22.0),
+       seed=st.integers(0, 2**31 - 1), thickness=st.sampled_from([0.1, 0.15, 0.3]))
+def test_any_valid_parameters_give_a_connected_compilable_scene(family, width, height, seed,
+                                                                thickness):
+    import mujoco
+
+    from mjexplore.scenes.generators import GeneratorConfig
+    from mjexplore.scenes.scene import build_spec
+
+    scene = generate_scene(family, width, height, seed=seed,
+                           config=GeneratorConfig(wall_thickness=thickness))
+    free = scene.ground_truth.free
+    assert ndimage.label(free)[1] == 1
+    start_cell = tuple(scene.ground_truth.world_to_cell(np.array(scene.start[:2])))
+    assert clearance(free, 0.05)[start_cell] > TURTLEBOT3_WAFFLE.footprint_radius
+    model = build_spec(scene).compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_step(model, data, nstep=20)
+    assert not any(w.number for w in data.warning)

@@ -56,6 +56,18 @@ def sensor_model(xml: str, num_beams: int) -> mujoco.MjModel:
     return spec.compile()
 
 
+def seconds_per_scan(m: mujoco.MjModel, d: mujoco.MjData, poses: list[np.ndarray],
+                     scan, repeats: int = 5) -> float:
+    """Mean wall time of ``scan()`` after ``mj_kinematics`` at each of ``poses``."""
+    t0 = time.perf_counter()
+    for _ in range(repeats):
+        for q in poses:
+            d.qpos[:] = q
+            mujoco.mj_kinematics(m, d)
+            scan()
+    return (time.perf_counter() - t0) / (repeats * len(poses))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scene", default="office")
@@ -110,25 +122,11 @@ def main() -> None:
     del sim.lidar.scan
 
     sample = poses[:: max(1, len(poses) // 200)]
-    n_rep = 5
-    t0 = time.perf_counter()
-    for _ in range(n_rep):
-        for q in sample:
-            d.qpos[:] = q
-            mujoco.mj_kinematics(m, d)
-            sim.lidar.scan(d, 0.0)
-    lidar_s = (time.perf_counter() - t0) / (n_rep * len(sample))
-
+    lidar_s = seconds_per_scan(m, d, sample, lambda: sim.lidar.scan(d, 0.0))
     sm = sensor_model(str(sim.scene.xml), sim.lidar.config.num_beams)
     sd = mujoco.MjData(sm)
+    sensor_s = seconds_per_scan(sm, sd, sample, lambda: mujoco.mj_sensorPos(sm, sd))
     max_diff = 0.0
-    t0 = time.perf_counter()
-    for _ in range(n_rep):
-        for q in sample:
-            sd.qpos[:] = q
-            mujoco.mj_kinematics(sm, sd)
-            mujoco.mj_sensorPos(sm, sd)
-    sensor_s = (time.perf_counter() - t0) / (n_rep * len(sample))
     for q in sample[:20]:  # Both paths must read the same ranges.
         d.qpos[:] = q
         sd.qpos[:] = q

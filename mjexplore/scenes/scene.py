@@ -135,7 +135,8 @@ def pick_start(free: np.ndarray, resolution: float, rng: np.random.Generator,
     rows, cols = np.nonzero(dist >= min(0.6, 0.8 * dist.max()))
     k = int(rng.integers(len(rows)))
     yaw = float(rng.uniform(-math.pi, math.pi))
-    return ((cols[k] + 0.5) * resolution, (rows[k] + 0.5) * resolution, round(yaw, 4))
+    return (round((cols[k] + 0.5) * resolution, 4), round((rows[k] + 0.5) * resolution, 4),
+            round(yaw, 4))
 
 
 def check_start(grid: GridMap, start: tuple[float, float, float]) -> None:
