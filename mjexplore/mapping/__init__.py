@@ -1,0 +1,1 @@
+"""Occupancy-grid mapping from lidar scans and map-quality metrics."""
