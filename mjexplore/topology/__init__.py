@@ -1,0 +1,1 @@
+"""From the occupancy grid to topology: frontiers, information gain, GVD and the TER."""
