@@ -74,7 +74,7 @@ def _split(cells: np.ndarray, max_cells: float) -> list[np.ndarray]:
 
 
 def find_frontiers(grid: GridMap, min_size: int = 3, max_length: float = 2.0) -> list[Frontier]:
-    """Frontier clusters of a map, in a deterministic order (by first cell).
+    """Frontier clusters of a map, in a deterministic order (OpenCV's label order).
 
     Args:
         grid: The partial map.
@@ -82,17 +82,18 @@ def find_frontiers(grid: GridMap, min_size: int = 3, max_length: float = 2.0) ->
         max_length: Clusters longer than this (metres) are cut into pieces.
     """
     mask = frontier_mask(grid)
-    n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
-    if n <= 1:
+    flat = np.flatnonzero(mask.reshape(-1))  # Much faster than 2D nonzero on bool.
+    if len(flat) == 0:
         return []
-    rows, cols = np.nonzero(labels)
+    rows, cols = np.divmod(flat, mask.shape[1])
+    _, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
     lab = labels[rows, cols]
     order = np.argsort(lab, kind="stable")
-    rows, cols, lab = rows[order], cols[order], lab[order]
-    bounds = np.flatnonzero(np.diff(lab)) + 1
+    cells_all = np.column_stack([rows, cols])[order]
+    bounds = np.flatnonzero(np.diff(lab[order])) + 1
     free = grid.free
     out = []
-    for group in np.split(np.column_stack([rows, cols]), bounds):
+    for group in np.split(cells_all, bounds):
         if len(group) < min_size:
             continue
         for cells in _split(group, max_length / grid.resolution):

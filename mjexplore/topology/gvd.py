@@ -1,0 +1,346 @@
+"""An incrementally updated distance map and Generalized Voronoi Diagram (GVD).
+
+A dynamic brushfire in the manner of Lau, Sprunk and Burgard (IROS 2010, "Improved updating
+of Euclidean distance maps and Voronoi diagrams"): every cell stores its nearest obstacle
+cell and the squared distance to it; when obstacles appear, a *lower* wave spreads the new
+obstacle outward, and when they disappear, a *raise* wave clears the cells that referred to
+them, after which the surrounding cells lower into the gap. Only cells whose nearest
+obstacle can change are touched, so an update costs time in proportion to the change.
+
+What counts as an obstacle: occupied *and unknown* cells. The GVD is thus the GVD of the
+known free space: it runs midway between walls, and between walls and the boundary of the
+unexplored region, ending where the map does (this is how the paper grows its GVD "from
+the historic scanned area"). Frontier nodes are joined to it in :mod:`mjexplore.topology.ter`.
+
+Determinism. Two rules make the stored field a function of the obstacle set alone, so
+that an incremental update gives exactly what a recomputation from scratch gives:
+
+* ties between obstacles at equal distance go to the lower cell index;
+* a cell takes an obstacle only from a neighbour strictly closer to that obstacle, and a
+  cell that loses that support is raised and recomputed.
+
+Voronoi cells are then a local function of the field (Lau's ``checkVoro`` test, applied to
+every neighbour pair): cell ``c`` is on the GVD if a neighbour ``n`` has a different,
+non-adjacent nearest obstacle, ``c`` is no less stable than ``n``, ``c`` is more than
+sqrt(2) cells from its obstacle. The GVD so defined is connected wherever the free space
+is; its spurs into concave corners and off the ends of thick walls are pruned later, as
+leaf branches that end near an obstacle (:mod:`mjexplore.topology.graph`).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+INF = np.int64(1) << np.int64(40)
+_DR = np.array([-1, -1, -1, 0, 0, 1, 1, 1], np.int64)
+_DC = np.array([-1, 0, 1, -1, 1, -1, 0, 1], np.int64)
+
+
+@numba.njit(cache=True)
+def _push(keys, vals, size, key, val):
+    if size == len(keys):
+        nk = np.empty(2 * len(keys), np.int64)
+        nv = np.empty(2 * len(vals), np.int64)
+        nk[:size] = keys[:size]
+        nv[:size] = vals[:size]
+        keys, vals = nk, nv
+    i = size
+    keys[i] = key
+    vals[i] = val
+    while i > 0:
+        p = (i - 1) >> 1
+        if keys[p] <= keys[i]:
+            break
+        keys[p], keys[i] = keys[i], keys[p]
+        vals[p], vals[i] = vals[i], vals[p]
+        i = p
+    return keys, vals, size + 1
+
+
+@numba.njit(cache=True)
+def _pop(keys, vals, size):
+    key, val = keys[0], vals[0]
+    size -= 1
+    keys[0], vals[0] = keys[size], vals[size]
+    i = 0
+    while True:
+        left = 2 * i + 1
+        if left >= size:
+            break
+        child = left
+        if left + 1 < size and keys[left + 1] < keys[left]:
+            child = left + 1
+        if keys[i] <= keys[child]:
+            break
+        keys[i], keys[child] = keys[child], keys[i]
+        vals[i], vals[child] = vals[child], vals[i]
+        i = child
+    return key, val, size
+
+
+@numba.njit(cache=True)
+def _sqdist(a, b, cols):
+    dr = a // cols - b // cols
+    dc = a % cols - b % cols
+    return dr * dr + dc * dc
+
+
+@numba.njit(cache=True)
+def _supported(y, cols, rows, obst, to_raise):
+    """True if a neighbour of ``y`` holds y's obstacle and is strictly closer to it."""
+    o = obst[y]
+    dy = _sqdist(y, o, cols)
+    r, c = y // cols, y % cols
+    for k in range(8):
+        rr, cc = r + _DR[k], c + _DC[k]
+        if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
+            continue
+        z = rr * cols + cc
+        if obst[z] == o and not to_raise[z] and _sqdist(z, o, cols) < dy:
+            return True
+    return False
+
+
+@numba.njit(cache=True)
+def _update(rows, cols, occ, obst, dist2, raise_obst, to_raise, stamp, stamp_id, changed,
+            set_cells, clear_cells, keys, vals):
+    """Applies obstacle changes and runs the raise/lower waves to completion.
+
+    Returns (keys, vals, n_changed): the (possibly grown) heap arrays and the number of
+    cells whose field changed, listed in ``changed``.
+    """
+    n = rows * cols
+    size = 0
+    n_changed = 0
+    for c in set_cells:
+        if occ[c]:
+            continue
+        occ[c] = 1
+        old = obst[c]
+        obst[c] = c
+        dist2[c] = 0
+        to_raise[c] = 0
+        if stamp[c] != stamp_id:
+            stamp[c] = stamp_id
+            changed[n_changed] = c
+            n_changed += 1
+        keys, vals, size = _push(keys, vals, size, c, c)
+        if old >= 0 and old != c:
+            # Cells that took `old` through c may have lost their support.
+            r0, c0 = c // cols, c % cols
+            for k in range(8):
+                rr, cc = r0 + _DR[k], c0 + _DC[k]
+                if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
+                    continue
+                y = rr * cols + cc
+                if obst[y] == old and not occ[y] and not to_raise[y] and not _supported(
+                        y, cols, rows, obst, to_raise):
+                    raise_obst[y] = old
+                    keys, vals, size = _push(keys, vals, size, dist2[y] * n + y, y)
+                    obst[y] = -1
+                    dist2[y] = INF
+                    to_raise[y] = 1
+                    if stamp[y] != stamp_id:
+                        stamp[y] = stamp_id
+                        changed[n_changed] = y
+                        n_changed += 1
+    for c in clear_cells:
+        if not occ[c]:
+            continue
+        occ[c] = 0
+        raise_obst[c] = c
+        keys, vals, size = _push(keys, vals, size, c, c)
+        obst[c] = -1
+        dist2[c] = INF
+        to_raise[c] = 1
+        if stamp[c] != stamp_id:
+            stamp[c] = stamp_id
+            changed[n_changed] = c
+            n_changed += 1
+    while size > 0:
+        key, s, size = _pop(keys, vals, size)
+        r0, c0 = s // cols, s % cols
+        if to_raise[s]:
+            lost = raise_obst[s]
+            for k in range(8):
+                rr, cc = r0 + _DR[k], c0 + _DC[k]
+                if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
+                    continue
+                y = rr * cols + cc
+                if to_raise[y] or obst[y] < 0:
+                    continue
+                o = obst[y]
+                if (not occ[o]) or (o == lost and not occ[y] and not _supported(
+                        y, cols, rows, obst, to_raise)):
+                    raise_obst[y] = o
+                    keys, vals, size = _push(keys, vals, size, dist2[y] * n + y, y)
+                    obst[y] = -1
+                    dist2[y] = INF
+                    to_raise[y] = 1
+                    if stamp[y] != stamp_id:
+                        stamp[y] = stamp_id
+                        changed[n_changed] = y
+                        n_changed += 1
+                else:
+                    keys, vals, size = _push(keys, vals, size, dist2[y] * n + y, y)
+            to_raise[s] = 0
+            continue
+        o = obst[s]
+        if o < 0 or key != dist2[s] * n + s:
+            continue  # Cleared, or a newer entry for this cell is queued.
+        ds = dist2[s]
+        for k in range(8):
+            rr, cc = r0 + _DR[k], c0 + _DC[k]
+            if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
+                continue
+            y = rr * cols + cc
+            if to_raise[y] or occ[y]:
+                continue
+            d = _sqdist(y, o, cols)
+            if d <= ds:
+                continue  # Obstacles spread outward only.
+            old = obst[y]
+            if old < 0 or d < dist2[y] or (d == dist2[y] and o < old):
+                obst[y] = o
+                dist2[y] = d
+                if stamp[y] != stamp_id:
+                    stamp[y] = stamp_id
+                    changed[n_changed] = y
+                    n_changed += 1
+                keys, vals, size = _push(keys, vals, size, d * n + y, y)
+                if old >= 0 and old != o:
+                    yr, yc = rr, cc
+                    for j in range(8):
+                        zr, zc = yr + _DR[j], yc + _DC[j]
+                        if zr < 0 or zr >= rows or zc < 0 or zc >= cols:
+                            continue
+                        z = zr * cols + zc
+                        if obst[z] == old and not occ[z] and not to_raise[z] and not _supported(
+                                z, cols, rows, obst, to_raise):
+                            raise_obst[z] = old
+                            keys, vals, size = _push(keys, vals, size, dist2[z] * n + z, z)
+                            obst[z] = -1
+                            dist2[z] = INF
+                            to_raise[z] = 1
+                            if stamp[z] != stamp_id:
+                                stamp[z] = stamp_id
+                                changed[n_changed] = z
+                                n_changed += 1
+    return keys, vals, n_changed
+
+
+@numba.njit(cache=True)
+def _is_voro(c, rows, cols, occ, obst, dist2):
+    if occ[c] or obst[c] < 0 or dist2[c] <= 2:
+        return False
+    oc = obst[c]
+    r0, c0 = c // cols, c % cols
+    ocr, occ_ = oc // cols, oc % cols
+    for k in range(8):
+        rr, cc = r0 + _DR[k], c0 + _DC[k]
+        if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
+            continue
+        nb = rr * cols + cc
+        on = obst[nb]
+        if on < 0 or on == oc:
+            continue
+        onr, onc = on // cols, on % cols
+        if abs(onr - ocr) <= 1 and abs(onc - occ_) <= 1:
+            continue  # Neighbouring obstacle cells are one obstacle.
+        stab_c = _sqdist(c, on, cols) - dist2[c]
+        stab_n = _sqdist(nb, oc, cols) - dist2[nb]
+        if 0 <= stab_c <= stab_n:
+            return True
+    return False
+
+
+@numba.njit(cache=True)
+def _refresh_voro(cells, rows, cols, occ, obst, dist2, voro):
+    """Recomputes the GVD flag of ``cells`` and their neighbours."""
+    for c in cells:
+        r0, c0 = c // cols, c % cols
+        for k in range(-1, 8):
+            if k < 0:
+                y = c
+            else:
+                rr, cc = r0 + _DR[k], c0 + _DC[k]
+                if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
+                    continue
+                y = rr * cols + cc
+            voro[y] = _is_voro(y, rows, cols, occ, obst, dist2)
+
+
+class DynamicGVD:
+    """Distance map and GVD over a grid, updated as cells become obstacles or free.
+
+    Args:
+        shape: (rows, cols).
+
+    Attributes:
+        occupied: uint8 (rows, cols) obstacle flags (a view of the internal state).
+        distance2: int64 (rows, cols) squared distance to the nearest obstacle, in cells^2
+            (``INF`` where there is none).
+        nearest: int64 (rows, cols) flat index of the nearest obstacle (-1 for none).
+        voronoi: bool (rows, cols) GVD cells.
+    """
+
+    def __init__(self, shape: tuple[int, int]) -> None:
+        self.shape = (int(shape[0]), int(shape[1]))
+        n = self.shape[0] * self.shape[1]
+        self._occ = np.zeros(n, np.uint8)
+        self._obst = np.full(n, -1, np.int64)
+        self._dist2 = np.full(n, INF, np.int64)
+        self._raise_obst = np.full(n, -1, np.int64)
+        self._to_raise = np.zeros(n, np.uint8)
+        self._stamp = np.zeros(n, np.int64)
+        self._stamp_id = 0
+        self._changed = np.empty(n, np.int64)
+        self._voro = np.zeros(n, np.bool_)
+        self._keys = np.empty(1024, np.int64)
+        self._vals = np.empty(1024, np.int64)
+
+    @property
+    def occupied(self) -> np.ndarray:
+        return self._occ.reshape(self.shape)
+
+    @property
+    def distance2(self) -> np.ndarray:
+        return self._dist2.reshape(self.shape)
+
+    @property
+    def nearest(self) -> np.ndarray:
+        return self._obst.reshape(self.shape)
+
+    @property
+    def voronoi(self) -> np.ndarray:
+        return self._voro.reshape(self.shape)
+
+    def update(self, obstacles: np.ndarray, cells: np.ndarray | None = None) -> int:
+        """Brings the field in line with ``obstacles`` (a boolean grid).
+
+        Args:
+            obstacles: (rows, cols) bool, True where the cell is an obstacle.
+            cells: flat indices of the only cells that may have changed (e.g. from the
+                mapper); None compares the whole grid.
+
+        Returns:
+            Number of cells whose distance or nearest obstacle changed.
+        """
+        flat = np.ascontiguousarray(obstacles).reshape(-1)
+        if cells is None:
+            cells = np.flatnonzero(flat != self._occ.astype(bool))
+        cells = np.asarray(cells, np.int64)
+        want = flat[cells]
+        to_set = cells[want & (self._occ[cells] == 0)]
+        to_clear = cells[~want & (self._occ[cells] == 1)]
+        if len(to_set) == 0 and len(to_clear) == 0:
+            return 0
+        self._stamp_id += 1
+        self._keys, self._vals, n_changed = _update(
+            self.shape[0], self.shape[1], self._occ, self._obst, self._dist2,
+            self._raise_obst, self._to_raise, self._stamp, self._stamp_id, self._changed,
+            to_set, to_clear, self._keys, self._vals)
+        _refresh_voro(self._changed[:n_changed], self.shape[0], self.shape[1], self._occ,
+                      self._obst, self._dist2, self._voro)
+        return int(n_changed)

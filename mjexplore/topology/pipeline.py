@@ -1,0 +1,103 @@
+"""Keeping the topology of a growing map up to date: GVD, graph, frontiers and TER.
+
+:class:`TopologyTracker` is fed the cells the mapper reports as changed after each scan
+(cheap: the GVD is updated incrementally) and builds the TER when a decision is due.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from mjexplore.maps import FREE, GridMap
+from mjexplore.topology.frontiers import (estimated_information_gain, find_frontiers,
+                                          information_gain)
+from mjexplore.topology.graph import GraphConfig, GvdGraph, build_graph
+from mjexplore.topology.gvd import DynamicGVD
+from mjexplore.topology.ter import Ter, TerConfig, build_ter
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class TopologyConfig:
+    """Settings of the topology layer.
+
+    Attributes:
+        graph: GVD graph extraction (max side length, pruning).
+        ter: TER assembly and padding.
+        frontier_min_size: Frontier clusters with fewer cells are ignored.
+        frontier_max_length: Longer frontiers are split, metres.
+        gain: 'estimated' (from the partial map, deployable) or 'ground_truth' (the
+            paper's definition; needs the ground truth) for the TER's G_info.
+        gain_radius: Window half-side of the estimated gain, metres.
+    """
+
+    graph: GraphConfig = dataclasses.field(default_factory=GraphConfig)
+    ter: TerConfig = dataclasses.field(default_factory=TerConfig)
+    frontier_min_size: int = 3
+    frontier_max_length: float = 2.0
+    gain: str = "estimated"
+    gain_radius: float = 2.0
+
+    def __post_init__(self) -> None:
+        if self.gain not in ("estimated", "ground_truth"):
+            raise ValueError(f"gain must be 'estimated' or 'ground_truth', not {self.gain!r}")
+
+
+class TopologyTracker:
+    """The GVD of a map kept current, and TERs built from it on demand.
+
+    Args:
+        shape: (rows, cols) of the map.
+        config: Topology settings.
+        ground_truth: Needed when ``config.gain == 'ground_truth'``.
+    """
+
+    def __init__(self, shape: tuple[int, int], config: TopologyConfig | None = None,
+                 ground_truth: GridMap | None = None) -> None:
+        self.config = config or TopologyConfig()
+        if self.config.gain == "ground_truth" and ground_truth is None:
+            raise ValueError("ground-truth information gain needs the ground truth map")
+        self.ground_truth = ground_truth
+        self.gvd = DynamicGVD(shape)
+        self.gvd.update(np.ones(shape, bool))  # Everything is unknown: an obstacle.
+
+    def observe(self, grid: GridMap, changed: np.ndarray | None = None) -> int:
+        """Updates the GVD after the map changed.
+
+        Args:
+            grid: The map (occupied and unknown cells are obstacles of the GVD).
+            changed: (k, 2) (row, col) cells that changed, as the mapper reports them;
+                None compares the whole map.
+
+        Returns:
+            Number of cells whose distance field changed.
+        """
+        cells = None
+        if changed is not None:
+            cells = changed[:, 0] * grid.shape[1] + changed[:, 1]
+        return self.gvd.update(grid.data != FREE, cells)
+
+    def graph(self, grid: GridMap, free: np.ndarray | None = None) -> GvdGraph:
+        """The GVD graph; ``free`` is ``grid.free`` if already computed."""
+        return build_graph(self.gvd.voronoi, self.gvd.distance2,
+                           grid.free if free is None else free, grid.resolution,
+                           self.config.graph)
+
+    def ter(self, grid: GridMap, robot_pose: np.ndarray) -> tuple[Ter, list, np.ndarray]:
+        """Builds the TER for a decision.
+
+        Returns:
+            (ter, frontiers, gains): the TER, the frontiers found and their information
+            gain (as configured).
+        """
+        cfg = self.config
+        frontiers = find_frontiers(grid, cfg.frontier_min_size, cfg.frontier_max_length)
+        if cfg.gain == "ground_truth":
+            gains = information_gain(grid, self.ground_truth, frontiers)
+        else:
+            gains = estimated_information_gain(grid, frontiers, cfg.gain_radius)
+        free = grid.free
+        ter = build_ter(self.graph(grid, free), grid, frontiers, gains, robot_pose, cfg.ter,
+                        free)
+        return ter, frontiers, gains
