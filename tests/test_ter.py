@@ -1,0 +1,120 @@
+import math
+
+import numpy as np
+import pytest
+
+from mjexplore.mapping.occupancy import OccupancyMapper
+from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
+from mjexplore.navigation.wander import WanderController
+from mjexplore.scenes.canonical import resolve_scene
+from mjexplore.sim.simulator import Simulator
+from mjexplore.topology.graph import segment_is_free
+from mjexplore.topology.pipeline import TopologyConfig, TopologyTracker
+from mjexplore.topology.ter import FRONTIER_FLAG, OTHER_FLAG, ROBOT_FLAG, TerConfig
+
+
+@pytest.fixture(scope="module")
+def explored_office():
+    """The office after 60 s of wandering: mapper, tracker and the final pose."""
+    sim = Simulator(resolve_scene("office"))
+    mapper = OccupancyMapper.like(sim.scene.ground_truth)
+    tracker = TopologyTracker(mapper.state.shape)
+    tracker.observe(mapper.grid, mapper.integrate(sim.latest_scan))
+    controller = WanderController(rng=np.random.default_rng(0))
+    for _ in range(600):
+        sim.command(*controller(sim.latest_scan, sim.pose))
+        for scan in sim.step(0.1):
+            tracker.observe(mapper.grid, mapper.integrate(scan))
+    return mapper, tracker, sim.pose
+
+
+def test_every_ter_edge_is_collision_free_on_the_known_map(explored_office):
+    mapper, tracker, pose = explored_office
+    grid = mapper.grid
+    ter, frontiers, gains = tracker.ter(grid, pose)
+    assert len(frontiers) > 0 and len(ter.edges) > 10
+    free = grid.free
+    for a, b in ter.edges:
+        ca = (ter.positions[a] - grid.origin[:2]) / grid.resolution - 0.5
+        cb = (ter.positions[b] - grid.origin[:2]) / grid.resolution - 0.5
+        assert segment_is_free(free, ca[::-1], cb[::-1])
+    assert np.allclose(ter.lengths, np.linalg.norm(
+        ter.positions[ter.edges[:, 0]] - ter.positions[ter.edges[:, 1]], axis=1))
+    # GVD sides respect the maximum side length (frontier/robot links may be longer).
+    gvd_edges = (ter.flags[ter.edges] == OTHER_FLAG).all(axis=1)
+    assert ter.lengths[gvd_edges].max() <= 2.0 + 1e-6
+
+
+def test_ter_is_connected_and_has_one_robot(explored_office):
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    mapper, tracker, pose = explored_office
+    ter, _, _ = tracker.ter(mapper.grid, pose)
+    n = len(ter.positions)
+    adjacency = coo_matrix((np.ones(len(ter.edges)), tuple(ter.edges.T)), shape=(n, n))
+    _, labels = connected_components(adjacency, directed=False)
+    assert (ter.flags == ROBOT_FLAG).sum() == 1
+    # Every frontier node reaches the robot through the graph.
+    assert (labels[ter.flags == FRONTIER_FLAG] == labels[ter.robot]).all()
+
+
+def test_node_features(explored_office):
+    mapper, tracker, pose = explored_office
+    ter, frontiers, gains = tracker.ter(mapper.grid, pose)
+    f = ter.features
+    assert f.shape == (len(ter.positions), 6)
+    rel = ter.positions - pose[:2]
+    assert np.allclose(f[:, 4], np.hypot(rel[:, 0], rel[:, 1]))  # D
+    # (px, py) is the position in the robot frame: rotating back gives the map offset.
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    back = np.column_stack([c * f[:, 0] - s * f[:, 1], s * f[:, 0] + c * f[:, 1]])
+    assert np.allclose(back, rel)
+    assert np.allclose(f[:, 3], np.arctan2(f[:, 1], f[:, 0]))  # phi_diff
+    assert set(np.unique(f[:, 5])) <= {ROBOT_FLAG, FRONTIER_FLAG, OTHER_FLAG}
+    fnodes = ter.flags == FRONTIER_FLAG
+    assert np.allclose(f[fnodes, 2], gains[ter.frontier_index[fnodes]])
+    # Other nodes: discounted gain, never above the best frontier's, zero beyond D_gain.
+    others = ~fnodes
+    assert (f[others, 2] <= gains.max() + 1e-12).all()
+    far = np.array([np.linalg.norm(ter.positions[fnodes] - p, axis=1).min() >= 5.0
+                    for p in ter.positions[others]])
+    assert (f[others, 2][far] == 0).all()
+
+
+def test_padded_arrays(explored_office):
+    mapper, tracker, pose = explored_office
+    ter, _, _ = tracker.ter(mapper.grid, pose)
+    cfg = TerConfig(max_nodes=64, max_neighbours=4)
+    p = ter.padded(cfg)
+    n = min(len(ter.positions), 64)
+    assert p.node_features.shape == (64, 6) and p.node_features.dtype == np.float32
+    assert p.node_mask.sum() == n
+    assert p.action_mask.sum() == (ter.flags == FRONTIER_FLAG).sum()
+    assert not p.action_mask[p.node_mask == 0].any()
+    assert np.isfinite(p.node_features).all() and np.isfinite(p.edge_lengths).all()
+    # Neighbour slots are symmetric where both ends were kept.
+    for u in range(64):
+        for k in np.flatnonzero(p.neighbour_mask[u]):
+            v = p.neighbours[u, k]
+            assert p.node_mask[v] == 1
+            assert u in p.neighbours[v][p.neighbour_mask[v] == 1] or p.neighbour_mask[v].sum() == 4
+    # Truncation keeps the robot and the frontiers first.
+    small = ter.padded(TerConfig(max_nodes=10, max_neighbours=4))
+    kept_flags = small.node_features[small.node_mask == 1, 5]
+    assert (kept_flags == ROBOT_FLAG).sum() == 1
+
+
+def test_tracker_with_ground_truth_gain(box_room):
+    folder, _ = box_room
+    sim = Simulator(folder)
+    gt = sim.scene.ground_truth
+    mapper = OccupancyMapper.like(gt)
+    tracker = TopologyTracker(mapper.state.shape, TopologyConfig(gain="ground_truth"), gt)
+    scan = sim.reset((1.0, 2.2, 0.0))
+    tracker.observe(mapper.grid, mapper.integrate(scan))
+    ter, frontiers, gains = tracker.ter(mapper.grid, sim.pose)
+    assert len(frontiers) == 0 or (gains >= 0).all()
+    assert (ter.flags == ROBOT_FLAG).sum() == 1
+    with pytest.raises(ValueError):
+        TopologyTracker((5, 5), TopologyConfig(gain="ground_truth"))
