@@ -7,10 +7,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import settings
 
 from mjexplore.maps import FREE, OCCUPIED, GridMap
 from mjexplore.scenes.importer import scene_from_grid
 from mjexplore.scenes.scene import write_scene
+
+# CI runs the same examples every time (no flaky reds); local runs explore new ones.
+settings.register_profile("ci", derandomize=True, deadline=None)
+if os.environ.get("CI"):
+    settings.load_profile("ci")
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("MJEXPLORE_SHARED", REPO.parent / "shared"))

@@ -99,7 +99,12 @@ def reachable_region(free: np.ndarray, resolution: float, seed_cell: tuple[int, 
             return np.zeros_like(free), np.zeros_like(free)
     cspace = labels == label
     tolerance = robot_radius * math.sqrt(2) + 2 * resolution
-    reach = free & (ndimage.distance_transform_edt(~cspace) * resolution <= tolerance)
+    near = ndimage.distance_transform_edt(~cspace) * resolution <= tolerance
+    # Distances ignore walls: keep only the free region (4-connected) around the C-space,
+    # so that free space behind a thin wall does not count as reached.
+    regions, _ = ndimage.label(free)
+    own = np.unique(regions[cspace])
+    reach = free & near & np.isin(regions, own[own > 0])
     return cspace, reach
 
 
