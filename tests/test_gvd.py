@@ -121,3 +121,29 @@ def test_t_junction_gives_one_branch_point():
     assert (deg == 3).sum() == 1 and (deg == 1).sum() == 3
     junction = graph.positions[deg == 3][0]
     assert abs(junction[1] - 99.5) < 3 and junction[0] < 35
+
+
+@settings(max_examples=100, deadline=None)
+@given(steps=st.lists(st.tuples(changes, changes), min_size=1, max_size=4),
+       seed=st.integers(0, 2**32 - 1))
+def test_incremental_update_with_a_domain_equals_recomputation(steps, seed):
+    """Obstacles and the known region (the field's domain) both change, as in exploration."""
+    rng = np.random.default_rng(seed)
+    obst = rng.random((24, 32)) < 0.05
+    domain = np.zeros((24, 32), bool)
+    domain[8:16, 10:20] = True
+    gvd = DynamicGVD(obst.shape)
+    gvd.update(obst, domain)
+    for obstacle_batch, domain_batch in steps:
+        for r, c, h, w, value in obstacle_batch:
+            obst[r:r + h, c:c + w] = value
+        for r, c, h, w, value in domain_batch:
+            domain[r:r + h, c:c + w] = value
+        gvd.update(obst, domain)
+        fresh = DynamicGVD(obst.shape)
+        fresh.update(obst, domain)
+        assert np.array_equal(gvd.distance2, fresh.distance2)
+        assert np.array_equal(gvd.nearest, fresh.nearest)
+        assert np.array_equal(gvd.voronoi, fresh.voronoi)
+        outside = ~(domain | obst)
+        assert (gvd.nearest[outside] == -1).all()

@@ -2,7 +2,7 @@
 
 A frontier cell is an unknown cell with a free 4-neighbour (Yamauchi 1997). Frontier
 cells are grouped into 8-connected clusters; clusters longer than ``max_length`` are cut
-into pieces along their main axis, so that each frontier stands for one place to go.
+into pieces along their longer axis, so that each frontier stands for one place to go.
 
 Information gain comes in two flavours:
 
@@ -62,14 +62,11 @@ def frontier_mask(grid: GridMap) -> np.ndarray:
 
 
 def _split(cells: np.ndarray, max_cells: float) -> list[np.ndarray]:
-    """Cuts a cluster into ceil(extent / max_cells) runs along its principal axis."""
-    extent = np.ptp(cells, axis=0).max() + 1
-    pieces = int(np.ceil(extent / max_cells))
-    if pieces <= 1:
-        return [cells]
-    centred = cells - cells.mean(axis=0)
-    _, _, vt = np.linalg.svd(centred.astype(float), full_matrices=False)
-    order = np.argsort(centred @ vt[0], kind="stable")
+    """Cuts a cluster into ceil(extent / max_cells) runs along its longer grid axis."""
+    extent = np.ptp(cells, axis=0)
+    axis = int(np.argmax(extent))
+    pieces = int(np.ceil((extent[axis] + 1) / max_cells))
+    order = np.argsort(cells[:, axis], kind="stable")
     return [cells[idx] for idx in np.array_split(order, pieces)]
 
 
@@ -85,32 +82,51 @@ def find_frontiers(grid: GridMap, min_size: int = 3, max_length: float = 2.0) ->
     flat = np.flatnonzero(mask.reshape(-1))  # Much faster than 2D nonzero on bool.
     if len(flat) == 0:
         return []
-    rows, cols = np.divmod(flat, mask.shape[1])
     _, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
-    lab = labels[rows, cols]
+    lab = labels.reshape(-1)[flat]
     order = np.argsort(lab, kind="stable")
-    cells_all = np.column_stack([rows, cols])[order]
-    bounds = np.flatnonzero(np.diff(lab[order])) + 1
-    free = grid.free
-    out = []
-    for group in np.split(cells_all, bounds):
-        if len(group) < min_size:
+    lab = lab[order]
+    cells = np.column_stack(np.divmod(flat[order], mask.shape[1]))
+    starts = np.flatnonzero(np.r_[True, lab[1:] != lab[:-1]])
+    sizes = np.diff(np.r_[starts, len(lab)])
+    extent = np.maximum(np.maximum.reduceat(cells, starts) - np.minimum.reduceat(cells, starts),
+                        0).max(axis=1) + 1
+    max_cells = max_length / grid.resolution
+    groups: list[np.ndarray] = []
+    for start, size, ext in zip(starts, sizes, extent):
+        if size < min_size:
             continue
-        for cells in _split(group, max_length / grid.resolution):
-            centre = grid.cell_to_world(cells.mean(axis=0))
-            nearest = cells[np.argmin(((cells - cells.mean(axis=0)) ** 2).sum(axis=1))]
-            goal_cell = _free_neighbour(free, nearest)
-            out.append(Frontier(cells, centre, goal_cell, grid.cell_to_world(np.array(goal_cell))))
-    return out
+        group = cells[start:start + size]
+        groups.extend(_split(group, max_cells) if ext > max_cells else [group])
+    if not groups:
+        return []
+    # Per-group centre, the cell nearest to it, and that cell's free 4-neighbour: at once.
+    gid = np.repeat(np.arange(len(groups)), [len(g) for g in groups])
+    allc = np.concatenate(groups)
+    counts = np.bincount(gid).astype(float)
+    means = np.column_stack([np.bincount(gid, allc[:, 0]), np.bincount(gid, allc[:, 1])])
+    means /= counts[:, None]
+    d2 = ((allc - means[gid]) ** 2).sum(axis=1)
+    first = np.lexsort((d2, gid))
+    nearest = allc[first[np.r_[0, np.flatnonzero(np.diff(gid[first])) + 1]]]
+    goal_cells = _free_neighbours(grid.free, nearest)
+    centres = grid.cell_to_world(means)
+    goals = grid.cell_to_world(goal_cells)
+    return [Frontier(group, centres[i], (int(goal_cells[i, 0]), int(goal_cells[i, 1])),
+                     goals[i]) for i, group in enumerate(groups)]
 
 
-def _free_neighbour(free: np.ndarray, cell: np.ndarray) -> tuple[int, int]:
-    r, c = int(cell[0]), int(cell[1])
-    for dr, dc in ((0, 1), (1, 0), (0, -1), (-1, 0)):
-        rr, cc = r + dr, c + dc
-        if 0 <= rr < free.shape[0] and 0 <= cc < free.shape[1] and free[rr, cc]:
-            return rr, cc
-    raise AssertionError("a frontier cell always has a free 4-neighbour")
+def _free_neighbours(free: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """For each (row, col), its first free 4-neighbour (east, north, west, south)."""
+    rows, cols = free.shape
+    steps = np.array([(0, 1), (1, 0), (0, -1), (-1, 0)])
+    cand = cells[:, None, :] + steps[None]
+    inside = (cand[..., 0] >= 0) & (cand[..., 0] < rows) & (cand[..., 1] >= 0) & (
+        cand[..., 1] < cols)
+    ok = np.zeros(inside.shape, bool)
+    ok[inside] = free[cand[inside][:, 0], cand[inside][:, 1]]
+    assert ok.any(axis=1).all(), "a frontier cell always has a free 4-neighbour"
+    return cand[np.arange(len(cells)), ok.argmax(axis=1)]
 
 
 def information_gain(grid: GridMap, ground_truth: GridMap,
@@ -153,7 +169,7 @@ def estimated_information_gain(grid: GridMap, frontiers: list[Frontier],
     integral = cv2.integral(unknown, sdepth=cv2.CV_32S)  # (rows + 1, cols + 1)
     k = max(1, int(round(radius / grid.resolution)))
     rows, cols = unknown.shape
-    centres = np.array([grid.world_to_cell(f.centre) for f in frontiers])
+    centres = grid.world_to_cell(np.array([f.centre for f in frontiers]))
     r0 = np.clip(centres[:, 0] - k, 0, rows)
     r1 = np.clip(centres[:, 0] + k + 1, 0, rows)
     c0 = np.clip(centres[:, 1] - k, 0, cols)

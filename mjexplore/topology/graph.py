@@ -366,42 +366,78 @@ def _prune(n_v, ea, eb, elen, vclear, min_clear, min_length):
     return alive
 
 
+@numba.njit(cache=True)
+def _subdivide_edges(pos, clear, ea, eb, ptr, path, alive, dist2, free, cols, max_side):
+    """Cuts every alive edge's path into straight, free sides no longer than ``max_side``.
+
+    Returns (positions, clearance, edges): vertices (the given ones, then new ones placed
+    on path cells) and the (a, b) vertex pairs of the sides.
+    """
+    n_v = len(pos)
+    cap = n_v + len(path) + 1
+    out_pos = np.empty((cap, 2))
+    out_clear = np.empty(cap)
+    out_pos[:n_v] = pos
+    out_clear[:n_v] = clear
+    n_out = n_v
+    edges = np.empty((2 * len(path) + len(ea) + 1, 2), np.int64)
+    n_edges = 0
+    stack = np.empty((len(path) + 2, 4), np.int64)  # (first, last) path index, (va, vb)
+    for e in range(len(ea)):
+        if not alive[e] or ea[e] == eb[e] and ptr[e + 1] - ptr[e] <= 2:
+            continue
+        cells = path[ptr[e]:ptr[e + 1]]
+        m = len(cells)
+        along = np.zeros(m)
+        for i in range(1, m):
+            along[i] = along[i - 1] + _step_len(cells[i - 1], cells[i], cols)
+        top = 0
+        stack[0, 0], stack[0, 1], stack[0, 2], stack[0, 3] = 0, m - 1, ea[e], eb[e]
+        while top >= 0:
+            i0, i1, va, vb = stack[top, 0], stack[top, 1], stack[top, 2], stack[top, 3]
+            top -= 1
+            pa, pb = out_pos[va], out_pos[vb]
+            span = math.hypot(pb[0] - pa[0], pb[1] - pa[1])
+            if i1 - i0 <= 1 or (span <= max_side and va != vb and
+                                _segment_free(free, pa[0], pa[1], pb[0], pb[1])):
+                if va != vb:
+                    edges[n_edges, 0] = min(va, vb)
+                    edges[n_edges, 1] = max(va, vb)
+                    n_edges += 1
+                continue
+            length = along[i1] - along[i0]
+            pieces = max(2, int(math.ceil(length / max_side)))
+            prev_i, prev_v = i0, va
+            for k in range(1, pieces + 1):
+                if k < pieces:
+                    target = along[i0] + length * k / pieces
+                    cut = i0 + 1
+                    while cut < i1 - 1 and along[cut] < target:
+                        cut += 1
+                    if cut <= prev_i:
+                        continue
+                    c = cells[cut]
+                    out_pos[n_out, 0] = c // cols
+                    out_pos[n_out, 1] = c % cols
+                    out_clear[n_out] = math.sqrt(dist2[c])
+                    v = n_out
+                    n_out += 1
+                else:
+                    cut, v = i1, vb
+                top += 1
+                stack[top, 0], stack[top, 1], stack[top, 2], stack[top, 3] = prev_i, cut, prev_v, v
+                prev_i, prev_v = cut, v
+    return out_pos[:n_out], out_clear[:n_out], edges[:n_edges]
+
+
 def _subdivide(pos, vclear, ea, eb, ptr, path, alive, dist2, free, cols, max_side):
-    positions = [p for p in pos]
-    clearance = list(vclear)
-    used = np.zeros(len(pos), bool)
-    edges: list[tuple[int, int]] = []
-
-    def add_vertex(cell: int) -> int:
-        positions.append(np.array([cell // cols, cell % cols], float))
-        clearance.append(math.sqrt(dist2[cell]))
-        return len(positions) - 1
-
-    def split(cells: np.ndarray, a: int, b: int) -> None:
-        """Connects vertices a and b along path ``cells`` with free sides <= max_side."""
-        pa, pb = positions[a], positions[b]
-        if len(cells) <= 2 or (np.linalg.norm(pb - pa) <= max_side and
-                               segment_is_free(free, pa, pb)):
-            edges.append((min(a, b), max(a, b)))
-            return
-        steps = np.hypot(np.diff(cells // cols), np.diff(cells % cols))
-        along = np.concatenate([[0.0], np.cumsum(steps)])
-        pieces = max(2, int(np.ceil(along[-1] / max_side)))
-        cuts = [int(np.searchsorted(along, along[-1] * k / pieces)) for k in range(1, pieces)]
-        cuts = sorted({min(max(c, 1), len(cells) - 2) for c in cuts})
-        ids = [a] + [add_vertex(int(cells[c])) for c in cuts] + [b]
-        bounds = [0] + cuts + [len(cells) - 1]
-        for k in range(len(ids) - 1):
-            split(cells[bounds[k]:bounds[k + 1] + 1], ids[k], ids[k + 1])
-
-    for e in np.flatnonzero(alive):
-        used[ea[e]] = used[eb[e]] = True
-        split(path[ptr[e]:ptr[e + 1]], int(ea[e]), int(eb[e]))
-    keep = np.concatenate([used, np.ones(len(positions) - len(pos), bool)])
-    remap = np.cumsum(keep) - 1
-    edges_arr = np.array(sorted({(int(remap[a]), int(remap[b])) for a, b in edges if a != b}),
-                         np.int64).reshape(-1, 2)
-    positions_arr = np.array(positions).reshape(-1, 2)[keep]
-    lengths = np.linalg.norm(positions_arr[edges_arr[:, 0]] - positions_arr[edges_arr[:, 1]],
-                             axis=1) if len(edges_arr) else np.zeros(0)
-    return GvdGraph(positions_arr, edges_arr, lengths, np.array(clearance)[keep])
+    positions, clearance, edges = _subdivide_edges(pos, vclear, ea, eb, ptr, path, alive,
+                                                   dist2, free, cols, float(max_side))
+    edges = np.unique(edges, axis=0) if len(edges) else edges.reshape(0, 2)
+    used = np.zeros(len(positions), bool)
+    used[edges.ravel()] = True
+    remap = np.cumsum(used) - 1
+    edges = remap[edges]
+    positions = positions[used]
+    lengths = np.linalg.norm(positions[edges[:, 0]] - positions[edges[:, 1]], axis=1)
+    return GvdGraph(positions, edges, lengths, clearance[used])

@@ -12,8 +12,14 @@ known free space: it runs midway between walls, and between walls and the bounda
 unexplored region, ending where the map does (this is how the paper grows its GVD "from
 the historic scanned area"). Frontier nodes are joined to it in :mod:`mjexplore.topology.ter`.
 
-Determinism. Two rules make the stored field a function of the obstacle set alone, so
-that an incremental update gives exactly what a recomputation from scratch gives:
+Domain. The field can be limited to a set of cells (the known part of a map): obstacles
+spread only through chains of domain cells, and cells outside keep no value. Cells enter
+(their neighbours spread into them) and leave (raised, with whatever depended on them)
+incrementally like obstacles do.
+
+Determinism. Two rules make the stored field a function of the obstacle set and domain
+alone, so that an incremental update gives exactly what a recomputation from scratch
+gives:
 
 * ties between obstacles at equal distance go to the lower cell index;
 * a cell takes an obstacle only from a neighbour strictly closer to that obstacle, and a
@@ -103,9 +109,9 @@ def _supported(y, cols, rows, obst, to_raise):
 
 
 @numba.njit(cache=True)
-def _update(rows, cols, occ, obst, dist2, raise_obst, to_raise, stamp, stamp_id, changed,
-            set_cells, clear_cells, keys, vals):
-    """Applies obstacle changes and runs the raise/lower waves to completion.
+def _update(rows, cols, occ, domain, obst, dist2, raise_obst, to_raise, stamp, stamp_id,
+            changed, set_cells, clear_cells, enter_cells, leave_cells, keys, vals):
+    """Applies obstacle and domain changes and runs the raise/lower waves to completion.
 
     Returns (keys, vals, n_changed): the (possibly grown) heap arrays and the number of
     cells whose field changed, listed in ``changed``.
@@ -117,6 +123,7 @@ def _update(rows, cols, occ, obst, dist2, raise_obst, to_raise, stamp, stamp_id,
         if occ[c]:
             continue
         occ[c] = 1
+        domain[c] = 1
         old = obst[c]
         obst[c] = c
         dist2[c] = 0
@@ -145,6 +152,28 @@ def _update(rows, cols, occ, obst, dist2, raise_obst, to_raise, stamp, stamp_id,
                         stamp[y] = stamp_id
                         changed[n_changed] = y
                         n_changed += 1
+    for c in leave_cells:
+        domain[c] = 0
+        if obst[c] >= 0 and not occ[c]:
+            raise_obst[c] = obst[c]
+            keys, vals, size = _push(keys, vals, size, dist2[c] * n + c, c)
+            obst[c] = -1
+            dist2[c] = INF
+            to_raise[c] = 1
+            if stamp[c] != stamp_id:
+                stamp[c] = stamp_id
+                changed[n_changed] = c
+                n_changed += 1
+    for c in enter_cells:
+        domain[c] = 1
+        r0, c0 = c // cols, c % cols
+        for k in range(8):  # Neighbours with a value spread it into the new cell.
+            rr, cc = r0 + _DR[k], c0 + _DC[k]
+            if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
+                continue
+            y = rr * cols + cc
+            if domain[y] and obst[y] >= 0 and not to_raise[y]:
+                keys, vals, size = _push(keys, vals, size, dist2[y] * n + y, y)
     for c in clear_cells:
         if not occ[c]:
             continue
@@ -168,7 +197,7 @@ def _update(rows, cols, occ, obst, dist2, raise_obst, to_raise, stamp, stamp_id,
                 if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
                     continue
                 y = rr * cols + cc
-                if to_raise[y] or obst[y] < 0:
+                if to_raise[y] or obst[y] < 0 or not domain[y]:
                     continue
                 o = obst[y]
                 if (not occ[o]) or (o == lost and not occ[y] and not _supported(
@@ -195,7 +224,7 @@ def _update(rows, cols, occ, obst, dist2, raise_obst, to_raise, stamp, stamp_id,
             if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
                 continue
             y = rr * cols + cc
-            if to_raise[y] or occ[y]:
+            if to_raise[y] or occ[y] or not domain[y]:
                 continue
             d = _sqdist(y, o, cols)
             if d <= ds:
@@ -289,6 +318,7 @@ class DynamicGVD:
         self.shape = (int(shape[0]), int(shape[1]))
         n = self.shape[0] * self.shape[1]
         self._occ = np.zeros(n, np.uint8)
+        self._domain = np.zeros(n, np.uint8)
         self._obst = np.full(n, -1, np.int64)
         self._dist2 = np.full(n, INF, np.int64)
         self._raise_obst = np.full(n, -1, np.int64)
@@ -316,31 +346,42 @@ class DynamicGVD:
     def voronoi(self) -> np.ndarray:
         return self._voro.reshape(self.shape)
 
-    def update(self, obstacles: np.ndarray, cells: np.ndarray | None = None) -> int:
-        """Brings the field in line with ``obstacles`` (a boolean grid).
+    def update(self, obstacles: np.ndarray, domain: np.ndarray | None = None,
+               cells: np.ndarray | None = None) -> int:
+        """Brings the field in line with ``obstacles`` within ``domain``.
 
         Args:
             obstacles: (rows, cols) bool, True where the cell is an obstacle.
+            domain: (rows, cols) bool, the cells the field covers (obstacles always do);
+                obstacles reach a cell only through chains of domain cells. None: all.
             cells: flat indices of the only cells that may have changed (e.g. from the
                 mapper); None compares the whole grid.
 
         Returns:
             Number of cells whose distance or nearest obstacle changed.
         """
-        flat = np.ascontiguousarray(obstacles).reshape(-1)
+        obst_flat = np.ascontiguousarray(obstacles).reshape(-1)
+        dom_flat = (np.ones_like(obst_flat) if domain is None else
+                    np.ascontiguousarray(domain).reshape(-1) | obst_flat)
         if cells is None:
-            cells = np.flatnonzero(flat != self._occ.astype(bool))
+            cells = np.flatnonzero((obst_flat != self._occ.astype(bool)) |
+                                   (dom_flat != self._domain.astype(bool)))
         cells = np.asarray(cells, np.int64)
-        want = flat[cells]
-        to_set = cells[want & (self._occ[cells] == 0)]
-        to_clear = cells[~want & (self._occ[cells] == 1)]
-        if len(to_set) == 0 and len(to_clear) == 0:
+        want_obst = obst_flat[cells]
+        want_dom = dom_flat[cells]
+        occ = self._occ[cells] == 1
+        dom = self._domain[cells] == 1
+        to_set = cells[want_obst & ~occ]
+        to_clear = cells[~want_obst & occ]
+        enter = cells[want_dom & ~dom & ~want_obst]
+        leave = cells[~want_dom & dom]
+        if not (len(to_set) or len(to_clear) or len(enter) or len(leave)):
             return 0
         self._stamp_id += 1
         self._keys, self._vals, n_changed = _update(
-            self.shape[0], self.shape[1], self._occ, self._obst, self._dist2,
+            self.shape[0], self.shape[1], self._occ, self._domain, self._obst, self._dist2,
             self._raise_obst, self._to_raise, self._stamp, self._stamp_id, self._changed,
-            to_set, to_clear, self._keys, self._vals)
+            to_set, to_clear, enter, leave, self._keys, self._vals)
         _refresh_voro(self._changed[:n_changed], self.shape[0], self.shape[1], self._occ,
                       self._obst, self._dist2, self._voro)
         return int(n_changed)

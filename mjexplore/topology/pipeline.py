@@ -2,6 +2,15 @@
 
 :class:`TopologyTracker` is fed the cells the mapper reports as changed after each scan
 (cheap: the GVD is updated incrementally) and builds the TER when a decision is due.
+
+Unknown space. The GVD's obstacles are the *occupied* cells only, and its distance field
+covers the known cells only (obstacles spread through known space; unknown space is
+neither obstacle nor part of the field), so the diagram is the GVD of the known free space
+between known walls. Treating unknown cells as obstacles instead would bend the diagram
+around the ragged arc where each scan's reach ends (a comb of false lines between
+neighbouring arc cells) and would raise the field around every cell a scan clears; here
+the diagram's lines run on to the edge of the explored region, where frontier nodes join
+them. This is the GVD "of the historic scanned area" the paper builds its TER on.
 """
 
 from __future__ import annotations
@@ -10,7 +19,7 @@ import dataclasses
 
 import numpy as np
 
-from mjexplore.maps import FREE, GridMap
+from mjexplore.maps import GridMap
 from mjexplore.topology.frontiers import (estimated_information_gain, find_frontiers,
                                           information_gain)
 from mjexplore.topology.graph import GraphConfig, GvdGraph, build_graph
@@ -60,13 +69,12 @@ class TopologyTracker:
             raise ValueError("ground-truth information gain needs the ground truth map")
         self.ground_truth = ground_truth
         self.gvd = DynamicGVD(shape)
-        self.gvd.update(np.ones(shape, bool))  # Everything is unknown: an obstacle.
 
     def observe(self, grid: GridMap, changed: np.ndarray | None = None) -> int:
         """Updates the GVD after the map changed.
 
         Args:
-            grid: The map (occupied and unknown cells are obstacles of the GVD).
+            grid: The map (its occupied cells are the GVD's obstacles).
             changed: (k, 2) (row, col) cells that changed, as the mapper reports them;
                 None compares the whole map.
 
@@ -76,12 +84,12 @@ class TopologyTracker:
         cells = None
         if changed is not None:
             cells = changed[:, 0] * grid.shape[1] + changed[:, 1]
-        return self.gvd.update(grid.data != FREE, cells)
+        return self.gvd.update(grid.occupied, grid.known, cells)
 
     def graph(self, grid: GridMap, free: np.ndarray | None = None) -> GvdGraph:
         """The GVD graph; ``free`` is ``grid.free`` if already computed."""
-        return build_graph(self.gvd.voronoi, self.gvd.distance2,
-                           grid.free if free is None else free, grid.resolution,
+        free = grid.free if free is None else free
+        return build_graph(self.gvd.voronoi & free, self.gvd.distance2, free, grid.resolution,
                            self.config.graph)
 
     def ter(self, grid: GridMap, robot_pose: np.ndarray) -> tuple[Ter, list, np.ndarray]:

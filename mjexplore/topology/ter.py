@@ -1,11 +1,13 @@
 """The topological environment representation (TER) of the paper, built on the GVD.
 
 Nodes: the GVD graph's vertices, one node per frontier (at the frontier's goal cell) and
-the robot node. Frontier and robot nodes are joined to the graph by the shortest straight
-segment over known free cells to a GVD vertex (the nearest one that can be reached in a
-straight line); a frontier no vertex can see is joined to the robot node if the robot
-sees it, and left out otherwise (no path to it is known). Every edge is a straight,
-collision-free segment on the known map; its feature is its Euclidean length.
+the robot node. The robot and the frontiers are joined to the graph by the shortest
+straight segment over known free cells to a GVD vertex (the nearest one that can be
+reached in a straight line). Only the GVD component the robot joins is kept (pieces of the
+diagram cut off from it are out of reach); a frontier no kept vertex can see is joined to
+the robot node if the robot sees it, and left out otherwise (no path to it is known).
+Every edge is a straight, collision-free segment on the known map; its feature is its
+Euclidean length.
 
 Node features S = [px, py, G_info, phi_diff, D, flag] (paper Eq. 7):
     px, py: the node's position *relative to the robot*, in the robot's frame (x forward,
@@ -29,6 +31,8 @@ import dataclasses
 import math
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from mjexplore.maps import GridMap
 from mjexplore.topology.frontiers import Frontier
@@ -171,19 +175,25 @@ def build_ter(graph: GvdGraph, grid: GridMap, frontiers: list[Frontier], gains: 
     """
     config = config or TerConfig()
     free = grid.free if free is None else free
-    gvd_xy = grid.cell_to_world(graph.positions) if len(graph.positions) else np.zeros((0, 2))
-    n_gvd = len(gvd_xy)
-    positions = [gvd_xy]
-    flags = [np.full(n_gvd, OTHER_FLAG)]
-    edges = [graph.edges]
-    robot = n_gvd
     robot_xy = np.asarray(robot_pose[:2], float)
-    positions.append(robot_xy[None])
-    flags.append(np.array([ROBOT_FLAG]))
-    new_edges = []
-    j = _link(free, grid, robot_xy, gvd_xy, config.max_link_candidates)
-    if j >= 0:
-        new_edges.append((j, robot))
+    gvd_xy = grid.cell_to_world(graph.positions) if len(graph.positions) else np.zeros((0, 2))
+    # Keep the GVD component the robot joins; other pieces are out of the robot's reach.
+    anchor = _link(free, grid, robot_xy, gvd_xy, config.max_link_candidates)
+    keep = np.zeros(len(gvd_xy), bool)
+    if anchor >= 0:
+        n = len(gvd_xy)
+        adjacency = coo_matrix((np.ones(len(graph.edges)), tuple(graph.edges.T)), shape=(n, n))
+        _, labels = connected_components(adjacency, directed=False)
+        keep = labels == labels[anchor]
+    index = np.cumsum(keep) - 1
+    gvd_xy = gvd_xy[keep]
+    gvd_edges = index[graph.edges[keep[graph.edges].all(axis=1)]] if len(graph.edges) else (
+        np.zeros((0, 2), np.int64))
+    n_gvd = len(gvd_xy)
+    robot = n_gvd
+    positions = [gvd_xy, robot_xy[None]]
+    flags = [np.full(n_gvd, OTHER_FLAG), np.array([ROBOT_FLAG])]
+    new_edges = [(int(index[anchor]), robot)] if anchor >= 0 else []
     frontier_index = [np.full(n_gvd + 1, -1)]
     kept = []
     for i, f in enumerate(frontiers):
@@ -192,8 +202,7 @@ def build_ter(graph: GvdGraph, grid: GridMap, frontiers: list[Frontier], gains: 
             j = robot
         if j < 0:
             continue
-        node = n_gvd + 1 + len(kept)
-        new_edges.append((j, node))
+        new_edges.append((j, n_gvd + 1 + len(kept)))
         kept.append(i)
     if kept:
         positions.append(np.array([frontiers[i].goal for i in kept]))
@@ -201,7 +210,7 @@ def build_ter(graph: GvdGraph, grid: GridMap, frontiers: list[Frontier], gains: 
         frontier_index.append(np.array(kept))
     positions_arr = np.concatenate(positions).reshape(-1, 2)
     flags_arr = np.concatenate(flags)
-    edges_arr = np.concatenate([edges[0].reshape(-1, 2),
+    edges_arr = np.concatenate([gvd_edges.reshape(-1, 2),
                                 np.array(new_edges, np.int64).reshape(-1, 2)])
     edges_arr = np.sort(edges_arr, axis=1)
     lengths = np.linalg.norm(positions_arr[edges_arr[:, 0]] - positions_arr[edges_arr[:, 1]],
