@@ -109,6 +109,46 @@ def _supported(y, cols, rows, obst, to_raise):
 
 
 @numba.njit(cache=True)
+def _mark(c, stamp, stamp_id, changed, n_changed):
+    """Lists cell ``c`` as changed (once per update)."""
+    if stamp[c] != stamp_id:
+        stamp[c] = stamp_id
+        changed[n_changed] = c
+        n_changed += 1
+    return n_changed
+
+
+@numba.njit(cache=True)
+def _clear(c, lost, n, obst, dist2, to_raise, raise_obst, stamp, stamp_id, changed,
+           n_changed, keys, vals, size):
+    """Forgets cell c's value (it referred to ``lost``) and queues it to raise."""
+    raise_obst[c] = lost
+    keys, vals, size = _push(keys, vals, size, dist2[c] * n + c, c)
+    obst[c] = -1
+    dist2[c] = INF
+    to_raise[c] = 1
+    return keys, vals, size, _mark(c, stamp, stamp_id, changed, n_changed)
+
+
+@numba.njit(cache=True)
+def _drop_unsupported(x, lost, rows, cols, occ, obst, dist2, to_raise, raise_obst, stamp,
+                      stamp_id, changed, n_changed, keys, vals, size):
+    """Clears the neighbours of x that held ``lost`` and have no closer support left."""
+    n = rows * cols
+    for k in range(8):
+        rr, cc = x // cols + _DR[k], x % cols + _DC[k]
+        if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
+            continue
+        y = rr * cols + cc
+        if obst[y] == lost and not occ[y] and not to_raise[y] and not _supported(
+                y, cols, rows, obst, to_raise):
+            keys, vals, size, n_changed = _clear(y, lost, n, obst, dist2, to_raise,
+                                                 raise_obst, stamp, stamp_id, changed,
+                                                 n_changed, keys, vals, size)
+    return keys, vals, size, n_changed
+
+
+@numba.njit(cache=True)
 def _update(rows, cols, occ, domain, obst, dist2, raise_obst, to_raise, stamp, stamp_id,
             changed, set_cells, clear_cells, enter_cells, leave_cells, keys, vals):
     """Applies obstacle and domain changes and runs the raise/lower waves to completion.
@@ -128,47 +168,22 @@ def _update(rows, cols, occ, domain, obst, dist2, raise_obst, to_raise, stamp, s
         obst[c] = c
         dist2[c] = 0
         to_raise[c] = 0
-        if stamp[c] != stamp_id:
-            stamp[c] = stamp_id
-            changed[n_changed] = c
-            n_changed += 1
+        n_changed = _mark(c, stamp, stamp_id, changed, n_changed)
         keys, vals, size = _push(keys, vals, size, c, c)
         if old >= 0 and old != c:
-            # Cells that took `old` through c may have lost their support.
-            r0, c0 = c // cols, c % cols
-            for k in range(8):
-                rr, cc = r0 + _DR[k], c0 + _DC[k]
-                if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
-                    continue
-                y = rr * cols + cc
-                if obst[y] == old and not occ[y] and not to_raise[y] and not _supported(
-                        y, cols, rows, obst, to_raise):
-                    raise_obst[y] = old
-                    keys, vals, size = _push(keys, vals, size, dist2[y] * n + y, y)
-                    obst[y] = -1
-                    dist2[y] = INF
-                    to_raise[y] = 1
-                    if stamp[y] != stamp_id:
-                        stamp[y] = stamp_id
-                        changed[n_changed] = y
-                        n_changed += 1
+            keys, vals, size, n_changed = _drop_unsupported(
+                c, old, rows, cols, occ, obst, dist2, to_raise, raise_obst, stamp, stamp_id,
+                changed, n_changed, keys, vals, size)
     for c in leave_cells:
         domain[c] = 0
         if obst[c] >= 0 and not occ[c]:
-            raise_obst[c] = obst[c]
-            keys, vals, size = _push(keys, vals, size, dist2[c] * n + c, c)
-            obst[c] = -1
-            dist2[c] = INF
-            to_raise[c] = 1
-            if stamp[c] != stamp_id:
-                stamp[c] = stamp_id
-                changed[n_changed] = c
-                n_changed += 1
+            keys, vals, size, n_changed = _clear(c, obst[c], n, obst, dist2, to_raise,
+                                                 raise_obst, stamp, stamp_id, changed,
+                                                 n_changed, keys, vals, size)
     for c in enter_cells:
         domain[c] = 1
-        r0, c0 = c // cols, c % cols
         for k in range(8):  # Neighbours with a value spread it into the new cell.
-            rr, cc = r0 + _DR[k], c0 + _DC[k]
+            rr, cc = c // cols + _DR[k], c % cols + _DC[k]
             if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
                 continue
             y = rr * cols + cc
@@ -178,15 +193,9 @@ def _update(rows, cols, occ, domain, obst, dist2, raise_obst, to_raise, stamp, s
         if not occ[c]:
             continue
         occ[c] = 0
-        raise_obst[c] = c
-        keys, vals, size = _push(keys, vals, size, c, c)
-        obst[c] = -1
-        dist2[c] = INF
-        to_raise[c] = 1
-        if stamp[c] != stamp_id:
-            stamp[c] = stamp_id
-            changed[n_changed] = c
-            n_changed += 1
+        keys, vals, size, n_changed = _clear(c, c, n, obst, dist2, to_raise, raise_obst,
+                                             stamp, stamp_id, changed, n_changed, keys, vals,
+                                             size)
     while size > 0:
         key, s, size = _pop(keys, vals, size)
         r0, c0 = s // cols, s % cols
@@ -202,16 +211,10 @@ def _update(rows, cols, occ, domain, obst, dist2, raise_obst, to_raise, stamp, s
                 o = obst[y]
                 if (not occ[o]) or (o == lost and not occ[y] and not _supported(
                         y, cols, rows, obst, to_raise)):
-                    raise_obst[y] = o
-                    keys, vals, size = _push(keys, vals, size, dist2[y] * n + y, y)
-                    obst[y] = -1
-                    dist2[y] = INF
-                    to_raise[y] = 1
-                    if stamp[y] != stamp_id:
-                        stamp[y] = stamp_id
-                        changed[n_changed] = y
-                        n_changed += 1
-                else:
+                    keys, vals, size, n_changed = _clear(y, o, n, obst, dist2, to_raise,
+                                                         raise_obst, stamp, stamp_id,
+                                                         changed, n_changed, keys, vals, size)
+                else:  # A valid neighbour: let it spread into the cleared cell.
                     keys, vals, size = _push(keys, vals, size, dist2[y] * n + y, y)
             to_raise[s] = 0
             continue
@@ -233,29 +236,12 @@ def _update(rows, cols, occ, domain, obst, dist2, raise_obst, to_raise, stamp, s
             if old < 0 or d < dist2[y] or (d == dist2[y] and o < old):
                 obst[y] = o
                 dist2[y] = d
-                if stamp[y] != stamp_id:
-                    stamp[y] = stamp_id
-                    changed[n_changed] = y
-                    n_changed += 1
+                n_changed = _mark(y, stamp, stamp_id, changed, n_changed)
                 keys, vals, size = _push(keys, vals, size, d * n + y, y)
                 if old >= 0 and old != o:
-                    yr, yc = rr, cc
-                    for j in range(8):
-                        zr, zc = yr + _DR[j], yc + _DC[j]
-                        if zr < 0 or zr >= rows or zc < 0 or zc >= cols:
-                            continue
-                        z = zr * cols + zc
-                        if obst[z] == old and not occ[z] and not to_raise[z] and not _supported(
-                                z, cols, rows, obst, to_raise):
-                            raise_obst[z] = old
-                            keys, vals, size = _push(keys, vals, size, dist2[z] * n + z, z)
-                            obst[z] = -1
-                            dist2[z] = INF
-                            to_raise[z] = 1
-                            if stamp[z] != stamp_id:
-                                stamp[z] = stamp_id
-                                changed[n_changed] = z
-                                n_changed += 1
+                    keys, vals, size, n_changed = _drop_unsupported(
+                        y, old, rows, cols, occ, obst, dist2, to_raise, raise_obst, stamp,
+                        stamp_id, changed, n_changed, keys, vals, size)
     return keys, vals, n_changed
 
 
