@@ -32,8 +32,9 @@ demo: install
 test: system-deps $(VENV)/.installed-test
 	$(BIN)/python -m pytest -n 2 -q
 
-bench: install
+bench: system-deps $(VENV)/.installed-test
 	$(BIN)/python tools/bench_sim.py
+	$(BIN)/python tools/bench_topology.py
 
 scenes: install
 	$(BIN)/python tools/regenerate_scenes.py
