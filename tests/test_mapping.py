@@ -34,12 +34,15 @@ def test_mapper_converges_to_ground_truth_in_box_room(box_room):
 
 def test_integrate_reports_exactly_the_changed_cells():
     mapper = OccupancyMapper((40, 40), (0.0, 0.0), MapperConfig(resolution=0.1))
-    angles = np.linspace(-0.5, 0.5, 11)
-    scan = LaserScan(0.0, np.full(11, 1.5, np.float32), angles, 3.0, np.array([2.0, 2.0, 0.0]))
+    # Beams close together: several return in the same cell.
+    angles = np.concatenate([np.linspace(-0.5, 0.5, 11), np.linspace(-0.01, 0.01, 5)])
+    ranges = np.full(16, 1.5, np.float32)
+    scan = LaserScan(0.0, ranges, angles, 3.0, np.array([2.0, 2.0, 0.0]))
     before = mapper.state.copy()
     changed = mapper.integrate(scan)
     diff = np.argwhere(mapper.state != before)
-    assert sorted(map(tuple, changed)) == sorted(map(tuple, diff))
+    assert len(changed) == len(diff)  # No duplicates...
+    assert sorted(map(tuple, changed)) == sorted(map(tuple, diff))  # ...and none missing.
     assert mapper.state[20, 35] == OCCUPIED  # (3.5, 2.0) is where the middle beam returns.
     assert mapper.state[20, 30] == FREE
     assert len(mapper.integrate(scan)) == 0  # Same scan again: nothing changes state.

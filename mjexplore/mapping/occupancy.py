@@ -90,8 +90,7 @@ def _integrate_scan(logodds, state, stamp, old_state, touched, scan_id, x0, y0, 
         if np.isfinite(r) and 0 <= end_r[i] < rows and 0 <= end_c[i] < cols:
             is_hit[i] = True
             k = end_r[i] * cols + end_c[i]
-            if stamp[k] != scan_id:
-                stamp[k] = scan_id
+            if stamp[k] != scan_id and stamp[k] != -scan_id:  # First touch in this scan.
                 old_state[k] = state.flat[k]
                 touched[n_touched] = k
                 n_touched += 1

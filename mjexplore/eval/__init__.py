@@ -1,0 +1,1 @@
+"""Evaluation: episodes, metrics over time, sweeps, tables and plots."""

@@ -1,0 +1,287 @@
+"""One exploration episode: an explorer in a scene, in full physics, measured in sim time.
+
+Every 0.1 s of simulated time the navigator commands the robot; every scan is mapped and
+the GVD updated; when a goal is reached (within zeta), vanishes (its frontier got seen)
+or turns out unreachable, the explorer is asked for the next one. The episode ends when
+the exploration ratio reaches the target (98.5 % by default: ``explored``), when the
+explorer sees nothing left (``no_frontiers``), when the robot lingers (``lingering``, the
+paper's "terminated unexpectedly"), tips over (``tipped_over``), or at the time cap
+(``time_limit``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+
+from mjexplore.drive import odom_in_map
+from mjexplore.explorers.base import ExplorationState, Explorer
+from mjexplore.mapping.metrics import exploration_ratio, iou, observable_ground_truth
+from mjexplore.mapping.occupancy import MapperConfig, OccupancyMapper
+from mjexplore.maps import GridMap
+from mjexplore.navigation.navigator import Navigator, NavigatorConfig, NavStatus
+from mjexplore.navigation.planner import Costmap, PlannerConfig
+from mjexplore.robot import TURTLEBOT3_WAFFLE
+from mjexplore.scenes.scene import SceneFiles
+from mjexplore.sim.kinematics import KinematicsLog
+from mjexplore.sim.simulator import SimConfig, Simulator
+from mjexplore.topology.frontiers import find_frontiers
+from mjexplore.topology.pipeline import TopologyConfig, TopologyTracker
+
+END_REASONS = ("explored", "no_frontiers", "lingering", "tipped_over", "time_limit")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class EpisodeConfig:
+    """Episode settings.
+
+    Attributes:
+        max_time: Time cap in simulated seconds.
+        target_ratio: Exploration ratio at which the scene counts as explored.
+        control_rate_hz: Navigator rate.
+        mapping_pose: 'ground_truth' or 'odometry': which pose the mapper uses.
+        sim: Simulator settings (profile, lidar).
+        navigator: Navigation settings (zeta, replanning, lingering).
+        planner: Costmap settings.
+        topology: Frontier and GVD settings.
+        unreachable_radius: A goal that cannot be reached blacklists frontier goals within
+            this radius, metres.
+    """
+
+    max_time: float = 1800.0
+    target_ratio: float = 0.985
+    control_rate_hz: float = 10.0
+    mapping_pose: str = "ground_truth"
+    sim: SimConfig = dataclasses.field(default_factory=SimConfig)
+    navigator: NavigatorConfig = dataclasses.field(default_factory=NavigatorConfig)
+    planner: PlannerConfig = dataclasses.field(default_factory=PlannerConfig)
+    topology: TopologyConfig = dataclasses.field(default_factory=TopologyConfig)
+    unreachable_radius: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.mapping_pose not in ("ground_truth", "odometry"):
+            raise ValueError("mapping_pose must be 'ground_truth' or 'odometry'")
+
+
+@dataclasses.dataclass
+class EpisodeResult:
+    """What an episode produced.
+
+    Attributes:
+        metrics: The paper's metrics and more (see :func:`episode_metrics`).
+        ratio_curve: (n, 2) simulated time (s) and exploration ratio after each scan.
+        kinematics: Velocity and acceleration log.
+        grid: The final map.
+        goals: (m, 3) decision time (s) and goal (x, y).
+    """
+
+    metrics: dict[str, Any]
+    ratio_curve: np.ndarray
+    kinematics: KinematicsLog
+    grid: GridMap
+    goals: np.ndarray
+
+
+def first_time_at(curve: np.ndarray, level: float) -> float | None:
+    """First time (s) at which the ratio curve reaches ``level``, or None."""
+    hit = np.flatnonzero(curve[:, 1] >= level)
+    return float(curve[hit[0], 0]) if len(hit) else None
+
+
+def episode_metrics(curve: np.ndarray, log: KinematicsLog, final_iou: float,
+                    collisions: int, end_reason: str) -> dict[str, Any]:
+    """The paper's metrics from an episode's records (all times simulated).
+
+    Keys: ``iou``; ``exploration_ratio`` (final); ``exploration_time_s`` (ET: time at the
+    end of the episode); ``path_length_m`` (PL: length of the true path of ``base_link``);
+    ``odometry_path_length_m``; ``t80_s`` and ``t985_s`` (first times the ratio reaches
+    0.80 and 0.985, None if never); ``collisions``; ``end_reason``; ``mean_speed_mps``.
+    """
+    odom = log.odom_pose[:, :2]
+    t_end = float(curve[-1, 0])
+    path = log.path_length()
+    return {
+        "iou": round(final_iou, 5),
+        "exploration_ratio": round(float(curve[-1, 1]), 5),
+        "exploration_time_s": round(t_end, 3),
+        "path_length_m": round(path, 3),
+        "odometry_path_length_m": round(float(np.linalg.norm(np.diff(odom, axis=0), axis=1).sum()), 3),
+        "t80_s": first_time_at(curve, 0.80),
+        "t985_s": first_time_at(curve, 0.985),
+        "collisions": int(collisions),
+        "end_reason": end_reason,
+        "mean_speed_mps": round(path / t_end, 4) if t_end > 0 else 0.0,
+    }
+
+
+class _KnownCounter:
+    """Exploration ratio kept up to date from the cells the mapper reports as changed."""
+
+    def __init__(self, reference: GridMap) -> None:
+        self.ref_known = reference.known.reshape(-1)
+        self.total = int(self.ref_known.sum())
+        self.known = np.zeros(self.ref_known.shape, bool)
+        self.count = 0
+
+    def update(self, state: np.ndarray, changed: np.ndarray, cols: int) -> float:
+        if len(changed):
+            flat = changed[:, 0] * cols + changed[:, 1]
+            new = state.reshape(-1)[flat] >= 0
+            ref = self.ref_known[flat]
+            self.count += int((new & ref).sum() - (self.known[flat] & ref).sum())
+            self.known[flat] = new
+        return self.count / self.total
+
+
+class Episode:
+    """Runs one episode; steps are exposed so that callers (logging, video) can watch.
+
+    Args:
+        scene: The scene.
+        explorer: The explorer.
+        seed: Seed for the explorer and sensor noise.
+        config: Episode settings.
+        observer: Optional object with ``on_scan``, ``on_decision`` and ``on_step`` hooks.
+    """
+
+    def __init__(self, scene: SceneFiles, explorer: Explorer, seed: int,
+                 config: EpisodeConfig | None = None, observer: Any = None) -> None:
+        if scene.ground_truth is None:
+            raise ValueError("episodes need a scene with a ground-truth map")
+        self.config = config or EpisodeConfig()
+        cfg = self.config
+        self.scene = scene
+        self.explorer = explorer
+        self.observer = observer
+        sim_cfg = dataclasses.replace(cfg.sim, seed=seed)
+        self.sim = Simulator(scene, sim_cfg)
+        gt = scene.ground_truth
+        self.mapper = OccupancyMapper.like(gt, MapperConfig(resolution=gt.resolution))
+        self.tracker = TopologyTracker(gt.shape, cfg.topology, gt)
+        self.reference = observable_ground_truth(gt)
+        self.counter = _KnownCounter(self.reference)
+        self.navigator = Navigator(self.sim.profile, cfg.navigator)
+        explorer.reset(np.random.default_rng(seed))
+        self.goal: np.ndarray | None = None
+        self.blacklist: list[np.ndarray] = []
+        self.curve: list[tuple[float, float]] = []
+        self.goals: list[tuple[float, float, float]] = []
+        self.visited: list[np.ndarray] = []
+        self.end_reason: str | None = None
+        self._integrate(self.sim.latest_scan)
+
+    # ------------------------------------------------------------------ internals
+
+    def _sensor_pose(self, scan) -> np.ndarray | None:
+        if self.config.mapping_pose == "ground_truth":
+            return None
+        base = odom_in_map(self.sim.odom_origin, self.sim.odom_pose[None])[0]
+        ox, oy, _ = TURTLEBOT3_WAFFLE.scan_offset
+        c, s = math.cos(base[2]), math.sin(base[2])
+        return np.array([base[0] + c * ox - s * oy, base[1] + s * ox + c * oy, base[2]])
+
+    def _integrate(self, scan) -> None:
+        grid = self.mapper.grid
+        changed = self.mapper.integrate(scan, self._sensor_pose(scan))
+        self.tracker.observe(grid, changed)
+        ratio = self.counter.update(self.mapper.state, changed, grid.shape[1])
+        self.curve.append((scan.stamp, ratio))
+        if self.observer is not None:
+            self.observer.on_scan(self, scan)
+
+    def costmap(self) -> Costmap:
+        grid = self.mapper.grid
+        clearance = np.sqrt(self.tracker.gvd.distance2.astype(float)) * grid.resolution
+        return Costmap(grid, clearance, self.config.planner)
+
+    def _goal_still_open(self) -> bool:
+        """A frontier goal stays worth driving to while unknown cells lie next to it."""
+        if not getattr(self.explorer, "goals_are_frontiers", True):
+            return True
+        grid = self.mapper.grid
+        r, c = grid.world_to_cell(self.goal)
+        k = max(1, int(round(0.3 / grid.resolution)))
+        window = grid.data[max(r - k, 0):r + k + 1, max(c - k, 0):c + k + 1]
+        return bool((window < 0).any())
+
+    def _decide(self) -> bool:
+        """Asks the explorer for a goal; False when it has none left."""
+        grid = self.mapper.grid
+        cfg = self.config
+        frontiers = [f for f in find_frontiers(grid, cfg.topology.frontier_min_size,
+                                               cfg.topology.frontier_max_length)
+                     if all(np.hypot(*(f.goal - b)) > cfg.unreachable_radius
+                            for b in self.blacklist)]
+        pose = self.sim.pose
+        costmap = self.costmap()
+        state = ExplorationState(grid, pose, self.sim.time, frontiers, costmap,
+                                 np.array(self.visited).reshape(-1, 2),
+                                 self.scene.ground_truth, {"tracker": self.tracker})
+        for _ in range(5):
+            goal = self.explorer.select_goal(state)
+            if goal is None:
+                return False
+            self.goal = np.asarray(goal, float)
+            self.goals.append((self.sim.time, *self.goal))
+            if self.observer is not None:
+                self.observer.on_decision(self, state)
+            if self.navigator.set_goal(self.goal, costmap, pose, self.sim.time):
+                return True
+            self.blacklist.append(self.goal)
+            state.frontiers = [f for f in state.frontiers
+                               if np.hypot(*(f.goal - self.goal)) > cfg.unreachable_radius]
+        return True  # Keep going; the next tick decides again.
+
+    # ------------------------------------------------------------------ stepping
+
+    def step(self) -> bool:
+        """One control period; returns False once the episode has ended."""
+        if self.end_reason is not None:
+            return False
+        cfg = self.config
+        sim = self.sim
+        pose, t = sim.pose, sim.time
+        ratio = self.curve[-1][1]
+        if ratio >= cfg.target_ratio:
+            self.end_reason = "explored"
+        elif t >= cfg.max_time - 1e-9:
+            self.end_reason = "time_limit"
+        elif not sim.is_upright:
+            self.end_reason = "tipped_over"
+        elif self.navigator.lingering(pose, t):
+            self.end_reason = "lingering"
+        if self.end_reason is not None:
+            return False
+        if (self.goal is None or self.navigator.status != NavStatus.ACTIVE or
+                not self._goal_still_open()):
+            if not self._decide():
+                self.end_reason = "no_frontiers"
+                return False
+        v, w = self.navigator.update(pose, t, self.costmap)
+        sim.command(v, w)
+        for scan in sim.step(1.0 / cfg.control_rate_hz):
+            self._integrate(scan)
+        if not self.visited or np.hypot(*(pose[:2] - self.visited[-1])) > 0.25:
+            self.visited.append(pose[:2].copy())
+        if self.observer is not None:
+            self.observer.on_step(self)
+        return True
+
+    def run(self) -> EpisodeResult:
+        while self.step():
+            pass
+        return self.result()
+
+    def result(self) -> EpisodeResult:
+        curve = np.array(self.curve)
+        grid = self.mapper.grid
+        metrics = episode_metrics(curve, self.sim.kinematics(), iou(grid, self.reference),
+                                  self.sim.collisions, self.end_reason or "running")
+        metrics["exploration_ratio_check"] = round(exploration_ratio(grid, self.reference), 5)
+        metrics["decisions"] = len(self.goals)
+        return EpisodeResult(metrics, curve, self.sim.kinematics(),
+                             GridMap(grid.data.copy(), grid.resolution, grid.origin),
+                             np.array(self.goals).reshape(-1, 3))

@@ -1,0 +1,106 @@
+"""The explorer interface and the state every explorer sees at a decision.
+
+An explorer is asked for a goal whenever the episode runner needs one (the previous goal
+was reached, vanished or cannot be reached); it answers with a point in the ``map`` frame,
+or None when it sees nothing left to explore. Classic planners and learned policies sit
+behind the same interface, so one harness evaluates them all.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import Callable, Protocol
+
+import numpy as np
+
+from mjexplore.errors import UserInputError
+from mjexplore.maps import GridMap
+from mjexplore.navigation.planner import Costmap
+from mjexplore.topology.frontiers import Frontier
+
+
+@dataclasses.dataclass
+class ExplorationState:
+    """What an explorer may look at when choosing a goal.
+
+    Attributes:
+        grid: The partial map.
+        pose: Robot (x, y, yaw) in the ``map`` frame.
+        time: Simulated time, seconds.
+        frontiers: Frontiers of ``grid``.
+        costmap: The planner's costmap of ``grid``.
+        visited: (k, 2) positions the robot has passed, metres (decimated).
+        ground_truth: The true map, only for explorers allowed to know it (the oracle).
+        extras: Lazily computed helpers shared between explorers (TER, ...).
+    """
+
+    grid: GridMap
+    pose: np.ndarray
+    time: float
+    frontiers: list[Frontier]
+    costmap: Costmap
+    visited: np.ndarray
+    ground_truth: GridMap | None = None
+    extras: dict = dataclasses.field(default_factory=dict)
+
+    @functools.cached_property
+    def distances(self) -> np.ndarray:
+        """Path cost (metres) from the robot to every cell over the costmap."""
+        return self.costmap.distances_from(self.pose[:2])
+
+    def frontier_distances(self, radius: float = 0.5) -> np.ndarray:
+        """Path cost to the nearest traversable cell within ``radius`` of each frontier's goal."""
+        dist = self.distances
+        k = max(1, int(round(radius / self.grid.resolution)))
+        rows, cols = dist.shape
+        out = np.full(len(self.frontiers), np.inf)
+        for i, f in enumerate(self.frontiers):
+            r, c = f.goal_cell
+            out[i] = dist[max(r - k, 0):min(r + k + 1, rows), max(c - k, 0):min(c + k + 1, cols)].min()
+        return out
+
+
+class Explorer(Protocol):
+    """Chooses exploration goals."""
+
+    name: str
+
+    def reset(self, rng: np.random.Generator) -> None:
+        """Starts a new episode."""
+
+    def select_goal(self, state: ExplorationState) -> np.ndarray | None:
+        """A goal (x, y) in the ``map`` frame, or None if nothing is left to explore."""
+
+
+EXPLORERS: dict[str, Callable[[], Explorer]] = {}
+
+
+def register(name: str):
+    """Class decorator adding an explorer to :data:`EXPLORERS`."""
+
+    def wrap(cls):
+        EXPLORERS[name] = cls
+        cls.name = name
+        return cls
+
+    return wrap
+
+
+def make_explorer(name: str, **kwargs) -> Explorer:
+    """An explorer by name.
+
+    Raises:
+        UserInputError: unknown name.
+    """
+    import importlib
+
+    for module in ("nearest", "potential", "rrt", "oracle"):  # Each registers itself.
+        try:
+            importlib.import_module(f"mjexplore.explorers.{module}")
+        except ModuleNotFoundError:
+            pass
+
+    if name not in EXPLORERS:
+        raise UserInputError(f"unknown explorer {name!r}: use one of {', '.join(sorted(EXPLORERS))}.")
+    return EXPLORERS[name](**kwargs)
