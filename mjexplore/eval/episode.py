@@ -47,8 +47,8 @@ class EpisodeConfig:
         navigator: Navigation settings (zeta, replanning, lingering).
         planner: Costmap settings.
         topology: Frontier and GVD settings.
-        unreachable_radius: A goal that cannot be reached blacklists frontier goals within
-            this radius, metres.
+        unreachable_radius: A goal that cannot be reached, or is reached while its frontier
+            stays open, blacklists frontier goals within this radius, metres.
     """
 
     max_time: float = 1800.0
@@ -164,6 +164,7 @@ class Episode:
         self.reference = observable_ground_truth(gt)
         self.counter = _KnownCounter(self.reference)
         self.navigator = Navigator(self.sim.profile, cfg.navigator)
+        self._costmap = Costmap(self.mapper.grid, self.tracker.gvd.distance2, cfg.planner)
         explorer.reset(np.random.default_rng(seed))
         self.goal: np.ndarray | None = None
         self.blacklist: list[np.ndarray] = []
@@ -187,15 +188,16 @@ class Episode:
         grid = self.mapper.grid
         changed = self.mapper.integrate(scan, self._sensor_pose(scan))
         self.tracker.observe(grid, changed)
+        self._costmap.update(np.concatenate([changed[:, 0] * grid.shape[1] + changed[:, 1],
+                                             self.tracker.gvd.last_changed]))
         ratio = self.counter.update(self.mapper.state, changed, grid.shape[1])
         self.curve.append((scan.stamp, ratio))
         if self.observer is not None:
             self.observer.on_scan(self, scan)
 
     def costmap(self) -> Costmap:
-        grid = self.mapper.grid
-        clearance = np.sqrt(self.tracker.gvd.distance2.astype(float)) * grid.resolution
-        return Costmap(grid, clearance, self.config.planner)
+        """The planner's costmap (kept current as scans arrive)."""
+        return self._costmap
 
     def _goal_still_open(self) -> bool:
         """A frontier goal stays worth driving to while unknown cells lie next to it."""
@@ -257,6 +259,10 @@ class Episode:
             return False
         if (self.goal is None or self.navigator.status != NavStatus.ACTIVE or
                 not self._goal_still_open()):
+            if (self.navigator.status == NavStatus.REACHED and self._goal_still_open()):
+                # Reached, yet still next to unknown space: the lidar cannot see it from
+                # here (a gap too small, a blind corner). Do not come back for it.
+                self.blacklist.append(self.goal)
             if not self._decide():
                 self.end_reason = "no_frontiers"
                 return False

@@ -9,7 +9,6 @@ behind the same interface, so one harness evaluates them all.
 from __future__ import annotations
 
 import dataclasses
-import functools
 from typing import Callable, Protocol
 
 import numpy as np
@@ -44,21 +43,31 @@ class ExplorationState:
     ground_truth: GridMap | None = None
     extras: dict = dataclasses.field(default_factory=dict)
 
-    @functools.cached_property
-    def distances(self) -> np.ndarray:
-        """Path cost (metres) from the robot to every cell over the costmap."""
-        return self.costmap.distances_from(self.pose[:2])
-
-    def frontier_distances(self, radius: float = 0.5) -> np.ndarray:
-        """Path cost to the nearest traversable cell within ``radius`` of each frontier's goal."""
-        dist = self.distances
+    def _goal_windows(self, radius: float) -> tuple[np.ndarray, list[tuple[slice, slice]]]:
+        """A mask of the cells within ``radius`` of each frontier goal, and the windows."""
         k = max(1, int(round(radius / self.grid.resolution)))
-        rows, cols = dist.shape
-        out = np.full(len(self.frontiers), np.inf)
-        for i, f in enumerate(self.frontiers):
+        rows, cols = self.grid.shape
+        mask = np.zeros(self.grid.shape, bool)
+        windows = []
+        for f in self.frontiers:
             r, c = f.goal_cell
-            out[i] = dist[max(r - k, 0):min(r + k + 1, rows), max(c - k, 0):min(c + k + 1, cols)].min()
-        return out
+            w = (slice(max(r - k, 0), min(r + k + 1, rows)), slice(max(c - k, 0), min(c + k + 1, cols)))
+            mask[w] = True
+            windows.append(w)
+        return mask, windows
+
+    def frontier_distances(self, radius: float = 0.5, nearest_only: bool = False) -> np.ndarray:
+        """Path cost (metres) to the nearest traversable cell within ``radius`` of each
+        frontier's goal; inf if unreachable.
+
+        With ``nearest_only`` the search stops at the first frontier reached: only that
+        frontier's distance is exact, the others read inf or more.
+        """
+        if not self.frontiers:
+            return np.zeros(0)
+        mask, windows = self._goal_windows(radius)
+        dist = self.costmap.distances_from(self.pose[:2], mask, 1 if nearest_only else 0)
+        return np.array([dist[w].min() for w in windows])
 
 
 class Explorer(Protocol):

@@ -18,7 +18,7 @@ class NearestFrontier:
     def select_goal(self, state: ExplorationState) -> np.ndarray | None:
         if not state.frontiers:
             return None
-        d = state.frontier_distances()
+        d = state.frontier_distances(nearest_only=True)
         if not np.isfinite(d).any():
             return None
         return state.frontiers[int(np.argmin(d))].goal

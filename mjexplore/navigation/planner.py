@@ -1,6 +1,6 @@
 """Grid path planning on the known map (the global planner of the navigation stack).
 
-Traversable cells are known free cells farther than ``lethal_radius`` from the nearest
+Traversable cells are known free cells at least ``lethal_radius`` from the nearest
 occupied cell; unknown cells are not traversable (the robot plans through what it has
 seen, as move_base does with ``allow_unknown`` off). Each step costs its length plus a
 penalty that grows as the path nears walls (``soft_radius``), which keeps paths in the
@@ -82,71 +82,106 @@ def _pop(keys, vals, size):
 
 
 @numba.njit(cache=True)
-def _search(cost, start, goal, rows, cols, with_heuristic):
+def _search(cost, start, goal, rows, cols, with_heuristic, dist, parent, stamp, search_id,
+            keys, vals, is_target, stop_after):
     """Dijkstra (goal < 0: to every cell) or A* (goal >= 0) over cells with cost >= 0.
 
-    ``cost`` is the extra cost per step into a cell (-1: not traversable). Returns
-    (distance, parent): path cost from ``start`` (inf where unreached) and each cell's
-    predecessor (-1 for none).
+    ``cost`` is the extra cost per step into a cell (-1: not traversable). ``dist`` and
+    ``parent`` hold results for cells whose ``stamp`` equals ``search_id`` (reused buffers,
+    so a search touches only the cells it reaches); the heap arrays are returned, grown.
+    A stamp of -search_id marks a closed cell. With ``stop_after > 0`` the search ends
+    once that many cells flagged in ``is_target`` are closed.
     """
-    n = rows * cols
-    dist = np.full(n, np.inf)
-    parent = np.full(n, -1, np.int64)
-    closed = np.zeros(n, np.uint8)
-    keys = np.empty(1024)
-    vals = np.empty(1024, np.int64)
     size = 0
+    found = 0
+    stamp[start] = search_id
     dist[start] = 0.0
+    parent[start] = -1
     gr, gc = (goal // cols, goal % cols) if goal >= 0 else (0, 0)
     keys, vals, size = _push(keys, vals, size, 0.0, start)
     while size > 0:
         _, s, size = _pop(keys, vals, size)
-        if closed[s]:
+        if stamp[s] == -search_id:
             continue
-        closed[s] = 1
+        stamp[s] = -search_id
         if s == goal:
             break
+        if stop_after > 0 and is_target[s]:
+            found += 1
+            if found >= stop_after:
+                break
         r0, c0 = s // cols, s % cols
+        ds = dist[s]
         for k in range(8):
             rr, cc = r0 + _DR[k], c0 + _DC[k]
             if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
                 continue
             y = rr * cols + cc
-            if cost[y] < 0 or closed[y]:
+            if cost[y] < 0 or stamp[y] == -search_id:
                 continue
             if k in (0, 2, 5, 7):  # No corner cutting past a blocked cell.
                 if cost[r0 * cols + cc] < 0 or cost[rr * cols + c0] < 0:
                     continue
-            d = dist[s] + _STEP[k] * (1.0 + cost[y])
-            if d < dist[y]:
+            d = ds + _STEP[k] * (1.0 + cost[y])
+            if stamp[y] != search_id or d < dist[y]:
+                stamp[y] = search_id
                 dist[y] = d
                 parent[y] = s
                 h = 0.0
                 if with_heuristic:
                     h = math.hypot(rr - gr, cc - gc)
                 keys, vals, size = _push(keys, vals, size, d + h, y)
-    return dist, parent
+    return keys, vals
+
+
+@numba.njit(cache=True)
+def _update_cost(cost, cells, free, dist2, resolution, lethal, soft, penalty):
+    for c in cells:
+        d = math.sqrt(dist2[c]) * resolution
+        if not free[c] or d < lethal:
+            cost[c] = -1.0
+        else:
+            x = (soft - d) / (soft - lethal)
+            cost[c] = penalty * min(max(x, 0.0), 1.0)
 
 
 class Costmap:
-    """Step costs over a map, from its free cells and the distance to occupied cells.
+    """Step costs over a map, kept up to date cell by cell.
+
+    The cost of a cell follows from whether it is known free and from its distance to the
+    nearest occupied cell (the GVD's distance field); :meth:`update` recomputes the cells
+    the last scans changed.
 
     Args:
-        grid: The map.
-        clearance: (rows, cols) distance in metres from each cell to the nearest occupied
-            cell (e.g. from the GVD's distance field); inf where none is known.
+        grid: The map (its data array is read live).
+        distance2: (rows, cols) squared distance in cells to the nearest occupied cell
+            (read live, e.g. ``DynamicGVD.distance2``).
         config: Costmap settings.
     """
 
-    def __init__(self, grid: GridMap, clearance: np.ndarray,
+    def __init__(self, grid: GridMap, distance2: np.ndarray,
                  config: PlannerConfig | None = None) -> None:
         self.config = config or PlannerConfig()
         self.grid = grid
+        self._dist2 = distance2.reshape(-1)
+        n = grid.data.size
+        self.cost = np.empty(n)
+        self._dist = np.empty(n)
+        self._parent = np.empty(n, np.int64)
+        self._stamp = np.zeros(n, np.int64)
+        self._search_id = 0
+        self._keys = np.empty(4096)
+        self._vals = np.empty(4096, np.int64)
+        self._no_targets = np.zeros(1, np.bool_)
+        self.update(None)
+
+    def update(self, cells: np.ndarray | None) -> None:
+        """Recomputes the cost of ``cells`` (flat indices); None: every cell."""
         cfg = self.config
-        extra = cfg.wall_penalty * np.clip(
-            (cfg.soft_radius - clearance) / (cfg.soft_radius - cfg.lethal_radius), 0.0, 1.0)
-        cost = np.where(grid.free & (clearance >= cfg.lethal_radius), extra, -1.0)
-        self.cost = np.ascontiguousarray(cost.reshape(-1))
+        free = (self.grid.data.reshape(-1) >= 0) & (self.grid.data.reshape(-1) < 50)
+        cells = np.arange(self.cost.size) if cells is None else np.asarray(cells, np.int64)
+        _update_cost(self.cost, cells, free, self._dist2, self.grid.resolution,
+                     cfg.lethal_radius, cfg.soft_radius, cfg.wall_penalty)
 
     @property
     def traversable(self) -> np.ndarray:
@@ -171,13 +206,35 @@ class Costmap:
             return -1
         return int((rows[i] + r0) * grid.shape[1] + cols[i] + c0)
 
-    def distances_from(self, xy: np.ndarray) -> np.ndarray:
-        """Path cost (metres, wall penalty included) from ``xy`` to every cell; inf if none."""
+    def _run(self, start: int, goal: int, targets: np.ndarray | None = None,
+             stop_after: int = 0) -> None:
+        self._search_id += 1
+        if targets is None:
+            targets = self._no_targets
+        self._keys, self._vals = _search(self.cost, start, goal, *self.grid.shape, goal >= 0,
+                                         self._dist, self._parent, self._stamp,
+                                         self._search_id, self._keys, self._vals, targets,
+                                         stop_after)
+
+    def distances_from(self, xy: np.ndarray, targets: np.ndarray | None = None,
+                       stop_after: int = 0) -> np.ndarray:
+        """Path cost (metres, wall penalty included) from ``xy`` to the cells; inf if none.
+
+        Args:
+            xy: Start point in the ``map`` frame.
+            targets: Optional (rows, cols) bool mask of cells of interest.
+            stop_after: Stop once this many target cells are reached (0: search all); the
+                cells not reached by then read inf.
+        """
+        out = np.full(self.grid.shape, np.inf)
         start = self.nearest_traversable(xy)
         if start < 0:
-            return np.full(self.grid.shape, np.inf)
-        dist, _ = _search(self.cost, start, -1, *self.grid.shape, False)
-        return dist.reshape(self.grid.shape) * self.grid.resolution
+            return out
+        mask = None if targets is None else np.ascontiguousarray(targets.reshape(-1))
+        self._run(start, -1, mask, stop_after)
+        reached = np.abs(self._stamp) == self._search_id
+        out.reshape(-1)[reached] = self._dist[reached] * self.grid.resolution
+        return out
 
     def plan(self, start_xy: np.ndarray, goal_xy: np.ndarray,
              goal_radius: float = 1.0) -> np.ndarray | None:
@@ -190,14 +247,13 @@ class Costmap:
         goal = self.nearest_traversable(goal_xy, goal_radius)
         if start < 0 or goal < 0:
             return None
-        dist, parent = _search(self.cost, start, goal, *self.grid.shape, True)
-        if not np.isfinite(dist[goal]):
+        self._run(start, goal)
+        if self._stamp[goal] != -self._search_id:
             return None
         cells = [goal]
         while cells[-1] != start:
-            cells.append(int(parent[cells[-1]]))
-        cells = np.array(cells[::-1])
-        rc = np.column_stack(np.divmod(cells, self.grid.shape[1]))
+            cells.append(int(self._parent[cells[-1]]))
+        rc = np.column_stack(np.divmod(np.array(cells[::-1]), self.grid.shape[1]))
         return self.grid.cell_to_world(rc)
 
 

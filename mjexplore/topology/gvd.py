@@ -313,6 +313,7 @@ class DynamicGVD:
         self._stamp_id = 0
         self._changed = np.empty(n, np.int64)
         self._voro = np.zeros(n, np.bool_)
+        self.last_changed = self._changed[:0]  # Flat cells the last update changed.
         self._keys = np.empty(1024, np.int64)
         self._vals = np.empty(1024, np.int64)
 
@@ -362,6 +363,7 @@ class DynamicGVD:
         enter = cells[want_dom & ~dom & ~want_obst]
         leave = cells[~want_dom & dom]
         if not (len(to_set) or len(to_clear) or len(enter) or len(leave)):
+            self.last_changed = self._changed[:0]
             return 0
         self._stamp_id += 1
         self._keys, self._vals, n_changed = _update(
@@ -370,4 +372,5 @@ class DynamicGVD:
             to_set, to_clear, enter, leave, self._keys, self._vals)
         _refresh_voro(self._changed[:n_changed], self.shape[0], self.shape[1], self._occ,
                       self._obst, self._dist2, self._voro)
+        self.last_changed = self._changed[:n_changed]
         return int(n_changed)
