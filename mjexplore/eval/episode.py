@@ -213,16 +213,20 @@ class Episode:
         """Asks the explorer for a goal; False when it has none left."""
         grid = self.mapper.grid
         cfg = self.config
-        frontiers = [f for f in find_frontiers(grid, cfg.topology.frontier_min_size,
-                                               cfg.topology.frontier_max_length)
-                     if all(np.hypot(*(f.goal - b)) > cfg.unreachable_radius
-                            for b in self.blacklist)]
+        frontiers = find_frontiers(grid, cfg.topology.frontier_min_size,
+                                   cfg.topology.frontier_max_length)
         pose = self.sim.pose
         costmap = self.costmap()
-        state = ExplorationState(grid, pose, self.sim.time, frontiers, costmap,
+        state = ExplorationState(grid, pose, self.sim.time, [], costmap,
                                  np.array(self.visited).reshape(-1, 2),
-                                 self.scene.ground_truth, {"tracker": self.tracker})
-        for _ in range(5):
+                                 ground_truth=self.scene.ground_truth,
+                                 blacklist_radius=cfg.unreachable_radius,
+                                 sensor_range=self.sim.lidar.config.range_max,
+                                 extras={"tracker": self.tracker})
+        for _ in range(8):
+            state.blacklist = np.array(self.blacklist).reshape(-1, 2)
+            state.frontiers = [f for f, ok in zip(frontiers, state.allowed(
+                [f.goal for f in frontiers])) if ok] if frontiers else []
             goal = self.explorer.select_goal(state)
             if goal is None:
                 return False
@@ -230,11 +234,14 @@ class Episode:
             self.goals.append((self.sim.time, *self.goal))
             if self.observer is not None:
                 self.observer.on_decision(self, state)
+            near = np.hypot(*(self.goal - pose[:2])) <= cfg.navigator.goal_tolerance
+            if near and self._goal_still_open():
+                # Within reach already, yet not seen: the lidar cannot see it from here.
+                self.blacklist.append(self.goal)
+                continue
             if self.navigator.set_goal(self.goal, costmap, pose, self.sim.time):
                 return True
             self.blacklist.append(self.goal)
-            state.frontiers = [f for f in state.frontiers
-                               if np.hypot(*(f.goal - self.goal)) > cfg.unreachable_radius]
         return True  # Keep going; the next tick decides again.
 
     # ------------------------------------------------------------------ stepping

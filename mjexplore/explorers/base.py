@@ -30,7 +30,10 @@ class ExplorationState:
         frontiers: Frontiers of ``grid``.
         costmap: The planner's costmap of ``grid``.
         visited: (k, 2) positions the robot has passed, metres (decimated).
+        blacklist: (k, 2) goals that proved unreachable or unobservable, metres.
+        blacklist_radius: Goals within this distance of a blacklisted one are out, metres.
         ground_truth: The true map, only for explorers allowed to know it (the oracle).
+        sensor_range: The lidar's range, metres.
         extras: Lazily computed helpers shared between explorers (TER, ...).
     """
 
@@ -40,8 +43,19 @@ class ExplorationState:
     frontiers: list[Frontier]
     costmap: Costmap
     visited: np.ndarray
+    blacklist: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 2)))
+    blacklist_radius: float = 0.5
     ground_truth: GridMap | None = None
+    sensor_range: float = 6.0
     extras: dict = dataclasses.field(default_factory=dict)
+
+    def allowed(self, points: np.ndarray) -> np.ndarray:
+        """Which of the (n, 2) candidate goals are not blacklisted."""
+        points = np.asarray(points, float).reshape(-1, 2)
+        if len(self.blacklist) == 0:
+            return np.ones(len(points), bool)
+        d = np.linalg.norm(points[:, None] - self.blacklist[None], axis=2)
+        return (d > self.blacklist_radius).all(axis=1)
 
     def _goal_windows(self, radius: float) -> tuple[np.ndarray, list[tuple[slice, slice]]]:
         """A mask of the cells within ``radius`` of each frontier goal, and the windows."""
