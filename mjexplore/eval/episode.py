@@ -165,6 +165,12 @@ class Episode:
         self.counter = _KnownCounter(self.reference)
         self.navigator = Navigator(self.sim.profile, cfg.navigator)
         self._costmap = Costmap(self.mapper.grid, self.tracker.gvd.distance2, cfg.planner)
+        # An explorer that knows the ground truth (the oracle) also navigates on it.
+        self._static_costmap: Costmap | None = None
+        if getattr(explorer, "plans_on_ground_truth", False):
+            self._static_costmap = explorer.ground_truth_costmap(
+                ExplorationState(gt, self.sim.pose, 0.0, [], self._costmap, np.zeros((0, 2)),
+                                 ground_truth=gt))
         explorer.reset(np.random.default_rng(seed))
         self.goal: np.ndarray | None = None
         self.blacklist: list[np.ndarray] = []
@@ -188,8 +194,9 @@ class Episode:
         grid = self.mapper.grid
         changed = self.mapper.integrate(scan, self._sensor_pose(scan))
         self.tracker.observe(grid, changed)
-        self._costmap.update(np.concatenate([changed[:, 0] * grid.shape[1] + changed[:, 1],
-                                             self.tracker.gvd.last_changed]))
+        if self._costmap is not None:
+            self._costmap.update(np.concatenate([changed[:, 0] * grid.shape[1] + changed[:, 1],
+                                                 self.tracker.gvd.last_changed]))
         ratio = self.counter.update(self.mapper.state, changed, grid.shape[1])
         self.curve.append((scan.stamp, ratio))
         if self.observer is not None:
@@ -197,13 +204,15 @@ class Episode:
 
     def costmap(self) -> Costmap:
         """The planner's costmap (kept current as scans arrive)."""
-        return self._costmap
+        return self._static_costmap or self._costmap
 
     def _goal_still_open(self) -> bool:
-        """A frontier goal stays worth driving to while unknown cells lie next to it."""
-        if not getattr(self.explorer, "goals_are_frontiers", True):
-            return True
+        """A frontier goal stays worth driving to while unknown cells lie next to it; an
+        explorer with other goals can say itself (``goal_open(grid)``)."""
         grid = self.mapper.grid
+        verdict = self.explorer.goal_open(grid) if hasattr(self.explorer, "goal_open") else None
+        if verdict is not None:
+            return verdict
         r, c = grid.world_to_cell(self.goal)
         k = max(1, int(round(0.3 / grid.resolution)))
         window = grid.data[max(r - k, 0):r + k + 1, max(c - k, 0):c + k + 1]

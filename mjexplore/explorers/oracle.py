@@ -1,0 +1,182 @@
+"""The oracle: a planner that knows the ground truth, as a practical lower bound.
+
+It chooses viewpoints that together see all observable free space and wall surfaces
+(greedy set cover over candidate positions on a ``spacing`` lattice in the robot's
+configuration space, visibility by ray casting on the ground truth at the lidar's range),
+orders them into a short tour (nearest neighbour on path distances, then 2-opt), and
+drives the tour on a costmap of the ground truth; viewpoints whose view is already mostly
+known are skipped. Cells the ray casting counted as seen but the lidar missed are picked up
+at the end by the nearest frontier. No explorer without the ground truth can expect to do better by much.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from mjexplore.explorers.base import ExplorationState, register
+from mjexplore.explorers.nearest import NearestFrontier
+from mjexplore.mapping.metrics import observable_ground_truth
+from mjexplore.navigation.planner import Costmap, PlannerConfig
+from mjexplore.topology.gvd import DynamicGVD
+
+
+@numba.njit(cache=True)
+def _visible(opaque, r0, c0, reach, n_rays, out, stamp, stamp_id):
+    """Marks (in ``stamp``) the cells seen from (r0, c0); returns how many, listed in out."""
+    rows, cols = opaque.shape
+    n = 0
+    for i in range(n_rays):
+        a = 2.0 * math.pi * i / n_rays
+        dr, dc = math.sin(a), math.cos(a)
+        steps = int(reach * 2)
+        for s in range(steps + 1):
+            t = s * 0.5
+            r = int(math.floor(r0 + 0.5 + dr * t))
+            c = int(math.floor(c0 + 0.5 + dc * t))
+            if r < 0 or r >= rows or c < 0 or c >= cols:
+                break
+            k = r * cols + c
+            if stamp[k] != stamp_id:
+                stamp[k] = stamp_id
+                out[n] = k
+                n += 1
+            if opaque[r, c]:
+                break
+    return n
+
+
+@register("oracle")
+class OracleExplorer:
+    """Args:
+        spacing: Lattice spacing of candidate viewpoints, metres.
+        coverage: Share of all observable cells that must be seen once the tour is done
+            (a little above the episode's 98.5 % target).
+        clearance: Least distance from a viewpoint to a wall, metres.
+    """
+
+    plans_on_ground_truth = True
+
+    def __init__(self, spacing: float = 0.5, coverage: float = 0.988,
+                 clearance: float = 0.35, min_new: float = 0.05) -> None:
+        self.spacing = spacing
+        self.coverage = coverage
+        self.clearance = clearance
+        self.min_new = min_new
+
+    def reset(self, rng: np.random.Generator) -> None:
+        del rng
+        self.tour: list[np.ndarray] | None = None
+        self.views: list[np.ndarray] = []
+        self.current: np.ndarray | None = None
+        self._fallback = NearestFrontier()
+
+    @staticmethod
+    def ground_truth_costmap(state: ExplorationState) -> Costmap:
+        gt = state.ground_truth
+        gvd = DynamicGVD(gt.shape)
+        gvd.update(gt.occupied | (gt.data < 0))
+        return Costmap(gt, gvd.distance2, PlannerConfig())
+
+    def _candidates(self, state: ExplorationState) -> None:
+        """Candidate viewpoints and the observable cells each one sees (once per episode)."""
+        gt = state.ground_truth
+        res = gt.resolution
+        self.costmap = self.ground_truth_costmap(state)
+        self.observable = observable_ground_truth(gt).known.reshape(-1)
+        opaque = ~gt.free
+        step = max(1, int(round(self.spacing / res)))
+        clear = np.sqrt(self.costmap._dist2.reshape(gt.shape)) * res
+        reachable = self.costmap.distances_from(state.pose[:2]) < np.inf
+        cand = np.argwhere(reachable & (clear >= self.clearance))
+        cand = cand[(cand[:, 0] % step == 0) & (cand[:, 1] % step == 0)]
+        reach = state.sensor_range / res
+        stamp = np.zeros(gt.data.size, np.int64)
+        buf = np.empty(gt.data.size, np.int64)
+        self.seen = []
+        for i, (r, c) in enumerate(cand):
+            n = _visible(opaque, r, c, reach, 360, buf, stamp, i + 1)
+            cells = buf[:n]
+            self.seen.append(cells[self.observable[cells]])
+        self.points = gt.cell_to_world(cand)
+
+    def _plan(self, state: ExplorationState) -> None:
+        """Greedy set cover of the observable cells the map does not know yet, as a tour."""
+        covered = state.grid.data.reshape(-1) >= 0
+        total = int(self.observable.sum())
+        chosen: list[int] = []
+        gains = np.array([int((~covered[s]).sum()) for s in self.seen])
+        while gains.size and gains.max() > 0 and \
+                int((self.observable & covered).sum()) < self.coverage * total:
+            best = int(np.argmax(gains))
+            chosen.append(best)
+            covered[self.seen[best]] = True
+            gains = np.array([0 if i in chosen else int((~covered[s]).sum())
+                              for i, s in enumerate(self.seen)])
+        self.views = [self.seen[i] for i in chosen]
+        self.tour = self._order(self.points[chosen], state.pose[:2], self.costmap) if chosen else []
+
+    def _order(self, points: np.ndarray, start: np.ndarray, costmap: Costmap) -> list:
+        """Nearest-neighbour tour over path distances, improved by 2-opt."""
+        nodes = np.vstack([start, points])
+        n = len(nodes)
+        d = np.zeros((n, n))
+        for i in range(n):
+            field = costmap.distances_from(nodes[i])
+            cells = costmap.grid.world_to_cell(nodes)
+            d[i] = field[cells[:, 0], cells[:, 1]]
+        d = np.where(np.isfinite(d), d, 1e6)
+        order = [0]
+        left = set(range(1, n))
+        while left:
+            nxt = min(left, key=lambda j: d[order[-1], j])
+            order.append(nxt)
+            left.remove(nxt)
+        improved = True
+        while improved:
+            improved = False
+            for i in range(1, n - 1):
+                for j in range(i + 1, n):
+                    a, b = order[i - 1], order[i]
+                    c = order[j]
+                    e = order[j + 1] if j + 1 < n else None
+                    before = d[a, b] + (d[c, e] if e is not None else 0.0)
+                    after = d[a, c] + (d[b, e] if e is not None else 0.0)
+                    if after < before - 1e-9:
+                        order[i:j + 1] = order[i:j + 1][::-1]
+                        improved = True
+        self.view_order = [k - 1 for k in order[1:]]
+        return [nodes[k] for k in order[1:]]
+
+    def goal_open(self, grid) -> bool | None:
+        """The current viewpoint is still worth reaching while enough of its view is unknown;
+        None for a fallback frontier goal (the runner's frontier test applies)."""
+        if self.current is None:
+            return None
+        if not len(self.current):
+            return False
+        return bool((grid.data.reshape(-1)[self.current] < 0).mean() >= self.min_new)
+
+    def select_goal(self, state: ExplorationState) -> np.ndarray | None:
+        if state.ground_truth is None:
+            raise ValueError("the oracle needs the ground truth")
+        if self.tour is None:
+            self._candidates(state)
+            self._plan(state)
+        known = state.grid.data.reshape(-1) >= 0
+        for attempt in range(2):  # The tour, then a new one for whatever is still unseen.
+            while self.tour:
+                goal = self.tour.pop(0)
+                view = self.views[self.view_order.pop(0)]
+                if len(view) and (~known[view]).mean() >= self.min_new and \
+                        state.allowed(goal[None])[0]:
+                    self.current = view
+                    return goal
+            if attempt == 0:
+                self._plan(state)
+        # What the lidar did not see although the ray casting said it would: finish with
+        # the nearest frontier.
+        self.current = None
+        return self._fallback.select_goal(state)
