@@ -84,6 +84,12 @@ class KinematicsRecorder:
     def clear(self) -> None:
         self._rows.clear()
 
+    @property
+    def rows(self) -> np.ndarray:
+        """A view of the raw samples (t, v, omega, v_cmd, omega_cmd, x, y, yaw, odom x, y,
+        yaw); valid until the next sample."""
+        return self._rows.array
+
     def record(self, t: float, v: float, omega: float, cmd: tuple[float, float],
                pose: tuple[float, float, float], odom: tuple[float, float, float]) -> None:
         """Appends one sample: time s, speed m/s, yaw rate rad/s, command (v, omega), true

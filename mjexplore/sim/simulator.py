@@ -193,6 +193,11 @@ class Simulator:
         """Velocity and acceleration samples since reset."""
         return self._kinematics.log()
 
+    @property
+    def kinematics_rows(self) -> np.ndarray:
+        """The raw kinematics samples so far (a view, no copy): columns t, v, omega, ..."""
+        return self._kinematics.rows
+
     def warnings(self) -> dict[str, int]:
         """MuJoCo warnings raised since reset, by kind (empty when none)."""
         return {mujoco.mjtWarning(i).name: int(w.number)
