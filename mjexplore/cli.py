@@ -119,6 +119,65 @@ def cmd_drive(args: argparse.Namespace) -> int:
     return 0
 
 
+def _episode_config(args: argparse.Namespace):
+    from mjexplore.eval.episode import EpisodeConfig
+    from mjexplore.robot import motion_profile
+    from mjexplore.sim.lidar import LidarConfig
+    from mjexplore.sim.simulator import SimConfig
+
+    profile = motion_profile(args.profile)
+    if not 0 < args.target_ratio <= 1:
+        raise UserInputError(f"--target-ratio {args.target_ratio} must be in (0, 1].")
+    lidar = LidarConfig(range_max=args.lidar_range or profile.lidar_range,
+                        noise_std=args.lidar_noise)
+    return EpisodeConfig(max_time=args.max_time, target_ratio=args.target_ratio,
+                         mapping_pose=args.mapping_pose,
+                         sim=SimConfig(profile=args.profile, lidar=lidar))
+
+
+def cmd_explore(args: argparse.Namespace) -> int:
+    from mjexplore.eval.run import write_run
+    from mjexplore.explorers import make_explorer
+    from mjexplore.scenes.canonical import resolve_scene
+
+    make_explorer(args.explorer)  # Fails early on an unknown name.
+    metrics = write_run(args.out, resolve_scene(args.scene), args.explorer, args.seed,
+                        _episode_config(args), mcap=not args.no_mcap)
+    print(json.dumps(metrics))
+    return 0
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from mjexplore.eval.sweep import run_sweep
+    from mjexplore.explorers import make_explorer
+
+    explorers = [e.strip() for e in args.explorers.split(",") if e.strip()]
+    for name in explorers:
+        make_explorer(name)
+    scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
+    if args.workers < 1 or args.seeds < 1:
+        raise UserInputError("--workers and --seeds must be at least 1.")
+    run_sweep(scenes, explorers, list(range(args.seeds)), Path(args.out),
+              _episode_config(args), workers=args.workers, mcap=args.mcap)
+    print((Path(args.out) / "results.md").read_text())
+    return 0
+
+
+def _add_episode_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--profile", default="sim", choices=["sim", "real"],
+                   help="motion profile: sim (0.5 m/s, 6 m lidar) or real (0.18 m/s, 5 m)")
+    p.add_argument("--lidar-range", type=_positive, default=None,
+                   help="lidar range in metres (default: the profile's; Explore-Bench uses 7)")
+    p.add_argument("--max-time", type=_positive, default=1800.0,
+                   help="time cap in simulated seconds (1800)")
+    p.add_argument("--target-ratio", type=float, default=0.985,
+                   help="exploration ratio that ends the episode (0.985)")
+    p.add_argument("--mapping-pose", default="ground_truth", choices=["ground_truth", "odometry"],
+                   help="pose the mapper uses")
+    p.add_argument("--lidar-noise", type=float, default=0.01,
+                   help="Gaussian range noise std in metres (0.01, about an LDS-01's)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mjexplore",
@@ -164,6 +223,35 @@ def build_parser() -> argparse.ArgumentParser:
     drive.add_argument("--seed", type=_seed, default=0)
     drive.add_argument("--out", type=Path, required=True, help="run folder")
     drive.set_defaults(func=cmd_drive)
+
+    explore = sub.add_parser(
+        "explore", help="run one exploration episode and write its run folder",
+        description="Explore a scene with one explorer in full physics until the exploration "
+                    "ratio reaches the target, the robot lingers, or time runs out. Writes "
+                    "metrics.json, config.json, ratio.csv, kinematics.csv, plots and an MCAP.")
+    explore.add_argument("--scene", default="office",
+                         help="canonical scene name, scene folder, MJCF or map_server YAML")
+    explore.add_argument("--explorer", default="nearest",
+                         help="nearest, rrt, potential or oracle")
+    explore.add_argument("--seed", type=_seed, default=0)
+    explore.add_argument("--out", type=Path, required=True, help="run folder")
+    explore.add_argument("--no-mcap", action="store_true", help="do not write episode.mcap")
+    _add_episode_args(explore)
+    explore.set_defaults(func=cmd_explore)
+
+    bench = sub.add_parser(
+        "bench", help="sweep scenes x explorers x seeds; tables and plots",
+        description="Run every combination in worker processes (resuming finished ones) and "
+                    "write results.md/.csv and the ratio and kinematics plots per scene.")
+    bench.add_argument("--scenes", default="loop_with_corridor,maze,office",
+                       help="comma-separated scene names or paths (MJCF or map_server YAML)")
+    bench.add_argument("--explorers", default="nearest,rrt,potential,oracle")
+    bench.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1 per combination")
+    bench.add_argument("--workers", type=int, default=2, help="worker processes")
+    bench.add_argument("--out", type=Path, required=True, help="sweep folder")
+    bench.add_argument("--mcap", action="store_true", help="also write an MCAP per episode")
+    _add_episode_args(bench)
+    bench.set_defaults(func=cmd_bench)
     return parser
 
 

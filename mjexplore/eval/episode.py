@@ -25,7 +25,8 @@ from mjexplore.maps import GridMap
 from mjexplore.navigation.navigator import Navigator, NavigatorConfig, NavStatus
 from mjexplore.navigation.planner import Costmap, PlannerConfig
 from mjexplore.robot import TURTLEBOT3_WAFFLE
-from mjexplore.scenes.scene import SceneFiles
+from mjexplore.errors import UserInputError
+from mjexplore.scenes.scene import SceneFiles, check_start
 from mjexplore.sim.kinematics import KinematicsLog
 from mjexplore.sim.simulator import SimConfig, Simulator
 from mjexplore.topology.frontiers import find_frontiers
@@ -49,6 +50,8 @@ class EpisodeConfig:
         topology: Frontier and GVD settings.
         unreachable_radius: A goal that cannot be reached, or is reached while its frontier
             stays open, blacklists frontier goals within this radius, metres.
+        start_jitter: (metres, radians) half-widths of the seeded uniform offset of the start
+            pose from the scene's (kept only where the robot fits), so that seeds differ.
     """
 
     max_time: float = 1800.0
@@ -60,6 +63,7 @@ class EpisodeConfig:
     planner: PlannerConfig = dataclasses.field(default_factory=PlannerConfig)
     topology: TopologyConfig = dataclasses.field(default_factory=TopologyConfig)
     unreachable_radius: float = 0.5
+    start_jitter: tuple[float, float] = (0.25, 0.3)
 
     def __post_init__(self) -> None:
         if self.mapping_pose not in ("ground_truth", "odometry"):
@@ -159,6 +163,7 @@ class Episode:
         sim_cfg = dataclasses.replace(cfg.sim, seed=seed)
         self.sim = Simulator(scene, sim_cfg)
         gt = scene.ground_truth
+        self.sim.reset(self._jittered_start(scene, gt, np.random.default_rng(seed)))
         self.mapper = OccupancyMapper.like(gt, MapperConfig(resolution=gt.resolution))
         self.tracker = TopologyTracker(gt.shape, cfg.topology, gt)
         self.reference = observable_ground_truth(gt)
@@ -181,6 +186,18 @@ class Episode:
         self._integrate(self.sim.latest_scan)
 
     # ------------------------------------------------------------------ internals
+
+    def _jittered_start(self, scene: SceneFiles, gt: GridMap,
+                        rng: np.random.Generator) -> tuple[float, float, float]:
+        dxy, dyaw = self.config.start_jitter
+        x, y, yaw = scene.start
+        offset = rng.uniform(-1.0, 1.0, size=3) * (dxy, dxy, dyaw)
+        pose = (x + offset[0], y + offset[1], yaw + offset[2])
+        try:
+            check_start(gt, pose)
+        except UserInputError:
+            return (x, y, pose[2])
+        return pose
 
     def _sensor_pose(self, scan) -> np.ndarray | None:
         if self.config.mapping_pose == "ground_truth":

@@ -60,6 +60,13 @@ CANONICAL_SCENES: dict[str, CanonicalScene] = {
 }
 
 
+# Explore-Bench's single-robot start poses (x, y, yaw) in map coordinates (its README).
+EXPLORE_BENCH_STARTS = {"corner": (6.0, 6.0, 1.57)}
+EXPLORE_BENCH_DEFAULT_START = (8.0, 8.0, 1.57)
+EXPLORE_BENCH_MAPS = ("corner", "corridor", "loop", "loop_with_corridor", "room",
+                      "room_with_corner")
+
+
 def canonical_names(role: str | None = None) -> list[str]:
     return [n for n, c in CANONICAL_SCENES.items() if role is None or c.role == role]
 
@@ -68,7 +75,9 @@ def resolve_scene(scene: str | os.PathLike) -> SceneFiles:
     """Finds a scene by canonical name, scene folder, MJCF path or map_server YAML path.
 
     A map_server YAML is imported into a scene folder under the system's temporary
-    directory (keyed by the map's content, so it is built once).
+    directory (keyed by the map's content, so it is built once). Explore-Bench's maps (a
+    YAML named like one of them in a folder named ``explore_bench``) start at the
+    benchmark's standard pose; other maps at a seeded free pose.
 
     Raises:
         UserInputError: no such scene.
@@ -87,8 +96,11 @@ def resolve_scene(scene: str | os.PathLike) -> SceneFiles:
 
         digest = hashlib.sha256(path.read_bytes()).hexdigest()[:16]
         folder = Path(tempfile.gettempdir()) / "mjexplore-scenes" / f"{path.stem}-{digest}"
+        start = None
+        if path.resolve().parent.name == "explore_bench" and path.stem in EXPLORE_BENCH_MAPS:
+            start = EXPLORE_BENCH_STARTS.get(path.stem, EXPLORE_BENCH_DEFAULT_START)
         if not (folder / "scene.xml").is_file():
-            write_scene(scene_from_map_yaml(path), folder)
+            write_scene(scene_from_map_yaml(path, start=start), folder)
         return load_scene_files(folder)
     if not path.exists():
         raise UserInputError(f"unknown scene {text!r}: give one of "

@@ -1,0 +1,104 @@
+"""Figures in the paper's style: exploration ratio over time (Fig. 5), kinematics (Fig. 9),
+and the final map with the trajectory (Fig. 6)."""
+
+from __future__ import annotations
+
+import io
+import os
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from mjexplore.io.atomic import write_bytes_atomic  # noqa: E402
+from mjexplore.maps import GridMap  # noqa: E402
+
+COLOURS = {"gvn": "tab:red", "potential": "tab:blue", "nearest": "tab:green",
+           "rrt": "tab:orange", "cnn": "tab:purple", "oracle": "black"}
+
+
+def _save(fig, path: str | os.PathLike) -> None:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    write_bytes_atomic(path, buf.getvalue())
+
+
+def resample(curve: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Exploration ratio at ``times`` (held at its last value after the episode ended)."""
+    return np.interp(times, curve[:, 0], curve[:, 1], right=curve[-1, 1])
+
+
+def ratio_figure(curves: dict[str, list[np.ndarray]], path: str | os.PathLike,
+                 title: str = "", marks: tuple[float, ...] = (0.80, 0.985)) -> None:
+    """Mean (line) and spread (min-max band) of the exploration ratio over time per method,
+    with the mean times to each of ``marks`` shown as dotted lines."""
+    fig, ax = plt.subplots(figsize=(7, 4))
+    t_end = max(c[-1, 0] for runs in curves.values() for c in runs)
+    times = np.linspace(0, t_end, 400)
+    for method, runs in curves.items():
+        values = np.array([resample(c, times) for c in runs])
+        colour = COLOURS.get(method)
+        ax.plot(times, values.mean(axis=0), label=method, color=colour)
+        ax.fill_between(times, values.min(axis=0), values.max(axis=0), alpha=0.15, color=colour)
+        for level in marks:
+            hits = [c[np.argmax(c[:, 1] >= level), 0] for c in runs if (c[:, 1] >= level).any()]
+            if hits:
+                ax.axvline(float(np.mean(hits)), color=colour, ls=":", lw=0.8)
+    for level in marks:
+        ax.axhline(level, color="grey", ls="--", lw=0.6)
+    ax.set_xlabel("simulated time (s)")
+    ax.set_ylabel("exploration ratio")
+    ax.set_ylim(0, 1.02)
+    ax.set_title(title)
+    ax.legend(loc="lower right")
+    _save(fig, path)
+
+
+def kinematics_figure(logs: dict[str, list], path: str | os.PathLike, title: str = "") -> None:
+    """Linear and angular velocity and acceleration over time per method (mean and spread)."""
+    fig, axes = plt.subplots(4, len(logs), figsize=(4 * len(logs), 8), squeeze=False,
+                             sharex="col")
+    names = [("linear_velocity", "v (m/s)"), ("angular_velocity", "omega (rad/s)"),
+             ("linear_acceleration", "a (m/s^2)"), ("angular_acceleration", "alpha (rad/s^2)")]
+    for col, (method, runs) in enumerate(logs.items()):
+        t_end = min(log.t[-1] for log in runs)
+        times = np.linspace(0, t_end, 600)
+        for row, (field, label) in enumerate(names):
+            values = np.array([np.interp(times, log.t, getattr(log, field)) for log in runs])
+            ax = axes[row, col]
+            ax.plot(times, values.mean(axis=0), lw=0.6, color=COLOURS.get(method))
+            ax.fill_between(times, values.min(axis=0), values.max(axis=0), alpha=0.2,
+                            color=COLOURS.get(method))
+            if col == 0:
+                ax.set_ylabel(label)
+            if row == 0:
+                ax.set_title(method)
+        axes[-1, col].set_xlabel("simulated time (s)")
+    fig.suptitle(title)
+    _save(fig, path)
+
+
+def map_figure(grid: GridMap, path_xy: np.ndarray, goals: np.ndarray,
+               path: str | os.PathLike, title: str = "", ter=None) -> None:
+    """The final map with the trajectory (green), the goals (blue) and optionally a TER."""
+    img = np.full(grid.shape, 0.6)
+    img[grid.free] = 1.0
+    img[grid.occupied] = 0.0
+    x0, y0 = grid.origin[:2]
+    w, h = grid.size_m
+    fig, ax = plt.subplots(figsize=(8, 8 * h / w + 0.5))
+    ax.imshow(img, cmap="gray", origin="lower", extent=(x0, x0 + w, y0, y0 + h), vmin=0, vmax=1)
+    if ter is not None:
+        for a, b in ter.edges:
+            ax.plot(*ter.positions[[a, b]].T, color="tab:orange", lw=0.6)
+        ax.scatter(*ter.positions.T, s=6, c=np.where(ter.flags > 0, "tab:blue", "tab:red"))
+    ax.plot(path_xy[:, 0], path_xy[:, 1], color="lime", lw=1.2)
+    if len(goals):
+        ax.scatter(goals[:, 1], goals[:, 2], s=10, color="tab:blue", zorder=3)
+    ax.set_title(title)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    _save(fig, path)

@@ -1,0 +1,70 @@
+"""The ``explore`` job: one episode written to a run folder.
+
+Run folder: ``metrics.json`` (the paper's metrics), ``config.json`` (resolved settings and
+git revision), ``ratio.csv`` (exploration ratio over simulated time), ``kinematics.csv``,
+``ratio.png``, ``kinematics.png``, ``map.png`` (final map and trajectory) and
+``episode.mcap``. The folder appears complete or not at all.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+
+from mjexplore.drive import kinematics_csv
+from mjexplore.eval.episode import Episode, EpisodeConfig, EpisodeResult
+from mjexplore.eval.plots import kinematics_figure, map_figure, ratio_figure
+from mjexplore.explorers import make_explorer
+from mjexplore.io.atomic import atomic_directory, write_text_atomic
+from mjexplore.io.mcap_log import McapEpisodeLog
+from mjexplore.io.provenance import git_revision
+from mjexplore.scenes.scene import SceneFiles
+
+
+def run_episode(scene: SceneFiles, explorer: str, seed: int, config: EpisodeConfig,
+                mcap_path: str | os.PathLike | None = None,
+                explorer_kwargs: dict | None = None) -> EpisodeResult:
+    """Runs one episode, optionally logging it to MCAP."""
+    log = McapEpisodeLog(mcap_path) if mcap_path is not None else None
+    episode = Episode(scene, make_explorer(explorer, **(explorer_kwargs or {})), seed, config,
+                      observer=log)
+    try:
+        result = episode.run()
+    finally:
+        if log is not None:
+            log.close()
+    return result
+
+
+def resolved_config(scene: SceneFiles, explorer: str, seed: int,
+                    config: EpisodeConfig) -> dict[str, Any]:
+    return {"scene": str(scene.xml), "scene_metadata": scene.metadata, "explorer": explorer,
+            "seed": seed, "episode": dataclasses.asdict(config), "git_revision": git_revision()}
+
+
+def write_run(out_dir: str | os.PathLike, scene: SceneFiles, explorer: str, seed: int,
+              config: EpisodeConfig, mcap: bool = True) -> dict[str, Any]:
+    """Runs an episode and writes its run folder atomically; returns the metrics."""
+    with atomic_directory(out_dir) as tmp:
+        result = run_episode(scene, explorer, seed, config,
+                             tmp / "episode.mcap" if mcap else None)
+        metrics = {"scene": scene.metadata.get("name", Path(scene.xml).parent.name),
+                   "explorer": explorer, "seed": seed, **result.metrics}
+        write_text_atomic(tmp / "metrics.json", json.dumps(metrics, indent=2) + "\n")
+        write_text_atomic(tmp / "config.json", json.dumps(
+            resolved_config(scene, explorer, seed, config), indent=2, default=str) + "\n")
+        write_text_atomic(tmp / "ratio.csv", "t,exploration_ratio\n" + "".join(
+            f"{t:.3f},{r:.6f}\n" for t, r in result.ratio_curve))
+        write_text_atomic(tmp / "kinematics.csv", kinematics_csv(result.kinematics))
+        title = f"{metrics['scene']} / {explorer} / seed {seed}"
+        ratio_figure({explorer: [result.ratio_curve]}, tmp / "ratio.png", title)
+        kinematics_figure({explorer: [result.kinematics]}, tmp / "kinematics.png", title)
+        map_figure(result.grid, result.kinematics.pose[:, :2], result.goals, tmp / "map.png", title)
+    return metrics
+
+
+__all__ = ["run_episode", "write_run"]

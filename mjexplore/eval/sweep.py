@@ -1,0 +1,132 @@
+"""Benchmark sweeps: scenes x explorers x seeds in worker processes, then tables and plots.
+
+Every episode writes its own run folder under ``OUT/runs/SCENE/EXPLORER/seedN`` (atomic);
+a sweep started again skips the episodes whose folder is complete, so an interrupted sweep
+resumes where it stopped. The summary is a Table-1-like table (mean +- std of IoU, ER, ET,
+PL, T80, T98.5 per scene and method) in ``results.md`` and ``results.csv``, a Fig-5-like
+plot per scene (``ratio_SCENE.png``) and a Fig-9-like kinematics plot per scene
+(``kinematics_SCENE.png``).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import json
+import multiprocessing
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from mjexplore.eval.episode import EpisodeConfig
+from mjexplore.eval.plots import kinematics_figure, ratio_figure
+from mjexplore.eval.run import write_run
+from mjexplore.io.atomic import write_text_atomic
+from mjexplore.scenes.canonical import resolve_scene
+from mjexplore.sim.kinematics import KinematicsLog
+
+METRICS = (("iou", "IoU"), ("exploration_ratio", "ER"), ("exploration_time_s", "ET (s)"),
+           ("path_length_m", "PL (m)"), ("t80_s", "T80 (s)"), ("t985_s", "T98.5 (s)"))
+
+
+@dataclasses.dataclass(frozen=True)
+class Job:
+    scene: str
+    explorer: str
+    seed: int
+
+    def folder(self, out: Path) -> Path:
+        return out / "runs" / Path(self.scene).stem / self.explorer / f"seed{self.seed}"
+
+
+def _run_job(args: tuple[Job, Path, EpisodeConfig, bool]) -> dict[str, Any]:
+    job, out, config, mcap = args
+    folder = job.folder(out)
+    if (folder / "metrics.json").is_file():
+        return json.loads((folder / "metrics.json").read_text())
+    metrics = write_run(folder, resolve_scene(job.scene), job.explorer, job.seed, config, mcap)
+    metrics["scene"] = Path(job.scene).stem
+    return metrics
+
+
+def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Path,
+              config: EpisodeConfig, workers: int = 2, mcap: bool = False,
+              progress: bool = True) -> list[dict[str, Any]]:
+    """Runs (or resumes) a sweep and writes its summary; returns every episode's metrics."""
+    for scene in scenes:
+        resolve_scene(scene)  # Fail early, in the parent, on a bad scene.
+    jobs = [Job(s, e, seed) for s in scenes for e in explorers for seed in seeds]
+    args = [(job, out, config, mcap) for job in jobs]
+    results = []
+    bar = tqdm(total=len(jobs), desc="episodes", disable=not progress, unit="ep")
+    if workers <= 1:
+        for a in args:
+            results.append(_run_job(a))
+            bar.update()
+    else:
+        ctx = multiprocessing.get_context("spawn")
+        with ctx.Pool(workers, initializer=_single_thread) as pool:
+            for metrics in pool.imap_unordered(_run_job, args):
+                results.append(metrics)
+                bar.update()
+    bar.close()
+    write_summary(out, jobs)
+    return results
+
+
+def _single_thread() -> None:
+    os.environ["OMP_NUM_THREADS"] = "1"
+    os.environ["NUMBA_NUM_THREADS"] = "1"
+
+
+def _read_curve(folder: Path) -> np.ndarray:
+    return np.loadtxt(folder / "ratio.csv", delimiter=",", skiprows=1, ndmin=2)
+
+
+def _read_kinematics(folder: Path) -> KinematicsLog:
+    table = np.loadtxt(folder / "kinematics.csv", delimiter=",", skiprows=1, ndmin=2)
+    return KinematicsLog(t=table[:, 0], linear_velocity=table[:, 1],
+                         angular_velocity=table[:, 2], linear_acceleration=table[:, 3],
+                         angular_acceleration=table[:, 4], cmd_linear=table[:, 5],
+                         cmd_angular=table[:, 6], pose=table[:, 7:10], odom_pose=table[:, 10:13])
+
+
+def _mean_std(values: list) -> str:
+    vals = [v for v in values if v is not None]
+    if not vals:
+        return "-"
+    text = f"{np.mean(vals):.3f} +- {np.std(vals):.3f}" if max(abs(v) for v in vals) < 10 else \
+        f"{np.mean(vals):.1f} +- {np.std(vals):.1f}"
+    return text + (f" ({len(vals)}/{len(values)})" if len(vals) < len(values) else "")
+
+
+def write_summary(out: Path, jobs: list[Job]) -> None:
+    """Writes the tables and figures of the finished runs among ``jobs``."""
+    by_scene: dict[str, dict[str, list[Path]]] = {}
+    for job in jobs:
+        folder = job.folder(out)
+        if (folder / "metrics.json").is_file():
+            by_scene.setdefault(Path(job.scene).stem, {}).setdefault(job.explorer, []).append(folder)
+    header = ["scene", "method", "runs", "explored"] + [label for _, label in METRICS]
+    rows = []
+    for scene, methods in by_scene.items():
+        for method, folders in methods.items():
+            ms = [json.loads((f / "metrics.json").read_text()) for f in folders]
+            explored = sum(m["end_reason"] == "explored" for m in ms)
+            rows.append([scene, method, len(ms), explored] +
+                        [_mean_std([m[key] for m in ms]) for key, _ in METRICS])
+        ratio_figure({m: [_read_curve(f) for f in fs] for m, fs in methods.items()},
+                     out / f"ratio_{scene}.png", f"{scene}: exploration ratio over time")
+        kinematics_figure({m: [_read_kinematics(f) for f in fs] for m, fs in methods.items()},
+                          out / f"kinematics_{scene}.png", f"{scene}: kinematics")
+    buf = io.StringIO()
+    csv.writer(buf).writerows([header] + rows)
+    write_text_atomic(out / "results.csv", buf.getvalue())
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    write_text_atomic(out / "results.md", "\n".join(lines) + "\n\nMean +- std over runs; "
+                      "(k/n) where only k of n runs reached the level.\n")
