@@ -92,7 +92,7 @@ class EpisodeResult:
 def first_time_at(curve: np.ndarray, level: float) -> float | None:
     """First time (s) at which the ratio curve reaches ``level``, or None."""
     hit = np.flatnonzero(curve[:, 1] >= level)
-    return float(curve[hit[0], 0]) if len(hit) else None
+    return round(float(curve[hit[0], 0]), 3) if len(hit) else None
 
 
 def episode_metrics(curve: np.ndarray, log: KinematicsLog, final_iou: float,

@@ -1,10 +1,11 @@
 """The oracle: a planner that knows the ground truth, as a practical lower bound.
 
-It chooses viewpoints that together see all observable free space and wall surfaces
-(greedy set cover over candidate positions on a ``spacing`` lattice in the robot's
-configuration space, visibility by ray casting on the ground truth at the lidar's range),
-orders them into a short tour (nearest neighbour on path distances, then 2-opt), and
-drives the tour on a costmap of the ground truth; viewpoints whose view is already mostly
+It plans a tour of viewpoints that together see (nearly) all observable free space and
+wall surfaces: candidates on a ``spacing`` lattice in the robot's configuration space,
+their views by ray casting on the ground truth at the lidar's range, chosen one after
+another by new cells seen per metre of path from the previous one (a greedy covering
+tour, with path distances on the ground truth). It drives the tour on a costmap of the
+ground truth; viewpoints whose view is already mostly
 known are skipped. Cells the ray casting counted as seen but the lidar missed are picked up
 at the end by the nearest frontier. No explorer without the ground truth can expect to do better by much.
 """
@@ -60,11 +61,12 @@ class OracleExplorer:
     plans_on_ground_truth = True
 
     def __init__(self, spacing: float = 0.5, coverage: float = 0.988,
-                 clearance: float = 0.35, min_new: float = 0.05) -> None:
+                 clearance: float = 0.35, min_new: float = 0.05, detour: float = 2.0) -> None:
         self.spacing = spacing
         self.coverage = coverage
         self.clearance = clearance
         self.min_new = min_new
+        self.detour = detour
 
     def reset(self, rng: np.random.Generator) -> None:
         del rng
@@ -103,52 +105,30 @@ class OracleExplorer:
         self.points = gt.cell_to_world(cand)
 
     def _plan(self, state: ExplorationState) -> None:
-        """Greedy set cover of the observable cells the map does not know yet, as a tour."""
+        """A covering tour built greedily by new cells seen per metre of path.
+
+        From the robot, the next viewpoint is the one with the most observable cells not
+        yet known or covered, divided by (path distance + ``detour``); it repeats until the
+        tour's views cover ``coverage`` of all observable cells.
+        """
         covered = state.grid.data.reshape(-1) >= 0
         total = int(self.observable.sum())
-        chosen: list[int] = []
-        gains = np.array([int((~covered[s]).sum()) for s in self.seen])
-        while gains.size and gains.max() > 0 and \
-                int((self.observable & covered).sum()) < self.coverage * total:
-            best = int(np.argmax(gains))
-            chosen.append(best)
+        cells = self.costmap.grid.world_to_cell(self.points)
+        here = np.asarray(state.pose[:2], float)
+        self.tour, self.views = [], []
+        while int((self.observable & covered).sum()) < self.coverage * total:
+            gains = np.array([int((~covered[s]).sum()) for s in self.seen], float)
+            if gains.max() <= 0:
+                break
+            dist = self.costmap.distances_from(here)[cells[:, 0], cells[:, 1]]
+            score = np.where(np.isfinite(dist), gains / (dist + self.detour), -1.0)
+            best = int(np.argmax(score))
+            if score[best] <= 0:
+                break
             covered[self.seen[best]] = True
-            gains = np.array([0 if i in chosen else int((~covered[s]).sum())
-                              for i, s in enumerate(self.seen)])
-        self.views = [self.seen[i] for i in chosen]
-        self.tour = self._order(self.points[chosen], state.pose[:2], self.costmap) if chosen else []
-
-    def _order(self, points: np.ndarray, start: np.ndarray, costmap: Costmap) -> list:
-        """Nearest-neighbour tour over path distances, improved by 2-opt."""
-        nodes = np.vstack([start, points])
-        n = len(nodes)
-        d = np.zeros((n, n))
-        for i in range(n):
-            field = costmap.distances_from(nodes[i])
-            cells = costmap.grid.world_to_cell(nodes)
-            d[i] = field[cells[:, 0], cells[:, 1]]
-        d = np.where(np.isfinite(d), d, 1e6)
-        order = [0]
-        left = set(range(1, n))
-        while left:
-            nxt = min(left, key=lambda j: d[order[-1], j])
-            order.append(nxt)
-            left.remove(nxt)
-        improved = True
-        while improved:
-            improved = False
-            for i in range(1, n - 1):
-                for j in range(i + 1, n):
-                    a, b = order[i - 1], order[i]
-                    c = order[j]
-                    e = order[j + 1] if j + 1 < n else None
-                    before = d[a, b] + (d[c, e] if e is not None else 0.0)
-                    after = d[a, c] + (d[b, e] if e is not None else 0.0)
-                    if after < before - 1e-9:
-                        order[i:j + 1] = order[i:j + 1][::-1]
-                        improved = True
-        self.view_order = [k - 1 for k in order[1:]]
-        return [nodes[k] for k in order[1:]]
+            here = self.points[best]
+            self.tour.append(here)
+            self.views.append(self.seen[best])
 
     def goal_open(self, grid) -> bool | None:
         """The current viewpoint is still worth reaching while enough of its view is unknown;
@@ -169,7 +149,7 @@ class OracleExplorer:
         for attempt in range(2):  # The tour, then a new one for whatever is still unseen.
             while self.tour:
                 goal = self.tour.pop(0)
-                view = self.views[self.view_order.pop(0)]
+                view = self.views.pop(0)
                 if len(view) and (~known[view]).mean() >= self.min_new and \
                         state.allowed(goal[None])[0]:
                     self.current = view

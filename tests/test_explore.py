@@ -1,0 +1,132 @@
+import json
+import math
+
+import numpy as np
+import pytest
+
+from mjexplore.eval.episode import Episode, EpisodeConfig, episode_metrics, first_time_at
+from mjexplore.explorers import make_explorer
+from mjexplore.explorers.base import ExplorationState
+from mjexplore.navigation.navigator import NavigatorConfig
+from mjexplore.scenes.canonical import resolve_scene
+from mjexplore.sim.kinematics import KinematicsLog
+
+SMALL_LOOP = "train_loop"
+
+
+def explore(explorer, seed=0, **config):
+    scene = resolve_scene(SMALL_LOOP)
+    return Episode(scene, make_explorer(explorer), seed, EpisodeConfig(**config)).run()
+
+
+@pytest.mark.parametrize("explorer", ["nearest", "rrt", "potential", "oracle"])
+def test_explorers_fully_explore_the_small_loop(explorer):
+    result = explore(explorer)
+    m = result.metrics
+    assert m["end_reason"] == "explored"
+    assert m["exploration_ratio"] >= 0.985
+    assert m["exploration_ratio"] == pytest.approx(m["exploration_ratio_check"], abs=1e-9)
+    assert m["collisions"] == 0
+    assert m["t80_s"] <= m["t985_s"] == m["exploration_time_s"]
+    assert m["iou"] > 0.85
+
+
+def test_oracle_path_is_not_longer_than_nearest():
+    for seed in (0, 1):
+        oracle = explore("oracle", seed).metrics["path_length_m"]
+        nearest = explore("nearest", seed).metrics["path_length_m"]
+        assert oracle <= nearest
+
+
+def test_same_seed_same_metrics():
+    a = explore("potential", seed=3).metrics
+    b = explore("potential", seed=3).metrics
+    assert a == b
+    c = explore("potential", seed=4).metrics
+    assert c != a  # The seed moves the start and the sensor noise.
+
+
+def test_metrics_on_a_scripted_trajectory():
+    t = np.arange(0, 10.01, 0.5)
+    ratio = np.clip(t / 10.0, 0, 1) ** 0.5  # 0.8 at t = 6.4, 0.985 at t = 9.70...
+    curve = np.column_stack([t, ratio])
+    assert first_time_at(curve, 0.8) == pytest.approx(6.5)  # First sample at or above.
+    assert first_time_at(curve, 0.985) == pytest.approx(10.0)
+    assert first_time_at(curve, 1.01) is None
+    # A square of side 2 m driven along x then y, sampled every 0.1 s at 1 m/s.
+    s = np.arange(0, 4.01, 0.1)
+    x = np.minimum(s, 2.0)
+    y = np.maximum(s - 2.0, 0.0)
+    pose = np.column_stack([x, y, np.zeros_like(s)])
+    log = KinematicsLog(t=s, linear_velocity=np.ones_like(s), angular_velocity=np.zeros_like(s),
+                        linear_acceleration=np.zeros_like(s),
+                        angular_acceleration=np.zeros_like(s), cmd_linear=np.ones_like(s),
+                        cmd_angular=np.zeros_like(s), pose=pose, odom_pose=pose)
+    m = episode_metrics(curve, log, final_iou=0.9, collisions=2, end_reason="explored")
+    assert m["path_length_m"] == pytest.approx(4.0)
+    assert m["exploration_time_s"] == pytest.approx(10.0)
+    assert m["exploration_ratio"] == pytest.approx(1.0)
+    assert m["t80_s"] == pytest.approx(6.5) and m["t985_s"] == pytest.approx(10.0)
+    assert m["collisions"] == 2 and m["mean_speed_mps"] == pytest.approx(0.4)
+
+
+class FarGoal:
+    """Always the same far, reachable goal."""
+
+    name = "far"
+
+    def reset(self, rng):
+        self.goal = None
+
+    def select_goal(self, state: ExplorationState):
+        return np.array([state.pose[0], state.pose[1] - 3.0]) if self.goal is None else self.goal
+
+
+def test_lingering_ends_the_episode():
+    scene = resolve_scene(SMALL_LOOP)
+    config = EpisodeConfig(navigator=NavigatorConfig(linger_radius=100.0, linger_time=5.0))
+    episode = Episode(scene, FarGoal(), 0, config)
+    result = episode.run()
+    assert result.metrics["end_reason"] == "lingering"
+    assert result.metrics["exploration_time_s"] == pytest.approx(5.0, abs=0.15)
+
+
+def test_time_limit_and_unknown_explorer():
+    result = explore("nearest", max_time=3.0)
+    assert result.metrics["end_reason"] == "time_limit"
+    from mjexplore.errors import UserInputError
+
+    with pytest.raises(UserInputError, match="unknown explorer"):
+        make_explorer("teleport")
+
+
+def test_mcap_log_reads_back(tmp_path):
+    from collections import Counter
+
+    from mcap.reader import make_reader
+
+    from mjexplore.eval.run import run_episode
+    from mjexplore.io.mcap_log import TOPICS
+
+    path = tmp_path / "ep.mcap"
+    result = run_episode(resolve_scene(SMALL_LOOP), "nearest", 0, EpisodeConfig(max_time=8.0),
+                         mcap_path=path)
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        topics = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
+        counts = Counter()
+        last = {}
+        for schema, channel, message in reader.iter_messages():
+            counts[channel.topic] += 1
+            assert message.log_time >= last.get(channel.topic, 0)  # Simulated, in order.
+            last[channel.topic] = message.log_time
+    assert set(topics) == set(TOPICS)
+    assert topics["/scan"] == "foxglove.LaserScan" and topics["/map"] == "foxglove.Grid"
+    assert topics["/tf"] == "foxglove.FrameTransforms" and topics["/ter"] == "foxglove.SceneUpdate"
+    scans = len(result.ratio_curve)
+    assert counts["/scan"] == counts["/tf"] == counts["/pose"] == counts["/odom"] == scans
+    assert counts["/goal"] == counts["/ter"] == result.metrics["decisions"]
+    assert counts["/map"] == math.ceil(8.0 / 1.0) + 1
+    assert counts["/kinematics"] == len(result.kinematics.t) - 1
+    assert max(last.values()) <= 8.0e9 + 1

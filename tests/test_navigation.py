@@ -1,0 +1,61 @@
+import numpy as np
+
+from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
+from mjexplore.navigation.planner import Costmap, PlannerConfig, path_length
+from mjexplore.topology.gvd import DynamicGVD
+
+
+def room_with_wall():
+    data = np.full((60, 100), FREE, np.int8)
+    data[0, :] = data[-1, :] = data[:, 0] = data[:, -1] = OCCUPIED
+    data[:45, 50:53] = OCCUPIED  # A wall with a gap at the top.
+    return GridMap(data, 0.1)
+
+
+def costmap_of(grid):
+    gvd = DynamicGVD(grid.shape)
+    gvd.update(grid.occupied, grid.known)
+    return Costmap(grid, gvd.distance2, PlannerConfig()), gvd
+
+
+def test_path_goes_round_the_wall_and_keeps_clear():
+    grid = room_with_wall()
+    costmap, _ = costmap_of(grid)
+    path = costmap.plan(np.array([2.0, 1.0]), np.array([8.0, 1.0]))
+    assert path is not None
+    assert path[:, 1].max() > 4.5  # Through the gap above the wall.
+    # No shorter than the straight lines through the gap's corner at (5.15, 4.5).
+    bound = 2 * np.hypot(5.15 - 2.0, 4.5 - 1.0)
+    assert bound < path_length(path) < 1.3 * bound
+    for x, y in path:
+        r, c = grid.world_to_cell(np.array([x, y]))
+        window = grid.data[r - 1:r + 2, c - 1:c + 2]
+        assert (window == FREE).all()  # Never next to a wall cell.
+
+
+def test_unknown_is_not_traversable_and_incremental_costs_match():
+    grid = room_with_wall()
+    grid.data[:, 70:] = UNKNOWN
+    costmap, gvd = costmap_of(grid)
+    assert costmap.plan(np.array([2.0, 1.0]), np.array([8.5, 1.0]), goal_radius=0.3) is None
+    # Reveal the unknown part, update incrementally, compare with a fresh costmap.
+    changed = np.flatnonzero((grid.data == UNKNOWN).reshape(-1))
+    grid.data[:, 70:] = FREE
+    grid.data[:, -1] = OCCUPIED
+    gvd.update(grid.occupied, grid.known)
+    costmap.update(np.concatenate([changed, gvd.last_changed]))
+    fresh, _ = costmap_of(grid)
+    assert np.array_equal(costmap.cost, fresh.cost)
+    assert costmap.plan(np.array([2.0, 1.0]), np.array([8.5, 1.0])) is not None
+
+
+def test_distances_from_stop_at_first_target():
+    grid = room_with_wall()
+    costmap, _ = costmap_of(grid)
+    targets = np.zeros(grid.shape, bool)
+    targets[10, 20] = targets[10, 90] = True
+    full = costmap.distances_from(np.array([1.5, 1.0]), targets)
+    first = costmap.distances_from(np.array([1.5, 1.0]), targets, stop_after=1)
+    assert np.isfinite(full[10, 90]) and np.isfinite(first[10, 20])
+    assert first[10, 20] == full[10, 20]
+    assert np.isinf(first[10, 90])
