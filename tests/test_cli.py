@@ -58,6 +58,13 @@ BAD = {
     "unknown scene": lambda p: ["drive", "--scene", "atlantis", "--out", str(p / "o")],
     "unknown profile": lambda p: ["drive", "--profile", "turbo", "--out", str(p / "o")],
     "negative duration": lambda p: ["drive", "--duration=-4", "--out", str(p / "o")],
+    "unknown explorer": lambda p: ["explore", "--explorer", "teleport", "--out", str(p / "o")],
+    "bad target ratio": lambda p: ["explore", "--target-ratio", "1.5", "--out", str(p / "o")],
+    "negative max time": lambda p: ["explore", "--max-time=-1", "--out", str(p / "o")],
+    "bench unknown scene": lambda p: ["bench", "--scenes", "atlantis", "--out", str(p / "o")],
+    "bench no workers": lambda p: ["bench", "--workers", "0", "--out", str(p / "o")],
+    "bench unknown explorer": lambda p: ["bench", "--explorers", "nearest,magic", "--out",
+                                         str(p / "o")],
 }
 
 
@@ -89,3 +96,34 @@ def test_drive_writes_run_folder(tmp_path):
     lines = (tmp_path / "r" / "kinematics.csv").read_text().splitlines()
     assert lines[0].startswith("t,linear_velocity") and len(lines) == 1 + 5 * 20 + 1
     assert (tmp_path / "r" / "trajectory.png").stat().st_size > 1000
+
+
+def test_explore_writes_run_folder(tmp_path):
+    out = tmp_path / "run"
+    assert main(["explore", "--scene", "train_loop", "--explorer", "potential", "--max-time", "20",
+                 "--out", str(out)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    for key in ("iou", "exploration_ratio", "exploration_time_s", "path_length_m", "t80_s",
+                "t985_s", "collisions", "end_reason"):
+        assert key in metrics
+    assert metrics["end_reason"] in ("explored", "time_limit")
+    config = json.loads((out / "config.json").read_text())
+    assert config["explorer"] == "potential" and config["git_revision"]
+    for name in ("ratio.csv", "kinematics.csv", "ratio.png", "kinematics.png", "map.png",
+                 "episode.mcap"):
+        assert (out / name).stat().st_size > 100
+
+
+def test_bench_writes_tables_and_resumes(tmp_path):
+    out = tmp_path / "bench"
+    args = ["bench", "--scenes", "train_loop", "--explorers", "nearest,potential", "--seeds", "1",
+            "--workers", "1", "--max-time", "15", "--out", str(out)]
+    assert main(args) == 0
+    table = (out / "results.md").read_text()
+    assert "| train_loop | nearest | 1 |" in table and "| train_loop | potential | 1 |" in table
+    assert (out / "results.csv").read_text().startswith("scene,method,runs,explored,IoU")
+    assert (out / "ratio_train_loop.png").is_file() and (out / "kinematics_train_loop.png").is_file()
+    done = out / "runs" / "train_loop" / "nearest" / "seed0" / "metrics.json"
+    stamp = done.stat().st_mtime_ns
+    assert main(args) == 0  # Finished episodes are skipped, not run again.
+    assert done.stat().st_mtime_ns == stamp
