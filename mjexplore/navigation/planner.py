@@ -15,6 +15,9 @@ import math
 import numba
 import numpy as np
 
+from mjexplore.heap import pop as _heap_pop
+from mjexplore.heap import push as _heap_push
+
 from mjexplore.maps import GridMap
 
 _DR = np.array([-1, -1, -1, 0, 0, 1, 1, 1], np.int64)
@@ -40,48 +43,6 @@ class PlannerConfig:
 
 
 @numba.njit(cache=True)
-def _push(keys, vals, size, key, val):
-    if size == len(keys):
-        nk = np.empty(2 * len(keys))
-        nv = np.empty(2 * len(vals), np.int64)
-        nk[:size] = keys[:size]
-        nv[:size] = vals[:size]
-        keys, vals = nk, nv
-    i = size
-    keys[i] = key
-    vals[i] = val
-    while i > 0:
-        p = (i - 1) >> 1
-        if keys[p] <= keys[i]:
-            break
-        keys[p], keys[i] = keys[i], keys[p]
-        vals[p], vals[i] = vals[i], vals[p]
-        i = p
-    return keys, vals, size + 1
-
-
-@numba.njit(cache=True)
-def _pop(keys, vals, size):
-    key, val = keys[0], vals[0]
-    size -= 1
-    keys[0], vals[0] = keys[size], vals[size]
-    i = 0
-    while True:
-        left = 2 * i + 1
-        if left >= size:
-            break
-        child = left
-        if left + 1 < size and keys[left + 1] < keys[left]:
-            child = left + 1
-        if keys[i] <= keys[child]:
-            break
-        keys[i], keys[child] = keys[child], keys[i]
-        vals[i], vals[child] = vals[child], vals[i]
-        i = child
-    return key, val, size
-
-
-@numba.njit(cache=True)
 def _search(cost, start, goal, rows, cols, with_heuristic, dist, parent, stamp, search_id,
             keys, vals, is_target, stop_after):
     """Dijkstra (goal < 0: to every cell) or A* (goal >= 0) over cells with cost >= 0.
@@ -98,9 +59,9 @@ def _search(cost, start, goal, rows, cols, with_heuristic, dist, parent, stamp, 
     dist[start] = 0.0
     parent[start] = -1
     gr, gc = (goal // cols, goal % cols) if goal >= 0 else (0, 0)
-    keys, vals, size = _push(keys, vals, size, 0.0, start)
+    keys, vals, size = _heap_push(keys, vals, size, 0.0, start)
     while size > 0:
-        _, s, size = _pop(keys, vals, size)
+        _, s, size = _heap_pop(keys, vals, size)
         if stamp[s] == -search_id:
             continue
         stamp[s] = -search_id
@@ -130,7 +91,7 @@ def _search(cost, start, goal, rows, cols, with_heuristic, dist, parent, stamp, 
                 h = 0.0
                 if with_heuristic:
                     h = math.hypot(rr - gr, cc - gc)
-                keys, vals, size = _push(keys, vals, size, d + h, y)
+                keys, vals, size = _heap_push(keys, vals, size, d + h, y)
     return keys, vals
 
 

@@ -38,51 +38,12 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from mjexplore.heap import pop as _heap_pop
+from mjexplore.heap import push as _heap_push
+
 INF = np.int64(1) << np.int64(40)
 _DR = np.array([-1, -1, -1, 0, 0, 1, 1, 1], np.int64)
 _DC = np.array([-1, 0, 1, -1, 1, -1, 0, 1], np.int64)
-
-
-@numba.njit(cache=True)
-def _push(keys, vals, size, key, val):
-    if size == len(keys):
-        nk = np.empty(2 * len(keys), np.int64)
-        nv = np.empty(2 * len(vals), np.int64)
-        nk[:size] = keys[:size]
-        nv[:size] = vals[:size]
-        keys, vals = nk, nv
-    i = size
-    keys[i] = key
-    vals[i] = val
-    while i > 0:
-        p = (i - 1) >> 1
-        if keys[p] <= keys[i]:
-            break
-        keys[p], keys[i] = keys[i], keys[p]
-        vals[p], vals[i] = vals[i], vals[p]
-        i = p
-    return keys, vals, size + 1
-
-
-@numba.njit(cache=True)
-def _pop(keys, vals, size):
-    key, val = keys[0], vals[0]
-    size -= 1
-    keys[0], vals[0] = keys[size], vals[size]
-    i = 0
-    while True:
-        left = 2 * i + 1
-        if left >= size:
-            break
-        child = left
-        if left + 1 < size and keys[left + 1] < keys[left]:
-            child = left + 1
-        if keys[i] <= keys[child]:
-            break
-        keys[i], keys[child] = keys[child], keys[i]
-        vals[i], vals[child] = vals[child], vals[i]
-        i = child
-    return key, val, size
 
 
 @numba.njit(cache=True)
@@ -123,7 +84,7 @@ def _clear(c, lost, n, obst, dist2, to_raise, raise_obst, stamp, stamp_id, chang
            n_changed, keys, vals, size):
     """Forgets cell c's value (it referred to ``lost``) and queues it to raise."""
     raise_obst[c] = lost
-    keys, vals, size = _push(keys, vals, size, dist2[c] * n + c, c)
+    keys, vals, size = _heap_push(keys, vals, size, dist2[c] * n + c, c)
     obst[c] = -1
     dist2[c] = INF
     to_raise[c] = 1
@@ -169,7 +130,7 @@ def _update(rows, cols, occ, domain, obst, dist2, raise_obst, to_raise, stamp, s
         dist2[c] = 0
         to_raise[c] = 0
         n_changed = _mark(c, stamp, stamp_id, changed, n_changed)
-        keys, vals, size = _push(keys, vals, size, c, c)
+        keys, vals, size = _heap_push(keys, vals, size, c, c)
         if old >= 0 and old != c:
             keys, vals, size, n_changed = _drop_unsupported(
                 c, old, rows, cols, occ, obst, dist2, to_raise, raise_obst, stamp, stamp_id,
@@ -188,7 +149,7 @@ def _update(rows, cols, occ, domain, obst, dist2, raise_obst, to_raise, stamp, s
                 continue
             y = rr * cols + cc
             if domain[y] and obst[y] >= 0 and not to_raise[y]:
-                keys, vals, size = _push(keys, vals, size, dist2[y] * n + y, y)
+                keys, vals, size = _heap_push(keys, vals, size, dist2[y] * n + y, y)
     for c in clear_cells:
         if not occ[c]:
             continue
@@ -197,7 +158,7 @@ def _update(rows, cols, occ, domain, obst, dist2, raise_obst, to_raise, stamp, s
                                              stamp, stamp_id, changed, n_changed, keys, vals,
                                              size)
     while size > 0:
-        key, s, size = _pop(keys, vals, size)
+        key, s, size = _heap_pop(keys, vals, size)
         r0, c0 = s // cols, s % cols
         if to_raise[s]:
             lost = raise_obst[s]
@@ -215,7 +176,7 @@ def _update(rows, cols, occ, domain, obst, dist2, raise_obst, to_raise, stamp, s
                                                          raise_obst, stamp, stamp_id,
                                                          changed, n_changed, keys, vals, size)
                 else:  # A valid neighbour: let it spread into the cleared cell.
-                    keys, vals, size = _push(keys, vals, size, dist2[y] * n + y, y)
+                    keys, vals, size = _heap_push(keys, vals, size, dist2[y] * n + y, y)
             to_raise[s] = 0
             continue
         o = obst[s]
@@ -237,7 +198,7 @@ def _update(rows, cols, occ, domain, obst, dist2, raise_obst, to_raise, stamp, s
                 obst[y] = o
                 dist2[y] = d
                 n_changed = _mark(y, stamp, stamp_id, changed, n_changed)
-                keys, vals, size = _push(keys, vals, size, d * n + y, y)
+                keys, vals, size = _heap_push(keys, vals, size, d * n + y, y)
                 if old >= 0 and old != o:
                     keys, vals, size, n_changed = _drop_unsupported(
                         y, old, rows, cols, occ, obst, dist2, to_raise, raise_obst, stamp,
