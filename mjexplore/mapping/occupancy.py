@@ -27,29 +27,35 @@ from mjexplore.sim.lidar import LaserScan
 class MapperConfig:
     """Log-odds sensor model and thresholds.
 
+    The defaults are the usual ones of ROS mappers (hit p = 0.7, miss p = 0.4, clamped),
+    with the trinary view "any evidence": a cell is occupied once its log-odds is above
+    ``occupied_above`` (0), free once below ``free_below`` (0), and unknown only while no
+    beam has touched it. Tighter thresholds would turn cells that flip between hit and miss
+    under range noise (wall surfaces) back into unknown space, i.e. into false frontiers.
+
     Attributes:
         resolution: Cell side in metres.
-        log_odds_hit: Added to a cell where a beam returns (p = 0.88).
-        log_odds_miss: Added to a cell a beam passes through (p = 0.18).
+        log_odds_hit: Added to a cell where a beam returns.
+        log_odds_miss: Added to a cell a beam passes through.
         log_odds_min: Lower clamp (keeps cells able to change).
         log_odds_max: Upper clamp.
-        occupied_above: Log-odds above which a cell is occupied (p > 0.73).
-        free_below: Log-odds below which a cell is free (p < 0.27).
+        occupied_above: Log-odds above which a cell is occupied.
+        free_below: Log-odds below which a cell is free.
     """
 
     resolution: float = 0.05
-    log_odds_hit: float = 2.0
-    log_odds_miss: float = -1.5
-    log_odds_min: float = -4.0
-    log_odds_max: float = 4.0
-    occupied_above: float = 1.0
-    free_below: float = -1.0
+    log_odds_hit: float = 0.85
+    log_odds_miss: float = -0.4
+    log_odds_min: float = -2.0
+    log_odds_max: float = 3.5
+    occupied_above: float = 0.0
+    free_below: float = 0.0
 
     def __post_init__(self) -> None:
         if not (self.log_odds_hit > 0 > self.log_odds_miss and
-                self.log_odds_min <= self.free_below < 0 < self.occupied_above <=
+                self.log_odds_min <= self.free_below <= 0 <= self.occupied_above <=
                 self.log_odds_max and self.resolution > 0):
-            raise UserInputError("mapper config needs hit > 0 > miss, min <= free_below < 0 < "
+            raise UserInputError("mapper config needs hit > 0 > miss, min <= free_below <= 0 <= "
                                  "occupied_above <= max, and resolution > 0.")
 
 
