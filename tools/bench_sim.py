@@ -1,16 +1,20 @@
 """Benchmark of the simulator on the office scene; prints one JSON line.
 
-Figures (all in one process on one core, simulated seconds per wall second for RTFs):
-    full_loop_rtf      physics at the model's step + lidar at 10 Hz + a reactive controller
-                       at 10 Hz + 50 Hz odometry/kinematics, through ``Simulator``;
-    physics_rtf        the bound: the same command sequence replayed with ``mj_step`` alone
+Figures (all in one process on one core, simulated seconds per wall second for RTFs). A
+run of the reactive wanderer (closed loop on the lidar) is recorded first; then:
+    full_loop_rtf      the simulator's full loop: physics at the model's step, lidar at
+                       10 Hz, 20 Hz odometry/kinematics/limiter, and the run's (v, omega)
+                       commands sent at 10 Hz through ``Simulator`` (a controller that costs
+                       nothing itself);
+    with_reactive_controller_rtf  the same with the wanderer computing the commands from
+                       each scan (its own numpy work included);
+    physics_rtf        the bound: the same wheel controls replayed with ``mj_step`` alone
                        (no lidar, no Python between control periods);
     lidar_scans_per_s  scans of the fast path (one ``mj_multiRay`` per scan) at poses from
                        the run; lidar_rays_per_s is that times the beam count;
     sensor_scans_per_s the bound: the same scan as 360 MuJoCo rangefinder sensors
                        (``mj_sensorPos`` after ``mj_kinematics``), same poses;
-    loop_without_lidar_rtf  the run's commands replayed through ``Simulator`` with scans
-                       skipped and no controller: the share of lidar and controller;
+    loop_without_lidar_rtf  as full_loop_rtf with scans skipped: the lidar's share;
     ratios             full_loop_over_physics, full_loop_over_loop_without_lidar and
                        lidar_over_sensor.
 
@@ -97,9 +101,16 @@ def main() -> None:
         twists.append((v, w))
         commands.append(sim.data.ctrl.copy())
         poses.append(sim.data.qpos.copy())
-    full_wall = time.perf_counter() - t0
+    controller_wall = time.perf_counter() - t0
     sim_seconds = sim.time
     path_m = sim.kinematics().path_length()
+
+    sim.reset()
+    t0 = time.perf_counter()
+    for v, w in twists:
+        sim.command(v, w)
+        sim.step(CONTROL_PERIOD)
+    full_wall = time.perf_counter() - t0
 
     m, d = sim.model, sim.data
     steps = int(round(CONTROL_PERIOD / m.opt.timestep))
@@ -146,6 +157,7 @@ def main() -> None:
         "full_loop_rtf": round(sim_seconds / full_wall, 1),
         "physics_rtf": round(sim_seconds / physics_wall, 1),
         "full_loop_over_physics": round(physics_wall / full_wall, 3),
+        "with_reactive_controller_rtf": round(sim_seconds / controller_wall, 1),
         "loop_without_lidar_rtf": round(sim_seconds / no_lidar_wall, 1),
         "full_loop_over_loop_without_lidar": round(no_lidar_wall / full_wall, 3),
         "lidar_scans_per_s": round(1.0 / lidar_s, 1),

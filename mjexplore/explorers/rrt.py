@@ -162,17 +162,22 @@ class RRTExplorer:
             keep = np.array([(grid.data[max(r - k, 0):r + k + 1, max(c - k, 0):c + k + 1] < 0).any()
                              for r, c in cells])
             self.points = self.points[keep]
-        if len(self.points) == 0:
-            # Nothing detected yet: fall back on the map's frontiers, as the detectors
-            # would eventually find them.
-            if not state.frontiers:
-                return None
-            candidates = np.array([f.goal for f in state.frontiers])
-        else:
-            candidates = mean_shift(self.points, self.bandwidth)
-        candidates = candidates[state.allowed(candidates)]
-        if len(candidates) == 0:
-            return None
+        detected = mean_shift(self.points, self.bandwidth) if len(self.points) else np.zeros((0, 2))
+        frontier_goals = np.array([f.goal for f in state.frontiers]).reshape(-1, 2)
+        # The trees' detections first; if none of them can be reached, the map's frontiers,
+        # which the detectors would find in time.
+        for candidates in (detected, frontier_goals):
+            candidates = candidates[state.allowed(candidates)]
+            if len(candidates) == 0:
+                continue
+            utility = self._utility(state, candidates)
+            if np.isfinite(utility).any():
+                return candidates[int(np.argmax(utility))]
+        return None
+
+    def _utility(self, state: ExplorationState, candidates: np.ndarray) -> np.ndarray:
+        """gain_weight * unknown area within info_radius (x hysteresis) - path cost."""
+        grid = state.grid
         unknown = (grid.data < 0).astype(np.float64)
         k = max(1, int(round(self.info_radius / grid.resolution)))
         yy, xx = np.mgrid[-k:k + 1, -k:k + 1]
@@ -192,6 +197,4 @@ class RRTExplorer:
                          for r, c in cells])
         utility = self.gain_weight * gains - cost
         utility[~np.isfinite(cost)] = -np.inf
-        if not np.isfinite(utility).any():
-            return None
-        return candidates[int(np.argmax(utility))]
+        return utility
