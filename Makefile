@@ -26,8 +26,8 @@ system-deps:
 
 demo: install
 	$(BIN)/mjexplore scene-gen office --seed 0 --size 40x25 --out runs/demo/scene
-	$(BIN)/mjexplore drive --scene runs/demo/scene --duration 120 --out runs/demo/drive
-	@echo "demo outputs in runs/demo/ (scene/preview.png, drive/trajectory.png, drive/summary.json)"
+	$(BIN)/mjexplore explore --scene runs/demo/scene --explorer potential --seed 0 --out runs/demo/explore
+	@echo "demo outputs in runs/demo/: scene/ (scene.xml, map, preview.png) and explore/ (metrics.json, ratio.png, map.png, kinematics.png, episode.mcap)"
 
 test: system-deps $(VENV)/.installed-test
 	$(BIN)/python -m pytest -n 2 -q
