@@ -4,7 +4,6 @@ import numpy as np
 import pytest
 
 from mjexplore.mapping.occupancy import OccupancyMapper
-from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
 from mjexplore.navigation.wander import WanderController
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.sim.simulator import Simulator
@@ -93,12 +92,15 @@ def test_padded_arrays(explored_office):
     assert p.action_mask.sum() == (ter.flags == FRONTIER_FLAG).sum()
     assert not p.action_mask[p.node_mask == 0].any()
     assert np.isfinite(p.node_features).all() and np.isfinite(p.edge_lengths).all()
-    # Neighbour slots are symmetric where both ends were kept.
+    # Every neighbour slot points at a kept node joined by a real TER edge of that length.
+    kept = p.node_positions[p.node_mask == 1]
     for u in range(64):
         for k in np.flatnonzero(p.neighbour_mask[u]):
             v = p.neighbours[u, k]
             assert p.node_mask[v] == 1
-            assert u in p.neighbours[v][p.neighbour_mask[v] == 1] or p.neighbour_mask[v].sum() == 4
+            length = np.linalg.norm(p.node_positions[u] - p.node_positions[v])
+            assert p.edge_lengths[u, k] == pytest.approx(length, abs=1e-3)
+    assert len(kept) == n
     # Truncation keeps the robot and the frontiers first.
     small = ter.padded(TerConfig(max_nodes=10, max_neighbours=4))
     kept_flags = small.node_features[small.node_mask == 1, 5]
@@ -106,15 +108,22 @@ def test_padded_arrays(explored_office):
 
 
 def test_tracker_with_ground_truth_gain(box_room):
+    from mjexplore.sim.lidar import LidarConfig
+    from mjexplore.sim.simulator import SimConfig
+    from mjexplore.topology.frontiers import information_gain
+
     folder, _ = box_room
-    sim = Simulator(folder)
+    sim = Simulator(folder, SimConfig(lidar=LidarConfig(range_max=2.0)))  # A partial view.
     gt = sim.scene.ground_truth
     mapper = OccupancyMapper.like(gt)
     tracker = TopologyTracker(mapper.state.shape, TopologyConfig(gain="ground_truth"), gt)
     scan = sim.reset((1.0, 2.2, 0.0))
     tracker.observe(mapper.grid, mapper.integrate(scan))
     ter, frontiers, gains = tracker.ter(mapper.grid, sim.pose)
-    assert len(frontiers) == 0 or (gains >= 0).all()
+    assert len(frontiers) > 0 and (gains > 0).all()
+    assert np.allclose(gains, information_gain(mapper.grid, gt, frontiers))
+    fnodes = ter.flags == FRONTIER_FLAG
+    assert np.allclose(ter.features[fnodes, 2], gains[ter.frontier_index[fnodes]])
     assert (ter.flags == ROBOT_FLAG).sum() == 1
     with pytest.raises(ValueError):
         TopologyTracker((5, 5), TopologyConfig(gain="ground_truth"))

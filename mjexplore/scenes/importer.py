@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from mjexplore.errors import UserInputError
-from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
+from mjexplore.maps import FREE, OCCUPIED, GridMap
 from mjexplore.scenes.map_server import read_image_gray, read_map
 from mjexplore.scenes.scene import Scene, check_start, pick_start, reachable_region
 
@@ -101,4 +101,4 @@ def scene_from_image(image_path: str | os.PathLike, resolution: float,
                            start, seed)
 
 
-__all__ = ["scene_from_grid", "scene_from_image", "scene_from_map_yaml", "UNKNOWN"]
+__all__ = ["scene_from_grid", "scene_from_image", "scene_from_map_yaml"]

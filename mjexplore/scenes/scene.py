@@ -23,7 +23,7 @@ from scipy import ndimage
 
 from mjexplore.errors import UserInputError
 from mjexplore.io.atomic import atomic_directory, write_bytes_atomic, write_text_atomic
-from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
+from mjexplore.maps import FREE, OCCUPIED, GridMap
 from mjexplore.robot import ROBOT_XML, TURTLEBOT3_WAFFLE
 from mjexplore.scenes.map_server import read_map, write_map
 from mjexplore.scenes.rectangles import cover_rectangles
@@ -334,5 +334,4 @@ __all__ = [
     "pick_start",
     "reachable_region",
     "write_scene",
-    "UNKNOWN",
 ]
