@@ -52,6 +52,9 @@ class EpisodeConfig:
             stays open, blacklists frontier goals within this radius, metres.
         start_jitter: (metres, radians) half-widths of the seeded uniform offset of the start
             pose from the scene's (kept only where the robot fits), so that seeds differ.
+        progress_timeout: A goal the robot has not come 0.25 m closer to for this many
+            seconds is given up and blacklisted (a gap the costmap allows but the body does
+            not pass), as explore_lite does.
     """
 
     max_time: float = 1800.0
@@ -64,6 +67,7 @@ class EpisodeConfig:
     topology: TopologyConfig = dataclasses.field(default_factory=TopologyConfig)
     unreachable_radius: float = 0.5
     start_jitter: tuple[float, float] = (0.25, 0.3)
+    progress_timeout: float = 20.0
 
     def __post_init__(self) -> None:
         if self.mapping_pose not in ("ground_truth", "odometry"):
@@ -178,6 +182,8 @@ class Episode:
                                  ground_truth=gt))
         explorer.reset(np.random.default_rng(seed))
         self.goal: np.ndarray | None = None
+        self._best_distance = math.inf
+        self._best_time = 0.0
         self.blacklist: list[np.ndarray] = []
         self.curve: list[tuple[float, float]] = []
         self.goals: list[tuple[float, float, float]] = []
@@ -266,6 +272,8 @@ class Episode:
                 self.blacklist.append(self.goal)
                 continue
             if self.navigator.set_goal(self.goal, costmap, pose, self.sim.time):
+                self._best_distance = float(np.hypot(*(self.goal - pose[:2])))
+                self._best_time = self.sim.time
                 return True
             self.blacklist.append(self.goal)
         return True  # Keep going; the next tick decides again.
@@ -290,6 +298,13 @@ class Episode:
             self.end_reason = "lingering"
         if self.end_reason is not None:
             return False
+        if self.goal is not None and self.navigator.status == NavStatus.ACTIVE:
+            d = float(np.hypot(*(self.goal - pose[:2])))
+            if d < self._best_distance - 0.25:
+                self._best_distance, self._best_time = d, t
+            elif t - self._best_time > cfg.progress_timeout:
+                self.blacklist.append(self.goal)  # No progress: give the goal up.
+                self.navigator.status = NavStatus.NO_PATH
         if (self.goal is None or self.navigator.status != NavStatus.ACTIVE or
                 not self._goal_still_open()):
             if (self.navigator.status == NavStatus.REACHED and self._goal_still_open()):
@@ -300,6 +315,8 @@ class Episode:
                 self.end_reason = "no_frontiers"
                 return False
         v, w = self.navigator.update(pose, t, self.costmap)
+        if sim.in_collision:
+            v, w = -0.5 * sim.profile.max_linear_speed, 0.0  # Recovery: back off the wall.
         sim.command(v, w)
         for scan in sim.step(1.0 / cfg.control_rate_hz):
             self._integrate(scan)

@@ -30,15 +30,16 @@ class PlannerConfig:
     """Costmap settings, in metres.
 
     Attributes:
-        lethal_radius: Cells closer than this to an occupied cell are not traversable
-            (about the robot's inscribed radius plus a margin).
+        lethal_radius: Cells closer than this to an occupied cell are not traversable: the
+            robot's footprint radius about ``base_link`` (0.26 m), so that it can turn in
+            place anywhere on a path without its rear swinging into a wall.
         soft_radius: Within this distance of walls, steps cost extra.
         wall_penalty: Extra cost per step at the lethal radius, falling linearly to 0 at
             the soft radius.
     """
 
-    lethal_radius: float = 0.2
-    soft_radius: float = 0.6
+    lethal_radius: float = 0.26
+    soft_radius: float = 0.7
     wall_penalty: float = 4.0
 
 
