@@ -108,7 +108,10 @@ class PotentialField:
             potential[reached] -= self.gain * front.size / np.maximum(dist[reached], 1)
             pull[j] = front.size / max(dist[start], 1) if dist[start] >= 0 else 0.0
         if not pull.any():
-            return None
+            # The coarse grid lost the way (a door narrower than two coarse cells after
+            # inflation): fall back on path distances over the fine costmap.
+            d = state.frontier_distances(nearest_only=True)
+            return state.frontiers[int(np.argmin(d))].goal if np.isfinite(d).any() else None
         for xy in state.visited:
             potential[coarse(xy)] += self.visit_penalty
         reached = _descend(potential, traversable, start, is_target, rows, cols, rows * cols)
