@@ -334,10 +334,11 @@ class Episode:
     def result(self) -> EpisodeResult:
         curve = np.array(self.curve)
         grid = self.mapper.grid
-        metrics = episode_metrics(curve, self.sim.kinematics(), iou(grid, self.reference),
+        log = self.sim.kinematics()
+        metrics = episode_metrics(curve, log, iou(grid, self.reference),
                                   self.sim.collisions, self.end_reason or "running")
         metrics["exploration_ratio_check"] = round(exploration_ratio(grid, self.reference), 5)
         metrics["decisions"] = len(self.goals)
-        return EpisodeResult(metrics, curve, self.sim.kinematics(),
+        return EpisodeResult(metrics, curve, log,
                              GridMap(grid.data.copy(), grid.resolution, grid.origin),
                              np.array(self.goals).reshape(-1, 3))

@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from mjexplore.navigation.planner import Costmap, path_length
+from mjexplore.navigation.planner import Costmap
 from mjexplore.robot import MotionProfile
 
 
@@ -110,12 +110,6 @@ class Navigator:
             if self.status != NavStatus.ACTIVE:
                 return 0.0, 0.0
         return self._pursue(pose)
-
-    def remaining(self, pose: np.ndarray) -> float:
-        """Length of the current path from the robot, metres (inf without a path)."""
-        if self.path is None:
-            return math.inf
-        return path_length(self.path)
 
     def _pursue(self, pose: np.ndarray) -> tuple[float, float]:
         path = self.path
