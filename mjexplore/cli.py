@@ -163,6 +163,15 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_train(args: argparse.Namespace) -> int:
+    from mjexplore.training import load_train_config, train
+
+    config = load_train_config(args.config)
+    summary = train(config, args.out, resume=args.resume, progress=not args.no_progress)
+    print(json.dumps(summary))
+    return 0
+
+
 def _add_episode_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--profile", default="sim", choices=["sim", "real"],
                    help="motion profile: sim (0.5 m/s, 6 m lidar) or real (0.18 m/s, 5 m)")
@@ -252,6 +261,18 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--mcap", action="store_true", help="also write an MCAP per episode")
     _add_episode_args(bench)
     bench.set_defaults(func=cmd_bench)
+
+    tr = sub.add_parser(
+        "train", help="train a policy with MaskablePPO (checkpoints, resume, TensorBoard)",
+        description="Train the policy a YAML config describes (see training/gvn.yaml) into a "
+                    "run folder: config.yaml, checkpoints/, tb/, eval.csv and the final "
+                    "policy.safetensors. --resume continues an interrupted run.")
+    tr.add_argument("--config", type=Path, required=True, help="training YAML")
+    tr.add_argument("--out", type=Path, required=True, help="run folder")
+    tr.add_argument("--resume", action="store_true",
+                    help="continue the run in --out from its last checkpoint")
+    tr.add_argument("--no-progress", action="store_true", help="no progress bar")
+    tr.set_defaults(func=cmd_train)
     return parser
 
 

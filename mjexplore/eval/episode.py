@@ -32,7 +32,8 @@ from mjexplore.sim.simulator import SimConfig, Simulator
 from mjexplore.topology.frontiers import find_frontiers
 from mjexplore.topology.pipeline import TopologyConfig, TopologyTracker
 
-END_REASONS = ("explored", "no_frontiers", "lingering", "tipped_over", "time_limit")
+END_REASONS = ("explored", "no_frontiers", "lingering", "tipped_over", "time_limit",
+               "decision_limit")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -182,6 +183,7 @@ class Episode:
                                  ground_truth=gt))
         explorer.reset(np.random.default_rng(seed))
         self.goal: np.ndarray | None = None
+        self._decision_due = False
         self._best_distance = math.inf
         self._best_time = 0.0
         self.blacklist: list[np.ndarray] = []
@@ -232,6 +234,9 @@ class Episode:
     def _goal_still_open(self) -> bool:
         """A frontier goal stays worth driving to while unknown cells lie next to it; an
         explorer with other goals can say itself (``goal_open(grid)``)."""
+        if getattr(self.explorer, "waypoint", False):
+            # A waypoint (a TER node that is not a frontier) is driven to until reached.
+            return self.navigator.status == NavStatus.ACTIVE
         grid = self.mapper.grid
         verdict = self.explorer.goal_open(grid) if hasattr(self.explorer, "goal_open") else None
         if verdict is not None:
@@ -241,63 +246,85 @@ class Episode:
         window = grid.data[max(r - k, 0):r + k + 1, max(c - k, 0):c + k + 1]
         return bool((window < 0).any())
 
-    def _decide(self) -> bool:
-        """Asks the explorer for a goal; False when it has none left."""
+    def decision_state(self) -> ExplorationState:
+        """What the explorer sees now (frontiers already filtered by the blacklist)."""
         grid = self.mapper.grid
         cfg = self.config
-        frontiers = find_frontiers(grid, cfg.topology.frontier_min_size,
-                                   cfg.topology.frontier_max_length)
-        pose = self.sim.pose
-        costmap = self.costmap()
-        state = ExplorationState(grid, pose, self.sim.time, [], costmap,
+        state = ExplorationState(grid, self.sim.pose, self.sim.time, [], self.costmap(),
                                  np.array(self.visited).reshape(-1, 2),
+                                 blacklist=np.array(self.blacklist).reshape(-1, 2),
                                  ground_truth=self.scene.ground_truth,
                                  blacklist_radius=cfg.unreachable_radius,
                                  sensor_range=self.sim.lidar.config.range_max,
                                  extras={"tracker": self.tracker})
+        frontiers = find_frontiers(grid, cfg.topology.frontier_min_size,
+                                   cfg.topology.frontier_max_length)
+        if frontiers:
+            allowed = state.allowed([f.goal for f in frontiers])
+            state.frontiers = [f for f, ok in zip(frontiers, allowed) if ok]
+        return state
+
+    def adopt_goal(self, goal: np.ndarray, state: ExplorationState | None = None) -> bool:
+        """Makes ``goal`` (x, y, metres) the navigation goal.
+
+        Returns:
+            False if the goal was refused and blacklisted: it cannot be reached, or it lies
+            within reach yet its frontier is still open (the lidar cannot see it from here).
+        """
+        self.goal = np.asarray(goal, float)
+        self.goals.append((self.sim.time, *self.goal))
+        if self.observer is not None:
+            self.observer.on_decision(self, state if state is not None else self.decision_state())
+        pose = self.sim.pose
+        near = np.hypot(*(self.goal - pose[:2])) <= self.config.navigator.goal_tolerance
+        waypoint = getattr(self.explorer, "waypoint", False)
+        if not (near and not waypoint and self._goal_still_open()) and \
+                self.navigator.set_goal(self.goal, self.costmap(), pose, self.sim.time):
+            self._best_distance = float(np.hypot(*(self.goal - pose[:2])))
+            self._best_time = self.sim.time
+            self._decision_due = False
+            return True
+        self.blacklist.append(self.goal)
+        return False
+
+    def _decide(self) -> bool:
+        """Asks the explorer for a goal; False when it has none left."""
         for _ in range(8):
-            state.blacklist = np.array(self.blacklist).reshape(-1, 2)
-            state.frontiers = [f for f, ok in zip(frontiers, state.allowed(
-                [f.goal for f in frontiers])) if ok] if frontiers else []
+            state = self.decision_state()
             goal = self.explorer.select_goal(state)
             if goal is None:
                 return False
-            self.goal = np.asarray(goal, float)
-            self.goals.append((self.sim.time, *self.goal))
-            if self.observer is not None:
-                self.observer.on_decision(self, state)
-            near = np.hypot(*(self.goal - pose[:2])) <= cfg.navigator.goal_tolerance
-            if near and self._goal_still_open():
-                # Within reach already, yet not seen: the lidar cannot see it from here.
-                self.blacklist.append(self.goal)
-                continue
-            if self.navigator.set_goal(self.goal, costmap, pose, self.sim.time):
-                self._best_distance = float(np.hypot(*(self.goal - pose[:2])))
-                self._best_time = self.sim.time
+            if self.adopt_goal(goal, state):
                 return True
-            self.blacklist.append(self.goal)
         return True  # Keep going; the next tick decides again.
 
     # ------------------------------------------------------------------ stepping
 
-    def step(self) -> bool:
-        """One control period; returns False once the episode has ended."""
+    def _check_end(self) -> bool:
+        """Sets ``end_reason`` if the episode is over; True then."""
         if self.end_reason is not None:
-            return False
+            return True
         cfg = self.config
         sim = self.sim
-        pose, t = sim.pose, sim.time
-        ratio = self.curve[-1][1]
-        if ratio >= cfg.target_ratio:
+        t = sim.time
+        if self.curve[-1][1] >= cfg.target_ratio:
             self.end_reason = "explored"
         elif t >= cfg.max_time - 1e-9:
             self.end_reason = "time_limit"
         elif not sim.is_upright:
             self.end_reason = "tipped_over"
-        elif self.navigator.lingering(pose, t):
+        elif self.navigator.lingering(sim.pose, t):
             self.end_reason = "lingering"
-        if self.end_reason is not None:
-            return False
+        return self.end_reason is not None
+
+    def decision_due(self) -> bool:
+        """Whether the explorer must choose a goal before the next control period (the
+        goal was reached, vanished, failed or made no progress). Evaluated once per
+        control period; stays True until a goal is adopted."""
+        if self._decision_due:
+            return True
+        cfg = self.config
+        pose, t = self.sim.pose, self.sim.time
         if self.goal is not None and self.navigator.status == NavStatus.ACTIVE:
             d = float(np.hypot(*(self.goal - pose[:2])))
             if d < self._best_distance - 0.25:
@@ -311,10 +338,15 @@ class Episode:
                 # Reached, yet still next to unknown space: the lidar cannot see it from
                 # here (a gap too small, a blind corner). Do not come back for it.
                 self.blacklist.append(self.goal)
-            if not self._decide():
-                self.end_reason = "no_frontiers"
-                return False
-        v, w = self.navigator.update(pose, t, self.costmap)
+            self._decision_due = True
+        return self._decision_due
+
+    def control(self) -> None:
+        """One control period of navigation towards the current goal."""
+        cfg = self.config
+        sim = self.sim
+        pose = sim.pose
+        v, w = self.navigator.update(pose, sim.time, self.costmap)
         if sim.in_collision:
             v, w = -0.5 * sim.profile.max_linear_speed, 0.0  # Recovery: back off the wall.
         sim.command(v, w)
@@ -324,7 +356,25 @@ class Episode:
             self.visited.append(pose[:2].copy())
         if self.observer is not None:
             self.observer.on_step(self)
+
+    def step(self) -> bool:
+        """One control period; returns False once the episode has ended."""
+        if self._check_end():
+            return False
+        if self.decision_due() and not self._decide():
+            self.end_reason = "no_frontiers"
+            return False
+        self.control()
         return True
+
+    def run_to_decision(self) -> bool:
+        """Runs control periods until a decision is due (True) or the episode ends (False);
+        for callers that choose goals themselves (the Gymnasium env)."""
+        while not self._check_end():
+            if self.decision_due():
+                return True
+            self.control()
+        return False
 
     def run(self) -> EpisodeResult:
         while self.step():

@@ -33,6 +33,9 @@ class NavigatorConfig:
         turn_in_place_angle: Heading errors above this are turned out in place.
         linger_radius: Radius of the spot the robot must leave...
         linger_time: ...within this time, or the episode ends as lingering.
+        replan_when_blocked: Also replan at once when a cell of the current path stops
+            being traversable (a newly seen wall); lets a low ``replan_rate_hz`` (the
+            training mode) stay safe.
     """
 
     goal_tolerance: float = 1.0
@@ -41,6 +44,7 @@ class NavigatorConfig:
     turn_in_place_angle: float = math.radians(60)
     linger_radius: float = 0.5
     linger_time: float = 60.0
+    replan_when_blocked: bool = False
 
 
 class NavStatus(enum.Enum):
@@ -63,6 +67,7 @@ class Navigator:
         self.config = config or NavigatorConfig()
         self.goal: np.ndarray | None = None
         self.path: np.ndarray | None = None
+        self._path_cells = np.zeros(0, np.int64)
         self.status = NavStatus.IDLE
         self._last_plan = -math.inf
         self._anchor = None
@@ -83,6 +88,9 @@ class Navigator:
             self.status = NavStatus.NO_PATH
         else:
             self.path = path
+            if self.config.replan_when_blocked:
+                rc = costmap.grid.world_to_cell(path)
+                self._path_cells = rc[:, 0] * costmap.grid.shape[1] + rc[:, 1]
 
     def lingering(self, pose: np.ndarray, t: float) -> bool:
         """True once the robot has stayed near one spot for ``linger_time`` seconds."""
@@ -105,7 +113,10 @@ class Navigator:
         if np.hypot(*(pose[:2] - self.goal)) <= self.config.goal_tolerance:
             self.status = NavStatus.REACHED
             return 0.0, 0.0
-        if t - self._last_plan >= 1.0 / self.config.replan_rate_hz - 1e-9:
+        due = t - self._last_plan >= 1.0 / self.config.replan_rate_hz - 1e-9
+        if not due and self.config.replan_when_blocked:
+            due = bool((costmap_fn().cost[self._path_cells] < 0).any())
+        if due:
             self._replan(costmap_fn(), pose, t)
             if self.status != NavStatus.ACTIVE:
                 return 0.0, 0.0

@@ -36,15 +36,22 @@ class PlannerConfig:
         soft_radius: Within this distance of walls, steps cost extra.
         wall_penalty: Extra cost per step at the lethal radius, falling linearly to 0 at
             the soft radius.
+        heuristic_weight: A* heuristic factor; 1 gives optimal paths, more (weighted A*)
+            expands fewer cells for paths at most that factor longer (training mode).
     """
 
     lethal_radius: float = 0.26
     soft_radius: float = 0.7
     wall_penalty: float = 4.0
+    heuristic_weight: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.heuristic_weight < 1.0:
+            raise ValueError("heuristic_weight must be >= 1 (1: optimal A*)")
 
 
 @numba.njit(cache=True)
-def _search(cost, start, goal, rows, cols, with_heuristic, dist, parent, stamp, search_id,
+def _search(cost, start, goal, rows, cols, heuristic_weight, dist, parent, stamp, search_id,
             keys, vals, is_target, stop_after):
     """Dijkstra (goal < 0: to every cell) or A* (goal >= 0) over cells with cost >= 0.
 
@@ -90,8 +97,8 @@ def _search(cost, start, goal, rows, cols, with_heuristic, dist, parent, stamp, 
                 dist[y] = d
                 parent[y] = s
                 h = 0.0
-                if with_heuristic:
-                    h = math.hypot(rr - gr, cc - gc)
+                if heuristic_weight > 0.0:
+                    h = heuristic_weight * math.hypot(rr - gr, cc - gc)
                 keys, vals, size = _heap_push(keys, vals, size, d + h, y)
     return keys, vals
 
@@ -173,7 +180,8 @@ class Costmap:
         self._search_id += 1
         if targets is None:
             targets = self._no_targets
-        self._keys, self._vals = _search(self.cost, start, goal, *self.grid.shape, goal >= 0,
+        weight = self.config.heuristic_weight if goal >= 0 else 0.0
+        self._keys, self._vals = _search(self.cost, start, goal, *self.grid.shape, weight,
                                          self._dist, self._parent, self._stamp,
                                          self._search_id, self._keys, self._vals, targets,
                                          stop_after)

@@ -12,6 +12,13 @@ on fixed grids of physics steps:
 
 Between those instants MuJoCo steps with ``mj_step(..., nstep=k)``, so no Python runs per
 physics step.
+
+``dynamics='kinematic'`` is a faster fidelity mode for policy training: no contact dynamics;
+the base follows the acceleration-limited command exactly (unicycle model, integrated in
+closed form over each interval), wheel angles follow the wheel speeds (so odometry reads
+the truth), and a move that would bring the body's bounding circle into a wall of the
+ground truth is refused and counted as a collision. Lidar, sampling and timing are the
+same as in physics mode, so everything downstream sees the same kinds of data.
 """
 
 from __future__ import annotations
@@ -38,6 +45,11 @@ UPRIGHT_COS = math.cos(math.radians(30.0))
 # Contacts with walls closer in time than this belong to one collision (a robot pushing
 # against a wall bounces on and off it).
 COLLISION_GAP_S = 0.5
+DYNAMICS = ("physics", "kinematic")
+# The base plate's bounding circle (kinematic mode): centre behind base_link, radius the
+# half-diagonal of the 0.281 x 0.266 m plate, metres.
+BODY_CENTRE_X = -0.064
+BODY_RADIUS = 0.194
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -51,12 +63,20 @@ class SimConfig:
             acceleration limiter, in Hz of simulated time. Its period must be a whole
             number of physics steps.
         seed: Seed for sensor noise.
+        dynamics: 'physics' (MuJoCo contact dynamics) or 'kinematic' (training mode, see
+            the module docstring).
     """
 
     profile: str = "sim"
     lidar: LidarConfig | None = None
     sample_rate_hz: float = 20.0
     seed: int = 0
+    dynamics: str = "physics"
+
+    def __post_init__(self) -> None:
+        if self.dynamics not in DYNAMICS:
+            raise UserInputError(f"dynamics {self.dynamics!r} is unknown: use one of "
+                                 f"{', '.join(DYNAMICS)}.")
 
     def resolved_lidar(self) -> LidarConfig:
         return self.lidar or LidarConfig(range_max=motion_profile(self.profile).lidar_range)
@@ -132,6 +152,9 @@ class Simulator:
         self.lidar = Lidar(m, SCAN_SITE, lidar_cfg, self._rng)
         self.odometry = WheelOdometry(TURTLEBOT3_WAFFLE)
         self._kinematics = KinematicsRecorder()
+        self._clearance: np.ndarray | None = None
+        if self.config.dynamics == "kinematic":
+            self._clearance = self._wall_clearance()
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -226,6 +249,7 @@ class Simulator:
         self.collisions = 0
         self._in_contact = False
         self._last_contact = -math.inf
+        self._kinematic_contact = False
         self.odometry.reset(d.qpos[self._wheel_qpos], 0.0)
         self._kinematics.clear()
         self._sample()
@@ -257,7 +281,10 @@ class Simulator:
             next_sample = (self._steps // self._sample_every + 1) * self._sample_every
             next_scan = (self._steps // self._scan_every + 1) * self._scan_every
             stop = min(next_sample, next_scan, target)
-            mujoco.mj_step(m, d, nstep=stop - self._steps)
+            if self._clearance is None:
+                mujoco.mj_step(m, d, nstep=stop - self._steps)
+            else:
+                self._move_kinematic(stop)
             self._steps = stop
             if stop % self._sample_every == 0:
                 self._sample()
@@ -271,6 +298,56 @@ class Simulator:
 
     # ------------------------------------------------------------------ internals
     # These run every sample period: plain floats, no small numpy arrays.
+
+    def _wall_clearance(self) -> np.ndarray:
+        """Distance (m) from each ground-truth cell centre to the nearest wall cell."""
+        from scipy.ndimage import distance_transform_edt
+
+        gt = self.scene.ground_truth
+        if gt is None:
+            raise UserInputError("kinematic dynamics needs the scene's ground-truth map "
+                                 "(map.yaml beside scene.xml): regenerate the scene.")
+        return distance_transform_edt(~gt.occupied) * gt.resolution
+
+    def _move_kinematic(self, stop: int) -> None:
+        """Moves the base from step ``self._steps`` to ``stop`` along the commanded unicycle
+        path (the wheel set-points ramp linearly over each sample period)."""
+        d = self.data
+        dt = self.model.opt.timestep
+        every = self._sample_every
+        f0 = (self._steps % every) / every
+        f1 = f0 + (stop - self._steps) / every
+        (v0, w0), (v1, w1) = self._cmd_base, self._cmd
+        a = 0.5 * (f0 + f1)
+        v, w = v0 + (v1 - v0) * a, w0 + (w1 - w0) * a
+        duration = (stop - self._steps) * dt
+        q = d.qpos
+        i = self._qpos0
+        x, y = float(q[i]), float(q[i + 1])
+        yaw = math.atan2(2.0 * (q[i + 3] * q[i + 6] + q[i + 4] * q[i + 5]),
+                         1.0 - 2.0 * (q[i + 5] ** 2 + q[i + 6] ** 2))
+        mid = yaw + 0.5 * w * duration
+        nx = x + v * duration * math.cos(mid)
+        ny = y + v * duration * math.sin(mid)
+        nyaw = yaw + w * duration
+        gt = self.scene.ground_truth
+        cx = nx + BODY_CENTRE_X * math.cos(nyaw)
+        cy = ny + BODY_CENTRE_X * math.sin(nyaw)
+        col = int((cx - gt.origin[0]) / gt.resolution)
+        row = int((cy - gt.origin[1]) / gt.resolution)
+        rows, cols = self._clearance.shape
+        blocked = not (0 <= row < rows and 0 <= col < cols) or \
+            self._clearance[row, col] < BODY_RADIUS
+        self._kinematic_contact = blocked
+        if blocked:
+            nx, ny, nyaw, v, w = x, y, yaw, 0.0, 0.0
+        q[i:i + 7] = (nx, ny, self._z0, math.cos(nyaw / 2), 0.0, 0.0, math.sin(nyaw / 2))
+        half = TURTLEBOT3_WAFFLE.wheel_separation / 2
+        r = TURTLEBOT3_WAFFLE.wheel_radius
+        q[self._wheel_qpos[0]] += (v - w * half) / r * duration
+        q[self._wheel_qpos[1]] += (v + w * half) / r * duration
+        j = self._qvel0
+        d.qvel[j:j + 6] = (v * math.cos(nyaw), v * math.sin(nyaw), 0.0, 0.0, 0.0, w)
 
     def _ramp(self) -> None:
         p = self.profile
@@ -306,8 +383,11 @@ class Simulator:
         vx, vy, _, _, _, wz = d.qvel[self._qvel0:self._qvel0 + 6].tolist()
         v = vx * math.cos(yaw) + vy * math.sin(yaw)
         self._kinematics.record(t, v, wz, self._cmd, (x, y, yaw), self.odometry.pose_tuple)
-        ncon = d.ncon
-        touching = ncon > 0 and bool(self._is_wall_geom[d.contact.geom[:ncon]].any())
+        if self._clearance is None:
+            ncon = d.ncon
+            touching = ncon > 0 and bool(self._is_wall_geom[d.contact.geom[:ncon]].any())
+        else:
+            touching = self._kinematic_contact
         if touching:
             if t - self._last_contact > COLLISION_GAP_S:
                 self.collisions += 1

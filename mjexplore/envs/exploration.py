@@ -1,0 +1,336 @@
+"""The exploration decision process as a Gymnasium environment: one TER node per step."""
+
+from __future__ import annotations
+
+import dataclasses
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from mjexplore.envs.observation import ObservationConfig, TerMemory, observation_space, ter_arrays
+from mjexplore.errors import UserInputError
+from mjexplore.eval.episode import Episode, EpisodeConfig
+from mjexplore.explorers.base import ExplorationState
+from mjexplore.mapping.metrics import accuracy
+from mjexplore.scenes.canonical import resolve_scene
+from mjexplore.scenes.scene import SceneFiles, load_scene_files
+from mjexplore.topology.ter import FRONTIER_FLAG, PaddedTer, Ter
+
+VALID_ACTIONS = ("frontiers", "all_nodes")
+TERMINAL_REASONS = ("explored", "no_frontiers", "tipped_over")
+TRAIN_FAMILIES = ("office", "maze", "loop", "corridor", "rooms", "loop+rooms",
+                  "corridor+rooms", "maze+loop")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class RewardConfig:
+    """Reward of paper Eq. 16-18, per decision step.
+
+    r_t = scale * (b1 dG_info - b2 dL_path + b3 r_Acc - b4), with dG_info the area of the
+    observable ground truth first seen during the step (m^2), dL_path the true path
+    driven during it (m), r_Acc the change of Eq. 18's accuracy (cells of the map whose
+    class equals the ground truth's) in m^2, and b4 paid once per step.
+
+    The paper writes G_info and L_path as totals "before time step t". Paying totals at
+    every step would pay the same area again at every later step (so stalling after a
+    good start would pay) and make the N_T term grow quadratically; paying the step's
+    increments makes the undiscounted return telescope to exactly b1 G_info - b2 L_path +
+    b3 Acc - b4 N_T of the whole episode, which is what Eq. 16 asks to trade off.
+
+    Attributes:
+        b1, b2, b3, b4: The weights (paper: 1.0, 0.6, 0.5, 0.3).
+        scale: Factor on the whole reward (keeps PPO's value targets near unit scale).
+    """
+
+    b1: float = 1.0
+    b2: float = 0.6
+    b3: float = 0.5
+    b4: float = 0.3
+    scale: float = 0.1
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class ProceduralScenes:
+    """A fresh generated layout per reset.
+
+    Attributes:
+        families: Generator families drawn from (uniformly).
+        width: (min, max) width in metres.
+        height: (min, max) height in metres.
+        cache_dir: Where generated scenes are written (None: the system temp folder).
+    """
+
+    families: tuple[str, ...] = TRAIN_FAMILIES
+    width: tuple[float, float] = (12.0, 28.0)
+    height: tuple[float, float] = (10.0, 20.0)
+    cache_dir: str | None = None
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class EnvConfig:
+    """Exploration env settings.
+
+    Attributes:
+        scenes: Scene names or paths (see :func:`resolve_scene`), one drawn per reset.
+        procedural: If set, a generated layout per reset instead of ``scenes``.
+        episode: Episode settings (physics or kinematic dynamics, limits).
+        observation: Observation layout (N_max, K, epsilon).
+        reward: Reward weights.
+        valid_actions: 'frontiers' (invalid action masking: frontier nodes that are not
+            blacklisted) or 'all_nodes' (every TER node; the paper's "without IAM").
+        max_decisions: Decisions after which an episode is truncated.
+    """
+
+    scenes: tuple[str, ...] = ()
+    procedural: ProceduralScenes | None = None
+    episode: EpisodeConfig = dataclasses.field(default_factory=EpisodeConfig)
+    observation: ObservationConfig = dataclasses.field(default_factory=ObservationConfig)
+    reward: RewardConfig = dataclasses.field(default_factory=RewardConfig)
+    valid_actions: str = "frontiers"
+    max_decisions: int = 400
+
+    def __post_init__(self) -> None:
+        if self.valid_actions not in VALID_ACTIONS:
+            raise UserInputError(f"valid_actions {self.valid_actions!r} is unknown: use one of "
+                                 f"{', '.join(VALID_ACTIONS)}.")
+        if not self.scenes and self.procedural is None:
+            raise UserInputError("the env needs scenes: give 'scenes' or 'procedural'.")
+        if self.max_decisions < 1:
+            raise UserInputError(f"max_decisions must be >= 1, not {self.max_decisions}.")
+
+
+class NodeGoals:
+    """The episode's explorer when goals come from outside (an agent choosing TER nodes).
+
+    A frontier node is a frontier goal (given up once seen); any other node is a waypoint,
+    driven to until reached.
+    """
+
+    name = "agent"
+
+    def __init__(self) -> None:
+        self.waypoint = False
+
+    def reset(self, rng: np.random.Generator) -> None:
+        del rng
+        self.waypoint = False
+
+    def select_goal(self, state: ExplorationState) -> np.ndarray | None:
+        raise RuntimeError("NodeGoals takes goals from its caller; use Episode.adopt_goal")
+
+
+def ter_action_mask(ter_padded: PaddedTer, state: ExplorationState, valid_actions: str) -> np.ndarray:
+    """Valid actions of a padded TER: frontier nodes not blacklisted, or all real nodes."""
+    real = ter_padded.node_mask > 0
+    if valid_actions == "all_nodes":
+        mask = real.copy()
+        mask[real] = state.allowed(ter_padded.node_positions[real])
+        return mask
+    mask = ter_padded.action_mask.copy()
+    if mask.any():
+        mask[mask] = state.allowed(ter_padded.node_positions[mask])
+    return mask
+
+
+class ExplorationEnv(gym.Env):
+    """## Description
+
+    Lidar-based exploration of an unknown indoor scene by a simulated Turtlebot3 Waffle, as
+    a sequence of goal decisions (the EMExplorer paper's POMDP). At each step the agent
+    picks one node of the topological environment representation (TER, built on the
+    incremental GVD of the partial map); the robot then navigates to it in MuJoCo (full
+    contact physics, or the kinematic training mode) while the lidar maps, until the next
+    decision is due (goal reached within zeta, its frontier seen, unreachable, or no
+    progress).
+
+    ## Action Space
+
+    ``Discrete(N_max)``: the index of a node in the padded TER. :meth:`action_masks` gives
+    the valid ones (frontier nodes, not blacklisted, under invalid action masking; every
+    real node with ``valid_actions='all_nodes'``). A frontier node becomes a frontier goal,
+    another node a waypoint. A padding slot is an invalid action: nothing moves and the
+    step costs b4 (``info['invalid_action']``).
+
+    ## Observation Space
+
+    A ``Dict`` of float32 boxes: the padded TER (node features, neighbour indices, node
+    mask) and the raw inputs of the episodic memory of the last epsilon decisions; see
+    :mod:`mjexplore.envs.observation`.
+
+    ## Rewards
+
+    Paper Eq. 16-18 as per-step increments; see :class:`RewardConfig`. ``info`` holds each
+    term (``gain_m2``, ``path_m``, ``accuracy_m2``, ``steps``) and the weighted reward.
+
+    ## Starting State
+
+    The scene's start pose jittered by the episode seed (0.25 m, 0.3 rad); with
+    ``procedural`` scenes, a fresh layout per reset. Everything is drawn from the reset
+    seed: the same seed rebuilds the same scene and episode.
+
+    ## Episode End
+
+    Terminated when the exploration ratio reaches the target (``explored``), when no valid
+    frontier is left (``no_frontiers``) or the robot tips over. Truncated at the time cap
+    (simulated), when the robot lingers, or after ``max_decisions`` decisions.
+    ``info['end_reason']`` says which.
+
+    ## Arguments
+
+    ``config``: :class:`EnvConfig`.
+
+    ## Version History
+
+    * v0: initial version.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, config: EnvConfig | None = None, **overrides: Any) -> None:
+        config = config or EnvConfig(scenes=("loop_with_corridor",))
+        self.config = dataclasses.replace(config, **overrides) if overrides else config
+        obs_cfg = self.config.observation
+        topo = self.config.episode.topology
+        ter_cfg = dataclasses.replace(topo.ter, max_nodes=obs_cfg.max_nodes,
+                                      max_neighbours=obs_cfg.max_neighbours)
+        self._episode_config = dataclasses.replace(
+            self.config.episode, topology=dataclasses.replace(topo, ter=ter_cfg))
+        self.observation_space = observation_space(obs_cfg)
+        self.action_space = spaces.Discrete(obs_cfg.max_nodes)
+        self.memory = TerMemory(obs_cfg)
+        self.goals = NodeGoals()
+        self.episode: Episode | None = None
+        self._scene_cache: dict[str, SceneFiles] = {}
+        self._current: dict[str, np.ndarray] | None = None
+        self._padded: PaddedTer | None = None
+        self._ter: Ter | None = None
+        self._mask = np.zeros(obs_cfg.max_nodes, bool)
+        self._decisions = 0
+
+    # ------------------------------------------------------------------ scenes
+
+    def _scene(self, rng: np.random.Generator) -> SceneFiles:
+        proc = self.config.procedural
+        if proc is None:
+            name = self.config.scenes[int(rng.integers(len(self.config.scenes)))]
+            if name not in self._scene_cache:
+                self._scene_cache[name] = resolve_scene(name)
+            return self._scene_cache[name]
+        from mjexplore.scenes.generate import generate_scene
+        from mjexplore.scenes.scene import write_scene
+
+        root = Path(proc.cache_dir or Path(tempfile.gettempdir()) / "mjexplore-train")
+        for _ in range(20):
+            family = proc.families[int(rng.integers(len(proc.families)))]
+            width = round(float(rng.uniform(*proc.width)), 1)
+            height = round(float(rng.uniform(*proc.height)), 1)
+            seed = int(rng.integers(2**31 - 1))
+            folder = root / f"{family.replace('+', '-')}_{width:g}x{height:g}_s{seed}"
+            if (folder / "scene.xml").is_file():
+                return load_scene_files(folder)
+            try:
+                write_scene(generate_scene(family, width, height, seed), folder)
+            except UserInputError:
+                continue  # A size this family cannot fill; draw again.
+            return load_scene_files(folder)
+        raise UserInputError("procedural scenes: no family fits the configured sizes; widen "
+                             "'width'/'height'.")
+
+    # ------------------------------------------------------------------ decisions
+
+    def _prepare_decision(self) -> bool:
+        """Builds the TER observation at a due decision; False if the episode is over."""
+        ep = self.episode
+        if not ep.run_to_decision():
+            return False
+        state = ep.decision_state()
+        ter, _, _ = ep.tracker.ter(ep.mapper.grid, ep.sim.pose)
+        padded = ter.padded(self._episode_config.topology.ter)
+        mask = ter_action_mask(padded, state, "frontiers")
+        if not mask.any():
+            ep.end_reason = "no_frontiers"
+            return False
+        if self.config.valid_actions == "all_nodes":
+            mask = ter_action_mask(padded, state, "all_nodes")
+        self._ter, self._padded, self._mask = ter, padded, mask
+        self._current = ter_arrays(padded)
+        return True
+
+    def action_masks(self) -> np.ndarray:
+        """Valid actions now (bool, N_max), for sb3-contrib's MaskablePPO."""
+        return self._mask.copy()
+
+    def _observation(self) -> dict[str, np.ndarray]:
+        if self._current is None:  # Episode over before any decision: an empty TER.
+            self._current = {k: np.zeros(v.shape, np.float32)
+                             for k, v in self.observation_space.spaces.items()
+                             if not k.startswith("memory")}
+            self._current["neighbours"][:] = -1.0
+        return self.memory.observation(self._current)
+
+    def _progress(self) -> tuple[int, int, int]:
+        """(observable cells known, accuracy in cells, kinematics rows) now."""
+        ep = self.episode
+        return (ep.counter.count, accuracy(ep.mapper.grid, ep.reference),
+                len(ep.sim.kinematics_rows))
+
+    def _info(self) -> dict[str, Any]:
+        ep = self.episode
+        return {"exploration_ratio": float(ep.curve[-1][1]), "sim_time": float(ep.sim.time),
+                "decisions": self._decisions, "end_reason": ep.end_reason,
+                "action_mask": self._mask.copy()}
+
+    # ------------------------------------------------------------------ gym API
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        rng = self.np_random
+        scene = self._scene(rng)
+        self.goals = NodeGoals()
+        self.episode = Episode(scene, self.goals, int(rng.integers(2**31 - 1)),
+                               self._episode_config)
+        self.memory.reset()
+        self._current = None
+        self._mask = np.zeros(self.config.observation.max_nodes, bool)
+        self._decisions = 0
+        self._prepare_decision()
+        self._before = self._progress()
+        return self._observation(), self._info()
+
+    def step(self, action):
+        ep = self.episode
+        if ep is None:
+            raise RuntimeError("call reset() before step()")
+        action = int(action)
+        cfg = self.config.reward
+        invalid = ep.end_reason is not None or not (
+            0 <= action < len(self._mask) and self._padded.node_mask[action] > 0)
+        if not invalid:
+            self.memory.remember(self._current, action)
+            self.goals.waypoint = bool(self._padded.node_features[action, 5] != FRONTIER_FLAG)
+            ep.adopt_goal(self._padded.node_positions[action].astype(float))
+            self._decisions += 1
+            if self._decisions >= self.config.max_decisions:
+                ep.end_reason = "decision_limit"
+            else:
+                self._prepare_decision()
+        known0, acc0, row0 = self._before
+        known1, acc1, row1 = self._before = self._progress()
+        cell_area = ep.mapper.grid.resolution ** 2
+        xy = ep.sim.kinematics_rows[max(row0 - 1, 0):row1, 5:7]
+        path = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum()) if len(xy) > 1 else 0.0
+        gain = (known1 - known0) * cell_area
+        acc = (acc1 - acc0) * cell_area
+        reward = cfg.scale * (cfg.b1 * gain - cfg.b2 * path + cfg.b3 * acc - cfg.b4)
+        terminated = ep.end_reason in TERMINAL_REASONS
+        truncated = ep.end_reason is not None and not terminated
+        info = self._info()
+        info.update(gain_m2=gain, path_m=path, accuracy_m2=acc, steps=1,
+                    invalid_action=invalid, reward=reward)
+        if terminated or truncated:
+            info["episode_metrics"] = ep.result().metrics
+        return self._observation(), float(reward), bool(terminated), bool(truncated), info

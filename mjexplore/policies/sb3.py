@@ -1,0 +1,139 @@
+"""The GVN as a stable-baselines3 / sb3-contrib policy with invalid action masking.
+
+:class:`GvnPolicy` subclasses sb3-contrib's ``MaskableActorCriticPolicy``: the features
+extractor runs the :class:`~mjexplore.policies.gvn.GVN`, the actor head gives one logit per
+TER node (the default head, a ``Linear(latent, N)``, would tie logits to node slots), and
+the critic head reads the pooled node features.
+
+Masking modes (paper Table 2):
+
+* ``iam``: invalid action masking (Eq. 14-15): invalid logits are replaced by -1e8 when
+  sampling and in the PPO loss, so their gradients are zero.
+* ``naive``: the mask is applied when sampling only; log-probabilities, the PPO ratio and
+  the entropy use the unmasked distribution over real nodes, so invalid logits do get
+  gradients.
+* ``none``: no masking by the policy (train it on an env with
+  ``valid_actions='all_nodes'``, where every real node is an action).
+
+"Masking removed" is an evaluation-time choice (a policy trained with ``iam`` run without
+the mask), made by the GVN explorer.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from gymnasium import spaces
+from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+from torch import nn
+
+from mjexplore.policies.gvn import GVN, GvnConfig
+
+MASKING_MODES = ("iam", "naive", "none")
+
+
+class GvnExtractor(BaseFeaturesExtractor):
+    """Observation dict -> flat [z (N d), pooled (2 d)] features."""
+
+    def __init__(self, observation_space: spaces.Dict, hidden: int = 64, gcn_layers: int = 3,
+                 tcn_kernel: int = 3, tcn_dilations: tuple[int, ...] = (1, 2, 4)) -> None:
+        n = observation_space["node_mask"].shape[0]
+        super().__init__(observation_space, features_dim=n * hidden + 2 * hidden)
+        self.num_nodes = n
+        self.gvn = GVN(GvnConfig(hidden=hidden, gcn_layers=gcn_layers, tcn_kernel=tcn_kernel,
+                                 tcn_dilations=tuple(tcn_dilations)))
+
+    def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
+        z, pooled = self.gvn(observations)
+        return torch.cat([z.flatten(1), pooled], -1)
+
+
+class GvnHeads(nn.Module):
+    """Actor (one logit per node) and critic trunks over :class:`GvnExtractor` features."""
+
+    def __init__(self, num_nodes: int, hidden: int) -> None:
+        super().__init__()
+        self.num_nodes, self.hidden = num_nodes, hidden
+        self.latent_dim_pi = num_nodes
+        self.latent_dim_vf = hidden
+        self.actor = nn.Sequential(nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, 1))
+        self.critic = nn.Sequential(nn.Linear(2 * hidden, hidden), nn.ReLU())
+
+    def _split(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        n, d = self.num_nodes, self.hidden
+        return features[:, :n * d].reshape(-1, n, d), features[:, n * d:]
+
+    def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
+        return self.actor(self._split(features)[0]).squeeze(-1)
+
+    def forward_critic(self, features: torch.Tensor) -> torch.Tensor:
+        return self.critic(self._split(features)[1])
+
+    def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.forward_actor(features), self.forward_critic(features)
+
+
+class GvnPolicy(MaskableActorCriticPolicy):
+    """MaskablePPO policy with the GVN.
+
+    Args:
+        masking: 'iam', 'naive' or 'none' (see the module docstring).
+        hidden, gcn_layers, tcn_kernel, tcn_dilations: :class:`GvnConfig` sizes.
+        Other arguments as ``MaskableActorCriticPolicy``.
+    """
+
+    def __init__(self, observation_space: spaces.Dict, action_space: spaces.Discrete,
+                 lr_schedule, masking: str = "iam", hidden: int = 64, gcn_layers: int = 3,
+                 tcn_kernel: int = 3, tcn_dilations: tuple[int, ...] = (1, 2, 4),
+                 **kwargs: Any) -> None:
+        if masking not in MASKING_MODES:
+            raise ValueError(f"masking must be one of {MASKING_MODES}, not {masking!r}")
+        self.masking = masking
+        self.hidden = hidden
+        kwargs.setdefault("features_extractor_class", GvnExtractor)
+        kwargs.setdefault("features_extractor_kwargs", dict(
+            hidden=hidden, gcn_layers=gcn_layers, tcn_kernel=tcn_kernel,
+            tcn_dilations=tuple(tcn_dilations)))
+        self._gvn_kwargs = dict(masking=masking, hidden=hidden, gcn_layers=gcn_layers,
+                                tcn_kernel=tcn_kernel, tcn_dilations=tuple(tcn_dilations))
+        super().__init__(observation_space, action_space, lr_schedule, **kwargs)
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(self._gvn_kwargs)
+        return data
+
+    def _build_mlp_extractor(self) -> None:
+        self.mlp_extractor = GvnHeads(int(self.action_space.n), self.hidden)
+
+    def _build(self, lr_schedule) -> None:
+        super()._build(lr_schedule)
+        # The actor's logits come out of GvnHeads already (one per node).
+        self.action_net = nn.Identity()
+        self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1),
+                                              **self.optimizer_kwargs)
+
+    def _real_nodes(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+        return obs["node_mask"] > 0
+
+    def forward(self, obs, deterministic: bool = False, action_masks: np.ndarray | None = None):
+        if self.masking != "naive":
+            return super().forward(obs, deterministic, action_masks)
+        features = self.extract_features(obs)
+        latent_pi, latent_vf = self.mlp_extractor(features)
+        values = self.value_net(latent_vf)
+        distribution = self._get_action_dist_from_latent(latent_pi)
+        if action_masks is not None:
+            distribution.apply_masking(action_masks)
+        actions = distribution.get_actions(deterministic=deterministic)
+        distribution.apply_masking(self._real_nodes(obs))  # Gradient path: unmasked logits.
+        return actions, values, distribution.log_prob(actions)
+
+    def evaluate_actions(self, obs, actions: torch.Tensor,
+                         action_masks: torch.Tensor | None = None):
+        if self.masking == "naive":
+            action_masks = self._real_nodes(obs)
+        return super().evaluate_actions(obs, actions, action_masks)

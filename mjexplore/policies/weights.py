@@ -1,0 +1,116 @@
+"""Policy weights as safetensors files (no pickle): tensors plus JSON metadata.
+
+A weights file holds the policy's ``state_dict`` and, in the safetensors metadata, the
+format tag, the policy's constructor arguments, the observation layout and free-form
+provenance (training config, git revision, steps). Loading one never runs code from it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import torch
+from gymnasium import spaces
+
+from mjexplore.envs.observation import ObservationConfig, observation_space
+from mjexplore.errors import UserInputError
+from mjexplore.io.atomic import write_bytes_atomic
+
+FORMAT = "mjexplore-policy-v1"
+ALIASES = ("pi_features_extractor.", "vf_features_extractor.")
+
+
+def save_policy_weights(path: str | os.PathLike, policy: torch.nn.Module, kind: str,
+                        policy_kwargs: dict[str, Any], observation: ObservationConfig,
+                        provenance: dict[str, Any] | None = None) -> None:
+    """Writes ``policy``'s weights atomically."""
+    from safetensors.torch import save
+
+    tensors, seen = {}, set()
+    for k, v in policy.state_dict().items():
+        # SB3 keeps aliases of the shared features extractor (pi_/vf_); store each once.
+        if v.data_ptr() in seen and v.numel():
+            continue
+        seen.add(v.data_ptr())
+        tensors[k] = v.detach().cpu().contiguous()
+    meta = {"format": FORMAT, "kind": kind, "policy_kwargs": json.dumps(policy_kwargs),
+            "observation": json.dumps({"max_nodes": observation.max_nodes,
+                                       "max_neighbours": observation.max_neighbours,
+                                       "memory_length": observation.memory_length}),
+            "provenance": json.dumps(provenance or {}, default=str)}
+    write_bytes_atomic(path, save(tensors, metadata=meta))
+
+
+def read_policy_weights(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+    """Tensors and decoded metadata of a weights file.
+
+    Raises:
+        UserInputError: missing file, not a safetensors file, truncated, or not ours.
+    """
+    from safetensors import SafetensorError
+    from safetensors.torch import load
+
+    path = Path(path)
+    hint = ("give a .safetensors file written by 'mjexplore train' (e.g. "
+            "training/gvn_policy.safetensors).")
+    try:
+        blob = path.read_bytes()
+    except OSError as exc:
+        raise UserInputError(f"cannot read policy weights {str(path)!r}: {exc.strerror}; {hint}") \
+            from None
+    try:
+        tensors = load(blob)
+        header_len = int.from_bytes(blob[:8], "little")
+        meta = json.loads(blob[8:8 + header_len]).get("__metadata__", {})
+    except (SafetensorError, ValueError, UnicodeDecodeError) as exc:
+        raise UserInputError(f"{str(path)!r} is not a readable safetensors file ({exc}); "
+                             f"{hint}") from None
+    if meta.get("format") != FORMAT:
+        raise UserInputError(f"{str(path)!r} is a safetensors file but not mjexplore policy "
+                             f"weights (format {meta.get('format')!r}); {hint}")
+    try:
+        decoded = {"kind": meta["kind"], "policy_kwargs": json.loads(meta["policy_kwargs"]),
+                   "observation": ObservationConfig(**json.loads(meta["observation"])),
+                   "provenance": json.loads(meta.get("provenance", "{}"))}
+    except (KeyError, TypeError, ValueError) as exc:
+        raise UserInputError(f"{str(path)!r} has damaged metadata ({exc}); {hint}") from None
+    return tensors, decoded
+
+
+def load_policy(path: str | os.PathLike, expected_kind: str | None = None):
+    """Rebuilds the policy stored at ``path`` in evaluation mode.
+
+    Returns:
+        (policy, metadata).
+
+    Raises:
+        UserInputError: unreadable file, another kind of policy, or weights that do not
+            fit the network they describe.
+    """
+    from mjexplore.policies.registry import policy_class
+
+    tensors, meta = read_policy_weights(path)
+    if expected_kind is not None and meta["kind"] != expected_kind:
+        raise UserInputError(f"{str(path)!r} holds a {meta['kind']!r} policy, not "
+                             f"{expected_kind!r}: pick the matching --explorer.")
+    obs_cfg: ObservationConfig = meta["observation"]
+    cls, space_fn = policy_class(meta["kind"])
+    obs_space = space_fn(obs_cfg)
+    action_space = spaces.Discrete(obs_cfg.max_nodes)
+    policy = cls(obs_space, action_space, lambda _: 0.0, **meta["policy_kwargs"])
+    problem = None
+    try:
+        result = policy.load_state_dict(tensors, strict=False)
+        missing = [k for k in result.missing_keys if not k.startswith(ALIASES)]
+        if missing or result.unexpected_keys:
+            problem = f"missing {missing[:3]}, unexpected {result.unexpected_keys[:3]}"
+    except RuntimeError as exc:
+        problem = str(exc).splitlines()[0]
+    if problem:
+        raise UserInputError(f"weights in {str(path)!r} do not fit the network they describe "
+                             f"({problem}); the file is damaged or from another version.")
+    policy.set_training_mode(False)
+    return policy, meta

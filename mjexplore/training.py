@@ -1,0 +1,362 @@
+"""Policy training with sb3-contrib's MaskablePPO: config, checkpoints, resume, evaluation.
+
+A run folder holds ``config.yaml`` (the resolved config and git revision), ``checkpoints/``
+(``step_<n>.pt``: policy and optimizer state dicts plus metadata, loaded with
+``torch.load(weights_only=True)``; ``latest.json`` names the newest), ``tb/`` (TensorBoard),
+``eval.csv`` (held-out evaluations), ``policy.safetensors`` (the final weights) and
+``best.safetensors`` (the best evaluation so far).
+
+Checkpoints are written between PPO updates, atomically, so a run killed at any moment
+(``kill -9`` included) resumes with ``--resume`` from its last checkpoint and loses only
+the steps collected since.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import json
+import logging
+import random
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import yaml
+
+from mjexplore.config import load_yaml_config, to_dict
+from mjexplore.envs.exploration import EnvConfig, ExplorationEnv
+from mjexplore.errors import UserInputError
+from mjexplore.eval.episode import EpisodeConfig
+from mjexplore.io.atomic import write_bytes_atomic, write_text_atomic
+from mjexplore.io.provenance import git_revision
+from mjexplore.policies.weights import save_policy_weights
+
+log = logging.getLogger(__name__)
+
+CHECKPOINT_FORMAT = "mjexplore-checkpoint-v1"
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class PpoConfig:
+    """MaskablePPO hyperparameters (SB3 names; steps are decisions per env)."""
+
+    n_steps: int = 256
+    batch_size: int = 128
+    n_epochs: int = 4
+    learning_rate: float = 3e-4
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    clip_range: float = 0.2
+    ent_coef: float = 0.01
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("n_steps", "batch_size", "n_epochs"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"ppo.{name} must be >= 1")
+        if not 0 < self.gamma <= 1 or not 0 <= self.gae_lambda <= 1:
+            raise ValueError("ppo.gamma must be in (0, 1] and ppo.gae_lambda in [0, 1]")
+        if self.learning_rate <= 0:
+            raise ValueError("ppo.learning_rate must be positive")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class PolicyConfig:
+    """Policy network and masking (see :mod:`mjexplore.policies.sb3`)."""
+
+    masking: str = "iam"
+    hidden: int = 64
+    gcn_layers: int = 3
+    tcn_kernel: int = 3
+    tcn_dilations: tuple[int, ...] = (1, 2, 4)
+
+    def __post_init__(self) -> None:
+        from mjexplore.policies.sb3 import MASKING_MODES
+
+        if self.masking not in MASKING_MODES:
+            raise ValueError(f"policy.masking must be one of {', '.join(MASKING_MODES)}")
+        if self.hidden < 1 or self.gcn_layers < 1 or self.tcn_kernel < 1:
+            raise ValueError("policy sizes must be >= 1")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class EvalConfig:
+    """Periodic evaluation on held-out scenes (deterministic policy, main process).
+
+    Attributes:
+        scenes: Held-out scenes (never trained on).
+        every: Evaluate every this many decision steps (0: never).
+        episode: Episode settings of the evaluation (full physics by default).
+        seed: Seed of the evaluation episodes.
+    """
+
+    scenes: tuple[str, ...] = ("loop_with_corridor",)
+    every: int = 4096
+    episode: EpisodeConfig = dataclasses.field(default_factory=EpisodeConfig)
+    seed: int = 0
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class TrainConfig:
+    """A training run.
+
+    Attributes:
+        kind: Policy kind ('gvn').
+        env: Training env settings.
+        policy: Network and masking.
+        ppo: PPO hyperparameters.
+        eval: Held-out evaluation.
+        total_steps: Decision steps to train for (all envs together).
+        n_envs: Environments, each in its own worker process when more than one.
+        checkpoint_every: Checkpoint after at least this many steps since the last one.
+        seed: Seed of torch, numpy and the envs.
+        torch_threads: torch intra-op threads in the learner (1 is fastest on 2 cores).
+    """
+
+    kind: str = "gvn"
+    env: EnvConfig = dataclasses.field(
+        default_factory=lambda: EnvConfig(scenes=("train_loop",)))
+    policy: PolicyConfig = dataclasses.field(default_factory=PolicyConfig)
+    ppo: PpoConfig = dataclasses.field(default_factory=PpoConfig)
+    eval: EvalConfig = dataclasses.field(default_factory=EvalConfig)
+    total_steps: int = 20000
+    n_envs: int = 2
+    checkpoint_every: int = 512
+    seed: int = 0
+    torch_threads: int = 1
+
+    def __post_init__(self) -> None:
+        if self.kind != "gvn":
+            raise ValueError(f"kind {self.kind!r} is unknown: use 'gvn'")
+        if self.total_steps < 1 or self.n_envs < 1 or self.checkpoint_every < 1:
+            raise ValueError("total_steps, n_envs and checkpoint_every must be >= 1")
+
+
+def load_train_config(path: str | Path) -> TrainConfig:
+    """Reads a training YAML (see training/gvn.yaml)."""
+    return load_yaml_config(TrainConfig, path)
+
+
+def _make_env(config: EnvConfig):
+    def build():
+        return ExplorationEnv(config)
+    return build
+
+
+def _seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed)  # noqa: NPY002 - third-party code may draw from the global state
+    torch.manual_seed(seed)
+
+
+class _Checkpointer:
+    """Writes and finds checkpoints of a run folder."""
+
+    def __init__(self, out: Path, config: TrainConfig) -> None:
+        self.dir = out / "checkpoints"
+        self.config = config
+
+    def latest(self) -> Path | None:
+        marker = self.dir / "latest.json"
+        if not marker.is_file():
+            return None
+        try:
+            name = json.loads(marker.read_text())["checkpoint"]
+        except (ValueError, KeyError):
+            raise UserInputError(f"{str(marker)!r} is damaged: delete it to resume from the "
+                                 "newest step_*.pt by hand, or start a new run.") from None
+        return self.dir / name
+
+    def save(self, model, steps: int) -> Path:
+        self.dir.mkdir(parents=True, exist_ok=True)
+        buf = io.BytesIO()
+        torch.save({"format": CHECKPOINT_FORMAT, "num_timesteps": int(steps),
+                    "n_updates": int(model._n_updates),
+                    "policy": model.policy.state_dict(),
+                    "optimizer": model.policy.optimizer.state_dict(),
+                    "config": json.dumps(to_dict(self.config)),
+                    "git_revision": git_revision()}, buf)
+        path = self.dir / f"step_{steps:09d}.pt"
+        write_bytes_atomic(path, buf.getvalue())
+        write_text_atomic(self.dir / "latest.json", json.dumps({"checkpoint": path.name,
+                                                                "num_timesteps": steps}) + "\n")
+        return path
+
+
+def load_checkpoint(path: Path) -> dict[str, Any]:
+    """A checkpoint's contents (``weights_only``: tensors and plain data only).
+
+    Raises:
+        UserInputError: unreadable, truncated or foreign file.
+    """
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many kinds for damaged files.
+        raise UserInputError(f"checkpoint {str(path)!r} cannot be read ({type(exc).__name__}: "
+                             f"{str(exc).splitlines()[0] if str(exc) else ''}); it is damaged or "
+                             "not an mjexplore checkpoint: resume from an older step_*.pt by "
+                             "editing latest.json, or start a new run.") from None
+    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
+        raise UserInputError(f"{str(path)!r} is not an mjexplore checkpoint.")
+    return state
+
+
+def _policy_kwargs(config: TrainConfig) -> dict[str, Any]:
+    p = config.policy
+    return dict(masking=p.masking, hidden=p.hidden, gcn_layers=p.gcn_layers,
+                tcn_kernel=p.tcn_kernel, tcn_dilations=list(p.tcn_dilations))
+
+
+def evaluate_policy_episodes(policy, config: TrainConfig) -> list[dict[str, Any]]:
+    """Runs the policy deterministically on the held-out scenes; their episode metrics."""
+    results = []
+    for scene in config.eval.scenes:
+        env_cfg = dataclasses.replace(config.env, scenes=(scene,), procedural=None,
+                                      episode=config.eval.episode)
+        env = ExplorationEnv(env_cfg)
+        obs, _ = env.reset(seed=config.eval.seed)
+        while True:
+            action, _ = policy.predict(obs, deterministic=True, action_masks=env.action_masks())
+            obs, _, terminated, truncated, info = env.step(int(action))
+            if terminated or truncated:
+                results.append({"scene": scene, **info["episode_metrics"]})
+                break
+    return results
+
+
+def train(config: TrainConfig, out: str | Path, resume: bool = False,
+          progress: bool = True) -> dict[str, Any]:
+    """Trains a policy into the run folder ``out`` (see the module docstring).
+
+    Returns:
+        Summary: steps, checkpoints written, final weights path.
+
+    Raises:
+        UserInputError: ``out`` already holds a run and ``resume`` is not set, or
+            ``resume`` is set and there is nothing to resume.
+    """
+    from sb3_contrib import MaskablePPO
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
+
+    from mjexplore.policies.sb3 import GvnPolicy
+
+    out = Path(out)
+    ckpt = _Checkpointer(out, config)
+    latest = ckpt.latest()
+    if latest is not None and not resume:
+        raise UserInputError(f"{str(out)!r} already holds a training run: pass --resume to "
+                             "continue it, or choose another --out.")
+    if resume and latest is None:
+        raise UserInputError(f"nothing to resume in {str(out)!r}: it has no checkpoint yet; run "
+                             "without --resume to start.")
+    state = load_checkpoint(latest) if latest is not None else None
+    if state is not None:
+        saved = json.loads(state["config"])
+        saved.pop("total_steps", None)
+        if saved != {k: v for k, v in to_dict(config).items() if k != "total_steps"}:
+            raise UserInputError(f"the config differs from the one {str(out)!r} was trained with "
+                                 "(only total_steps may change): resume with "
+                                 f"{str(out / 'config.yaml')!r}.")
+    out.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(out / "config.yaml", f"# git revision {git_revision()}\n" +
+                      yaml.safe_dump(to_dict(config), sort_keys=False))
+
+    done = int(state["num_timesteps"]) if state else 0
+    _seed_everything(config.seed + done)
+    torch.set_num_threads(config.torch_threads)
+    makers = [_make_env(config.env) for _ in range(config.n_envs)]
+    venv = (SubprocVecEnv(makers, start_method="forkserver") if config.n_envs > 1
+            else DummyVecEnv(makers))
+    venv.seed(config.seed + done)
+    venv = VecMonitor(venv)
+    ppo = config.ppo
+    model = MaskablePPO(GvnPolicy, venv, n_steps=ppo.n_steps, batch_size=ppo.batch_size,
+                        n_epochs=ppo.n_epochs, learning_rate=ppo.learning_rate,
+                        gamma=ppo.gamma, gae_lambda=ppo.gae_lambda, clip_range=ppo.clip_range,
+                        ent_coef=ppo.ent_coef, vf_coef=ppo.vf_coef,
+                        max_grad_norm=ppo.max_grad_norm, policy_kwargs=_policy_kwargs(config),
+                        tensorboard_log=str(out / "tb"), seed=config.seed + done, verbose=0)
+    if state is not None:
+        model.policy.load_state_dict(state["policy"])
+        model.policy.optimizer.load_state_dict(state["optimizer"])
+        model.num_timesteps = done
+        model._n_updates = int(state["n_updates"])
+        log.info("resumed from %s at %d steps", latest, done)
+
+    obs_cfg = config.env.observation
+    provenance = {"git_revision": git_revision(), "config": to_dict(config)}
+    written: list[str] = []
+    best = {"score": None}
+
+    def export(name: str, steps: int, extra: dict | None = None) -> Path:
+        path = out / name
+        save_policy_weights(path, model.policy, config.kind, _policy_kwargs(config), obs_cfg,
+                            {**provenance, "num_timesteps": steps, **(extra or {})})
+        return path
+
+    class Callback(BaseCallback):
+        def _on_training_start(self) -> None:
+            self.last_ckpt = self.num_timesteps
+            self.last_eval = self.num_timesteps
+            self.bar = None
+            if progress:
+                from tqdm import tqdm
+
+                self.bar = tqdm(total=config.total_steps, initial=self.num_timesteps,
+                                unit="decision", desc="train")
+
+        def _on_rollout_start(self) -> None:
+            # Between updates: the policy and optimizer are consistent with num_timesteps.
+            n = self.num_timesteps
+            if n - self.last_ckpt >= config.checkpoint_every:
+                written.append(ckpt.save(self.model, n).name)
+                self.last_ckpt = n
+            if config.eval.every and n - self.last_eval >= config.eval.every:
+                self.last_eval = n
+                self._evaluate(n)
+
+        def _evaluate(self, n: int) -> None:
+            results = evaluate_policy_episodes(self.model.policy, config)
+            et = float(np.mean([r["exploration_time_s"] for r in results]))
+            ratio = float(np.mean([r["exploration_ratio"] for r in results]))
+            self.logger.record("eval/exploration_time_s", et)
+            self.logger.record("eval/exploration_ratio", ratio)
+            self.logger.record("eval/path_length_m",
+                               float(np.mean([r["path_length_m"] for r in results])))
+            header = not (out / "eval.csv").exists()
+            with open(out / "eval.csv", "a") as f:
+                if header:
+                    f.write("steps,scene,exploration_time_s,path_length_m,exploration_ratio,"
+                            "end_reason\n")
+                for r in results:
+                    f.write(f"{n},{r['scene']},{r['exploration_time_s']},{r['path_length_m']},"
+                            f"{r['exploration_ratio']},{r['end_reason']}\n")
+            score = ratio * 1e4 - et  # Coverage first, then speed.
+            if best["score"] is None or score > best["score"]:
+                best["score"] = score
+                export("best.safetensors", n, {"eval": results})
+
+        def _on_step(self) -> bool:
+            if self.bar is not None:
+                self.bar.update(self.training_env.num_envs)
+            return True
+
+        def _on_training_end(self) -> None:
+            if self.bar is not None:
+                self.bar.close()
+
+    remaining = config.total_steps - done
+    try:
+        if remaining > 0:
+            model.learn(remaining, callback=Callback(), reset_num_timesteps=False,
+                        tb_log_name="ppo")
+        written.append(ckpt.save(model, model.num_timesteps).name)
+        final = export("policy.safetensors", model.num_timesteps)
+    finally:
+        venv.close()
+    return {"num_timesteps": int(model.num_timesteps), "checkpoints": written,
+            "weights": str(final), "resumed_from": done}
