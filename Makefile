@@ -26,7 +26,7 @@ system-deps:
 
 demo: install
 	$(BIN)/mjexplore scene-gen office --seed 0 --size 40x25 --out runs/demo/scene
-	$(BIN)/mjexplore explore --scene runs/demo/scene --explorer potential --seed 0 --out runs/demo/explore
+	$(BIN)/mjexplore explore --scene runs/demo/scene --explorer gvn --seed 0 --out runs/demo/explore
 	@echo "demo outputs in runs/demo/: scene/ (scene.xml, map, preview.png) and explore/ (metrics.json, ratio.png, map.png, kinematics.png, episode.mcap)"
 
 test: system-deps $(VENV)/.installed-test
@@ -35,6 +35,7 @@ test: system-deps $(VENV)/.installed-test
 bench: system-deps $(VENV)/.installed-test
 	$(BIN)/python tools/bench_sim.py
 	$(BIN)/python tools/bench_topology.py
+	$(BIN)/python tools/bench_train.py
 
 scenes: install
 	$(BIN)/python tools/regenerate_scenes.py

@@ -140,9 +140,14 @@ def cmd_explore(args: argparse.Namespace) -> int:
     from mjexplore.explorers import make_explorer
     from mjexplore.scenes.canonical import resolve_scene
 
-    make_explorer(args.explorer)  # Fails early on an unknown name.
+    kwargs = {}
+    if args.policy is not None:
+        if args.explorer != "gvn":
+            raise UserInputError("--policy applies to --explorer gvn only.")
+        kwargs["policy"] = str(args.policy)
+    make_explorer(args.explorer, **kwargs)  # Fails early on a bad name or weights file.
     metrics = write_run(args.out, resolve_scene(args.scene), args.explorer, args.seed,
-                        _episode_config(args), mcap=not args.no_mcap)
+                        _episode_config(args), mcap=not args.no_mcap, explorer_kwargs=kwargs)
     print(json.dumps(metrics))
     return 0
 
@@ -241,7 +246,10 @@ def build_parser() -> argparse.ArgumentParser:
     explore.add_argument("--scene", default="office",
                          help="canonical scene name, scene folder, MJCF or map_server YAML")
     explore.add_argument("--explorer", default="nearest",
-                         help="nearest, rrt, potential or oracle")
+                         help="nearest, rrt, potential, oracle or gvn")
+    explore.add_argument("--policy", type=Path, default=None,
+                         help="weights for --explorer gvn (default: the shipped "
+                         "training/gvn_policy.safetensors)")
     explore.add_argument("--seed", type=_seed, default=0)
     explore.add_argument("--out", type=Path, required=True, help="run folder")
     explore.add_argument("--no-mcap", action="store_true", help="do not write episode.mcap")

@@ -360,3 +360,25 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
         venv.close()
     return {"num_timesteps": int(model.num_timesteps), "checkpoints": written,
             "weights": str(final), "resumed_from": done}
+
+
+def export_checkpoint(checkpoint: str | Path, out: str | Path) -> dict[str, Any]:
+    """Writes the policy weights of a checkpoint as a safetensors file; returns its
+    provenance."""
+    from gymnasium import spaces
+
+    from mjexplore.config import from_dict
+    from mjexplore.envs.observation import observation_space
+    from mjexplore.policies.sb3 import GvnPolicy
+
+    state = load_checkpoint(Path(checkpoint))
+    config = from_dict(TrainConfig, json.loads(state["config"]))
+    obs_cfg = config.env.observation
+    policy = GvnPolicy(observation_space(obs_cfg), spaces.Discrete(obs_cfg.max_nodes),
+                       lambda _: 0.0, **_policy_kwargs(config))
+    policy.load_state_dict(state["policy"])
+    provenance = {"git_revision": state["git_revision"], "config": to_dict(config),
+                  "num_timesteps": int(state["num_timesteps"]),
+                  "checkpoint": Path(checkpoint).name}
+    save_policy_weights(out, policy, config.kind, _policy_kwargs(config), obs_cfg, provenance)
+    return provenance

@@ -8,18 +8,21 @@ carries the *raw* inputs instead — each remembered decision's padded TER and i
 node — and the policy re-encodes them with its current weights at every forward pass.
 At deployment the weights are fixed, so re-encoding and caching give the same numbers.
 
-Layout (N = ``max_nodes``, K = ``max_neighbours``, E = ``memory_length``; all float32):
+Layout (N = ``max_nodes``, K = ``max_neighbours``, E = ``memory_length``; all float32 and
+flat, row-major: SB3 takes only 1-D vectors and images as plain observations):
 
-* ``node_features`` (N, 6): [px, py, G_info, phi_diff, D, flag] of the TER (see
+* ``node_features`` (N 6): per node [px, py, G_info, phi_diff, D, flag] of the TER (see
   :mod:`mjexplore.topology.ter`; metres, radians, gain a share in [0, 1]); zero for
   padding.
-* ``neighbours`` (N, K): neighbour node indices, -1 for an empty slot.
-* ``node_mask`` (N,): 1 for real nodes.
-* ``memory_node_features`` (E, N, 6), ``memory_neighbours`` (E, N, K),
-  ``memory_node_mask`` (E, N): the TERs of the last E decisions, oldest first; slots
-  before the episode's first decision are all zero.
-* ``memory_choice`` (E,): index of the node chosen at each remembered decision.
-* ``memory_mask`` (E,): 1 for slots holding a decision.
+* ``neighbours`` (N K): per node its neighbour node indices, -1 for an empty slot.
+* ``node_mask`` (N): 1 for real nodes.
+* ``memory_node_features`` (E N 6), ``memory_neighbours`` (E N K), ``memory_node_mask``
+  (E N): the TERs of the last E decisions, oldest first; slots before the episode's first
+  decision are all zero (neighbours -1).
+* ``memory_choice`` (E): index of the node chosen at each remembered decision.
+* ``memory_mask`` (E): 1 for slots holding a decision.
+
+:func:`structured` restores the (N, 6), (N, K), ... shapes.
 """
 
 from __future__ import annotations
@@ -58,12 +61,12 @@ def observation_space(config: ObservationConfig) -> spaces.Dict:
     index = dict(low=-1.0, high=float(n - 1), dtype=np.float32)
     unit = dict(low=0.0, high=1.0, dtype=np.float32)
     return spaces.Dict({
-        "node_features": spaces.Box(shape=(n, NUM_FEATURES), **feat),
-        "neighbours": spaces.Box(shape=(n, k), **index),
+        "node_features": spaces.Box(shape=(n * NUM_FEATURES,), **feat),
+        "neighbours": spaces.Box(shape=(n * k,), **index),
         "node_mask": spaces.Box(shape=(n,), **unit),
-        "memory_node_features": spaces.Box(shape=(e, n, NUM_FEATURES), **feat),
-        "memory_neighbours": spaces.Box(shape=(e, n, k), **index),
-        "memory_node_mask": spaces.Box(shape=(e, n), **unit),
+        "memory_node_features": spaces.Box(shape=(e * n * NUM_FEATURES,), **feat),
+        "memory_neighbours": spaces.Box(shape=(e * n * k,), **index),
+        "memory_node_mask": spaces.Box(shape=(e * n,), **unit),
         "memory_choice": spaces.Box(low=0.0, high=float(n - 1), shape=(e,), dtype=np.float32),
         "memory_mask": spaces.Box(shape=(e,), **unit),
     })
@@ -103,21 +106,35 @@ class TerMemory:
 
     def observation(self, current: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """The full observation for the current TER arrays (from :func:`ter_arrays`)."""
-        return {**current,
-                "memory_node_features": self._features.copy(),
-                "memory_neighbours": self._neighbours.copy(),
-                "memory_node_mask": self._node_mask.copy(),
+        return {**{k: v.reshape(-1).copy() for k, v in current.items()},
+                "memory_node_features": self._features.reshape(-1).copy(),
+                "memory_neighbours": self._neighbours.reshape(-1).copy(),
+                "memory_node_mask": self._node_mask.reshape(-1).copy(),
                 "memory_choice": self._choice.copy(),
                 "memory_mask": self._mask.copy()}
 
     def remember(self, current: dict[str, np.ndarray], choice: int) -> None:
-        """Appends a decision (the TER it was made on and the node chosen), dropping the
-        oldest when full."""
+        """Appends a decision (the TER arrays, from :func:`ter_arrays`, it was made on and
+        the node chosen), dropping the oldest when full."""
         for buf in (self._features, self._neighbours, self._node_mask, self._choice,
                     self._mask):
             buf[:-1] = buf[1:]
-        self._features[-1] = current["node_features"]
-        self._neighbours[-1] = current["neighbours"]
+        self._features[-1] = current["node_features"].reshape(self._features.shape[1:])
+        self._neighbours[-1] = current["neighbours"].reshape(self._neighbours.shape[1:])
         self._node_mask[-1] = current["node_mask"]
         self._choice[-1] = float(choice)
         self._mask[-1] = 1.0
+
+
+def structured(obs: dict, batch_dims: int = 1) -> dict:
+    """Reshapes flat observation arrays or tensors (with ``batch_dims`` leading axes) to
+    (..., N, 6), (..., N, K), (..., N), (..., E, N, 6), (..., E, N, K), (..., E, N),
+    (..., E), (..., E)."""
+    lead = tuple(obs["node_mask"].shape[:batch_dims])
+    n = obs["node_mask"].shape[-1]
+    e = obs["memory_mask"].shape[-1]
+    k = obs["neighbours"].shape[-1] // n
+    shapes = {"node_features": (n, NUM_FEATURES), "neighbours": (n, k), "node_mask": (n,),
+              "memory_node_features": (e, n, NUM_FEATURES), "memory_neighbours": (e, n, k),
+              "memory_node_mask": (e, n), "memory_choice": (e,), "memory_mask": (e,)}
+    return {key: obs[key].reshape(*lead, *shape) for key, shape in shapes.items()}

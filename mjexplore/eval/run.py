@@ -40,23 +40,26 @@ def run_episode(scene: SceneFiles, explorer: str, seed: int, config: EpisodeConf
     return result
 
 
-def resolved_config(scene: SceneFiles, explorer: str, seed: int,
-                    config: EpisodeConfig) -> dict[str, Any]:
+def resolved_config(scene: SceneFiles, explorer: str, seed: int, config: EpisodeConfig,
+                    explorer_kwargs: dict | None = None) -> dict[str, Any]:
     return {"scene": str(scene.xml), "scene_metadata": scene.metadata, "explorer": explorer,
-            "seed": seed, "episode": dataclasses.asdict(config), "git_revision": git_revision()}
+            "explorer_kwargs": explorer_kwargs or {}, "seed": seed,
+            "episode": dataclasses.asdict(config), "git_revision": git_revision()}
 
 
 def write_run(out_dir: str | os.PathLike, scene: SceneFiles, explorer: str, seed: int,
-              config: EpisodeConfig, mcap: bool = True) -> dict[str, Any]:
+              config: EpisodeConfig, mcap: bool = True,
+              explorer_kwargs: dict | None = None) -> dict[str, Any]:
     """Runs an episode and writes its run folder atomically; returns the metrics."""
     with atomic_directory(out_dir) as tmp:
         result = run_episode(scene, explorer, seed, config,
-                             tmp / "episode.mcap" if mcap else None)
+                             tmp / "episode.mcap" if mcap else None, explorer_kwargs)
         metrics = {"scene": scene.metadata.get("name", Path(scene.xml).parent.name),
                    "explorer": explorer, "seed": seed, **result.metrics}
         write_text_atomic(tmp / "metrics.json", json.dumps(metrics, indent=2) + "\n")
         write_text_atomic(tmp / "config.json", json.dumps(
-            resolved_config(scene, explorer, seed, config), indent=2, default=str) + "\n")
+            resolved_config(scene, explorer, seed, config, explorer_kwargs), indent=2,
+            default=str) + "\n")
         write_text_atomic(tmp / "ratio.csv", "t,exploration_ratio\n" + "".join(
             f"{t:.3f},{r:.6f}\n" for t, r in result.ratio_curve))
         write_text_atomic(tmp / "kinematics.csv", kinematics_csv(result.kinematics))

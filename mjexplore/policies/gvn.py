@@ -28,6 +28,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from mjexplore.envs.observation import structured
 from mjexplore.topology.ter import NUM_FEATURES
 
 # Fixed input scaling of [px, py, G_info, phi_diff, D, flag]: metres / 10, radians / pi.
@@ -166,27 +167,47 @@ class GVN(nn.Module):
         self.attention = nn.Linear(d, 1)
         self.aggregator = nn.Sequential(nn.Linear(2 * d, d), nn.ReLU(), nn.Linear(d, d), nn.ReLU())
 
-    def memory(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
-        """h^M (B, d): the TCN's output at the latest remembered decision."""
-        feats = obs["memory_node_features"]
-        b, e, n, _ = feats.shape
-        node_mask = obs["memory_node_mask"].reshape(b * e, n)
-        r = self.spatial(feats.reshape(b * e, n, -1),
-                         obs["memory_neighbours"].reshape(b * e, n, -1), node_mask)
-        choice = obs["memory_choice"].reshape(b * e).long().clamp(0, n - 1)
-        chosen = r[torch.arange(b * e, device=r.device), choice]
-        frag = self.fragment(torch.cat([masked_mean(r, node_mask), chosen], -1)).view(b, e, -1)
-        frag = frag * obs["memory_mask"][..., None]
-        return self.temporal(frag)[:, -1]
+    def fragments(self, embeddings: torch.Tensor, node_mask: torch.Tensor,
+                  choice: torch.Tensor) -> torch.Tensor:
+        """Memory fragments (M, d) from node embeddings (M, N, d) of remembered TERs and
+        the node chosen on each (M,)."""
+        m, n, _ = embeddings.shape
+        chosen = embeddings[torch.arange(m, device=embeddings.device),
+                            choice.long().clamp(0, n - 1)]
+        return self.fragment(torch.cat([masked_mean(embeddings, node_mask), chosen], -1))
 
-    def forward(self, obs: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
-        mask = obs["node_mask"]
-        r = self.spatial(obs["node_features"], obs["neighbours"], mask)
-        h = self.memory(obs)[:, None].expand_as(r)
+    def memory_from_fragments(self, fragments: torch.Tensor,
+                              memory_mask: torch.Tensor) -> torch.Tensor:
+        """h^M (B, d) from fragments (B, E, d), oldest first, and their mask (B, E)."""
+        return self.temporal(fragments * memory_mask[..., None])[:, -1]
+
+    def memory(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+        """h^M (B, d), re-encoding the remembered TERs carried in the (structured)
+        observation."""
+        b, e, n = obs["memory_node_mask"].shape
+        node_mask = obs["memory_node_mask"].reshape(b * e, n)
+        r = self.spatial(obs["memory_node_features"].reshape(b * e, n, -1),
+                         obs["memory_neighbours"].reshape(b * e, n, -1), node_mask)
+        frag = self.fragments(r, node_mask, obs["memory_choice"].reshape(b * e)).view(b, e, -1)
+        return self.memory_from_fragments(frag, obs["memory_mask"])
+
+    def fuse(self, r: torch.Tensor, node_mask: torch.Tensor,
+             h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Attention fusion and aggregator: node features z (B, N, d) and the critic's
+        graph summary (B, 2d) from embeddings r (B, N, d) and memory h (B, d)."""
+        h = h[:, None].expand_as(r)
         scores = torch.cat([self.attention(r), self.attention(h)], -1)  # Eq. 11.
         alpha = torch.softmax(scores, -1)
         fused = alpha[..., :1] * r + alpha[..., 1:] * h  # Eq. 10.
-        z = self.aggregator(torch.cat([fused, r], -1)) * mask[..., None]  # Eq. 12.
-        pooled_max = z.masked_fill(mask[..., None] <= 0, -1e4).amax(-2)
-        pooled_max = torch.where(mask.sum(-1, keepdim=True) > 0, pooled_max, 0.0)
-        return z, torch.cat([masked_mean(z, mask), pooled_max], -1)
+        mask = node_mask[..., None]
+        z = self.aggregator(torch.cat([fused, r], -1)) * mask  # Eq. 12.
+        pooled_max = z.masked_fill(mask <= 0, -1e4).amax(-2)
+        pooled_max = torch.where(node_mask.sum(-1, keepdim=True) > 0, pooled_max, 0.0)
+        return z, torch.cat([masked_mean(z, node_mask), pooled_max], -1)
+
+    def forward(self, obs: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        """Batched flat observations (see :mod:`mjexplore.envs.observation`) -> (z, pooled)."""
+        obs = structured(obs)
+        mask = obs["node_mask"]
+        r = self.spatial(obs["node_features"], obs["neighbours"], mask)
+        return self.fuse(r, mask, self.memory(obs))

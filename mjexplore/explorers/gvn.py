@@ -1,0 +1,88 @@
+"""The GVN explorer: a trained policy picks a TER node at each decision (the paper's method).
+
+The policy's episodic memory is kept here as encoded fragments: with fixed weights,
+encoding each decision's TER once and caching its fragment gives the same numbers as
+re-encoding the raw memory at every decision (as training does), at a tenth of the cost.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from mjexplore.envs.exploration import ter_action_mask
+from mjexplore.envs.observation import ter_arrays
+from mjexplore.explorers.base import ExplorationState, register
+from mjexplore.topology.ter import FRONTIER_FLAG, TerConfig
+
+DEFAULT_WEIGHTS = Path(__file__).resolve().parents[2] / "training" / "gvn_policy.safetensors"
+
+
+@register("gvn")
+class GvnExplorer:
+    """Chooses TER nodes with a GVN policy.
+
+    Args:
+        policy: Path of a weights file (default: the shipped ``training/gvn_policy.safetensors``).
+        masking: True applies invalid action masking at evaluation (frontier nodes only);
+            False is the paper's "masking removed" ablation (any TER node).
+        deterministic: Take the most probable node (True) or sample.
+    """
+
+    def __init__(self, policy: str | os.PathLike | None = None, masking: bool = True,
+                 deterministic: bool = True) -> None:
+        from mjexplore.policies.weights import load_policy
+
+        self.policy, meta = load_policy(policy or DEFAULT_WEIGHTS, expected_kind="gvn")
+        self.gvn = self.policy.features_extractor.gvn
+        obs = meta["observation"]
+        self.ter_config = TerConfig(max_nodes=obs.max_nodes, max_neighbours=obs.max_neighbours)
+        self.memory_length = obs.memory_length
+        self.masking = masking
+        self.deterministic = deterministic
+        self.waypoint = False
+        self.reset(np.random.default_rng(0))
+
+    def reset(self, rng: np.random.Generator) -> None:
+        self.rng = rng
+        self.waypoint = False
+        self._fragments = torch.zeros(1, self.memory_length, self.gvn.config.hidden)
+        self._memory_mask = torch.zeros(1, self.memory_length)
+
+    def logits(self, current: dict[str, np.ndarray]) -> tuple[torch.Tensor, torch.Tensor]:
+        """Node logits (N,) for the current TER arrays, and the node embeddings (1, N, d)."""
+        t = {k: torch.as_tensor(v)[None] for k, v in current.items()}
+        with torch.no_grad():
+            r = self.gvn.spatial(t["node_features"], t["neighbours"], t["node_mask"])
+            h = self.gvn.memory_from_fragments(self._fragments, self._memory_mask)
+            z, pooled = self.gvn.fuse(r, t["node_mask"], h)
+            logits = self.policy.mlp_extractor.forward_actor(torch.cat([z.flatten(1), pooled], -1))
+        return logits[0], r
+
+    def select_goal(self, state: ExplorationState) -> np.ndarray | None:
+        ter, _, _ = state.extras["tracker"].ter(state.grid, state.pose)
+        padded = ter.padded(self.ter_config)
+        valid = ter_action_mask(padded, state, "frontiers")
+        if not valid.any():
+            return None
+        if not self.masking:
+            valid = ter_action_mask(padded, state, "all_nodes")
+        current = ter_arrays(padded)
+        logits, r = self.logits(current)
+        masked = torch.where(torch.as_tensor(valid), logits, torch.tensor(-1e8))
+        if self.deterministic:
+            action = int(torch.argmax(masked))
+        else:
+            p = torch.softmax(masked.double(), 0).numpy()
+            action = int(self.rng.choice(len(p), p=p / p.sum()))
+        with torch.no_grad():
+            frag = self.gvn.fragments(r, torch.as_tensor(current["node_mask"])[None],
+                                      torch.tensor([action]))
+        self._fragments = torch.cat([self._fragments[:, 1:], frag[:, None]], 1)
+        self._memory_mask = torch.cat([self._memory_mask[:, 1:], torch.ones(1, 1)], 1)
+        self.waypoint = bool(padded.node_features[action, 5] != FRONTIER_FLAG)
+        return padded.node_positions[action].astype(float)

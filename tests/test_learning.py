@@ -1,0 +1,445 @@
+"""The learning stack: env, GVN layers, masking, training with resume, shipped weights."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from gymnasium import spaces
+
+from mjexplore.config import from_dict, to_dict
+from mjexplore.envs import ENV_IDS, EnvConfig, ExplorationEnv, ObservationConfig, TerMemory
+from mjexplore.envs.observation import observation_space, structured
+from mjexplore.errors import UserInputError
+from mjexplore.eval.episode import Episode, EpisodeConfig
+from mjexplore.navigation.navigator import NavigatorConfig
+from mjexplore.policies.gvn import CausalConv, GraphConv, GvnConfig, TemporalEncoder, \
+    normalized_adjacency
+from mjexplore.policies.sb3 import GvnPolicy
+from mjexplore.scenes.canonical import resolve_scene
+from mjexplore.sim.simulator import SimConfig
+from mjexplore.training import TrainConfig, load_checkpoint, load_train_config
+
+REPO = Path(__file__).resolve().parents[1]
+SHIPPED = REPO / "training" / "gvn_policy.safetensors"
+FAST = EpisodeConfig(sim=SimConfig(dynamics="kinematic"),
+                     navigator=NavigatorConfig(replan_rate_hz=0.5, replan_when_blocked=True))
+SMALL = ObservationConfig(max_nodes=12, max_neighbours=3, memory_length=4)
+
+
+def _random_obs(config: ObservationConfig, batch: int, rng: np.random.Generator):
+    """Random but well-formed observations (symmetric neighbour lists)."""
+    n, k, e = config.max_nodes, config.max_neighbours, config.memory_length
+
+    def graph():
+        real = int(rng.integers(3, n + 1))
+        neigh = np.full((n, k), -1.0, np.float32)
+        fill = np.zeros(n, int)
+        for i in range(1, real):
+            j = int(rng.integers(0, i))
+            if fill[i] < k and fill[j] < k:
+                neigh[i, fill[i]], neigh[j, fill[j]] = j, i
+                fill[i] += 1
+                fill[j] += 1
+        feats = np.zeros((n, 6), np.float32)
+        feats[:real] = rng.normal(size=(real, 6))
+        mask = np.zeros(n, np.float32)
+        mask[:real] = 1
+        return {"node_features": feats, "neighbours": neigh, "node_mask": mask}, real
+
+    out = []
+    for _ in range(batch):
+        memory = TerMemory(config)
+        for _ in range(int(rng.integers(0, e + 2))):
+            g, real = graph()
+            memory.remember(g, int(rng.integers(real)))
+        g, _ = graph()
+        out.append(memory.observation(g))
+    return {key: torch.as_tensor(np.stack([o[key] for o in out])) for key in out[0]}
+
+
+def _policy(masking: str = "iam", config: ObservationConfig = SMALL) -> GvnPolicy:
+    torch.manual_seed(0)
+    return GvnPolicy(observation_space(config), spaces.Discrete(config.max_nodes),
+                     lambda _: 1e-3, masking=masking, hidden=16)
+
+
+# ----------------------------------------------------------------------------- network
+
+
+def test_gcn_layer_equals_dense_formula():
+    rng = np.random.default_rng(0)
+    n = 6
+    edges = [(0, 1), (1, 2), (2, 3), (1, 4)]  # Node 5 is padding.
+    neigh = np.full((1, n, 3), -1.0, np.float32)
+    fill = np.zeros(n, int)
+    for a, b in edges:
+        neigh[0, a, fill[a]], neigh[0, b, fill[b]] = b, a
+        fill[a] += 1
+        fill[b] += 1
+    mask = np.array([[1, 1, 1, 1, 1, 0]], np.float32)
+    h = torch.as_tensor(rng.normal(size=(1, n, 4)), dtype=torch.float32)
+    layer = GraphConv(4, 5)
+    out = layer(h, normalized_adjacency(torch.as_tensor(neigh), torch.as_tensor(mask)))
+    a = np.zeros((5, 5))
+    for i, j in edges:
+        a[i, j] = a[j, i] = 1
+    a_hat = a + np.eye(5)
+    d = np.diag(a_hat.sum(1) ** -0.5)
+    w = layer.weight.weight.detach().numpy().T
+    dense = d @ a_hat @ d @ h[0, :5].numpy() @ w
+    np.testing.assert_allclose(out[0, :5].detach().numpy(), dense, rtol=1e-5, atol=1e-6)
+    assert torch.all(out[0, 5] == 0)  # Padding takes no part.
+
+
+def test_tcn_is_causal():
+    torch.manual_seed(0)
+    tcn = TemporalEncoder(GvnConfig(hidden=8))
+    x = torch.randn(2, 10, 8)
+    y = tcn(x)
+    for t in range(9):
+        x2 = x.clone()
+        x2[:, t + 1:] = torch.randn_like(x2[:, t + 1:])
+        y2 = tcn(x2)
+        assert torch.allclose(y[:, :t + 1], y2[:, :t + 1], atol=1e-6)
+        assert not torch.allclose(y[:, t + 1:], y2[:, t + 1:])
+    conv = CausalConv(1, 3, 2)
+    assert conv.pad == 4
+
+
+@pytest.mark.parametrize("masking", ["iam", "naive"])
+def test_masked_nodes_get_zero_probability_and_gradient(masking):
+    policy = _policy(masking)
+    obs = _random_obs(SMALL, 4, np.random.default_rng(1))
+    valid = obs["node_mask"].bool() & (torch.rand(obs["node_mask"].shape,
+                                                   generator=torch.Generator().manual_seed(0)) < 0.5)
+    valid[:, 0] = True
+    features = policy.extract_features(obs)
+    logits = policy.mlp_extractor.forward_actor(features)
+    logits.retain_grad()
+    dist = policy._get_action_dist_from_latent(logits)
+    dist.apply_masking(valid)
+    probs = dist.distribution.probs
+    assert torch.all(probs[~valid] == 0)
+    actions = dist.get_actions()
+    assert torch.all(valid[torch.arange(4), actions])
+    _, log_prob, _ = policy.evaluate_actions(obs, actions, valid)
+    policy.zero_grad()
+    logits_eval = None
+
+    def hook(module, inputs, output):
+        nonlocal logits_eval
+        logits_eval = output
+        output.retain_grad()
+
+    handle = policy.mlp_extractor.actor.register_forward_hook(hook)
+    _, log_prob, _ = policy.evaluate_actions(obs, actions, valid)
+    handle.remove()
+    log_prob.sum().backward()
+    grad = logits_eval.grad.squeeze(-1)
+    invalid_real = obs["node_mask"].bool() & ~valid
+    assert grad[valid].abs().max() > 1e-3
+    if masking == "iam":
+        # Zero analytically; sb3-contrib normalises the raw logits before masking, which
+        # leaves float32 round-off (~1e-9) behind.
+        assert grad[~valid].abs().max() < 1e-6
+    else:  # Naive masking: gradients reach the logits of invalid (real) nodes.
+        assert grad[invalid_real].abs().max() > 1e-3
+
+
+def test_policy_forward_samples_valid_nodes_only():
+    policy = _policy()
+    obs = _random_obs(SMALL, 8, np.random.default_rng(2))
+    valid = torch.zeros(8, SMALL.max_nodes, dtype=torch.bool)
+    valid[:, 1] = True
+    valid[:, 2] = True
+    for _ in range(5):
+        actions, values, log_prob = policy(obs, action_masks=valid)
+        assert set(actions.tolist()) <= {1, 2}
+        assert values.shape == (8, 1) and torch.isfinite(log_prob).all()
+
+
+def test_memory_matters_and_padding_does_not():
+    policy = _policy()
+    rng = np.random.default_rng(3)
+    obs = _random_obs(SMALL, 1, rng)
+    base = policy.mlp_extractor.forward_actor(policy.extract_features(obs))
+    other = dict(obs)
+    other["memory_mask"] = torch.zeros_like(obs["memory_mask"])
+    other["memory_node_features"] = torch.zeros_like(obs["memory_node_features"])
+    if obs["memory_mask"].sum() > 0:
+        changed = policy.mlp_extractor.forward_actor(policy.extract_features(other))
+        assert not torch.allclose(base, changed)
+    # Garbage in padding slots of the current TER changes nothing on real nodes.
+    noisy = dict(obs)
+    feats = obs["node_features"].clone().view(1, SMALL.max_nodes, 6)
+    feats[obs["node_mask"] == 0] = 99.0
+    noisy["node_features"] = feats.view(1, -1)
+    again = policy.mlp_extractor.forward_actor(policy.extract_features(noisy))
+    real = obs["node_mask"] > 0
+    assert torch.allclose(base[real], again[real], atol=1e-5)
+
+
+# ----------------------------------------------------------------------------- env
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_check_env_for_every_registered_id(env_id, tmp_path):
+    from gymnasium.utils.env_checker import check_env as gym_check
+    from stable_baselines3.common.env_checker import check_env as sb3_check
+
+    overrides = {"max_decisions": 4}
+    env = gym.make(env_id, **overrides).unwrapped
+    if env.config.procedural is not None:
+        env = ExplorationEnv(dataclasses.replace(env.config, procedural=dataclasses.replace(
+            env.config.procedural, cache_dir=str(tmp_path))), max_decisions=4)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        gym_check(env, skip_render_check=True)
+        sb3_check(env, warn=True)
+    assert not caught, [str(w.message) for w in caught]
+
+
+def test_env_is_deterministic_and_reports_reward_terms():
+    config = EnvConfig(scenes=("train_loop",), episode=FAST, max_decisions=6)
+
+    def rollout():
+        env = ExplorationEnv(config)
+        obs, _ = env.reset(seed=3)
+        out = [obs["node_features"].copy()]
+        rewards, infos = [], []
+        for _ in range(6):
+            mask = env.action_masks()
+            assert mask.any() and np.all(obs["node_mask"][mask] == 1)
+            obs, r, term, trunc, info = env.step(int(np.flatnonzero(mask)[-1]))
+            rewards.append(r)
+            infos.append(info)
+            if term or trunc:
+                break
+        return out, rewards, infos
+
+    a, ra, ia = rollout()
+    b, rb, _ = rollout()
+    np.testing.assert_array_equal(a[0], b[0])
+    assert ra == rb
+    info = ia[0]
+    cfg = config.reward
+    expected = cfg.scale * (cfg.b1 * info["gain_m2"] - cfg.b2 * info["path_m"] +
+                            cfg.b3 * info["accuracy_m2"] - cfg.b4)
+    assert ra[0] == pytest.approx(expected)
+    assert info["gain_m2"] > 0 and info["path_m"] > 0
+    assert ia[-1]["end_reason"] == "decision_limit" or ia[-1]["end_reason"] is not None
+
+
+def test_invalid_action_is_a_no_op_with_the_step_cost():
+    env = ExplorationEnv(EnvConfig(scenes=("train_loop",), episode=FAST))
+    obs, info = env.reset(seed=0)
+    padding = int(np.flatnonzero(obs["node_mask"] == 0)[0])
+    t0 = info["sim_time"]
+    _, reward, term, trunc, info = env.step(padding)
+    assert info["invalid_action"] and info["sim_time"] == t0
+    assert reward == pytest.approx(-env.config.reward.scale * env.config.reward.b4)
+    assert not (term or trunc)
+
+
+def test_memory_in_observation_follows_decisions():
+    env = ExplorationEnv(EnvConfig(scenes=("train_loop",), episode=FAST))
+    obs, _ = env.reset(seed=1)
+    assert obs["memory_mask"].sum() == 0
+    first = obs["node_features"].copy()
+    action = int(np.flatnonzero(env.action_masks())[0])
+    obs, *_ = env.step(action)
+    assert obs["memory_mask"].tolist() == [0.0] * 9 + [1.0]
+    np.testing.assert_array_equal(obs["memory_node_features"][-len(first):], first)
+    assert obs["memory_choice"][-1] == action
+
+
+# ----------------------------------------------------------------------------- configs
+
+
+def test_train_config_round_trip_and_errors(tmp_path):
+    config = load_train_config(REPO / "training" / "gvn.yaml")
+    assert from_dict(TrainConfig, to_dict(config)) == config
+    bad = {"ppo": {"n_stepz": 3}}
+    with pytest.raises(UserInputError, match="unknown key"):
+        from_dict(TrainConfig, bad)
+    with pytest.raises(UserInputError, match="expected a number"):
+        from_dict(TrainConfig, {"ppo": {"gamma": "high"}})
+    with pytest.raises(UserInputError, match="gamma"):
+        from_dict(TrainConfig, {"ppo": {"gamma": 1.5}})
+    with pytest.raises(UserInputError, match="masking"):
+        from_dict(TrainConfig, {"policy": {"masking": "sometimes"}})
+    path = tmp_path / "broken.yaml"
+    path.write_text("ppo: [unclosed\n")
+    with pytest.raises(UserInputError, match="not valid YAML"):
+        load_train_config(path)
+
+
+# ----------------------------------------------------------------------------- training
+
+TINY = """
+kind: gvn
+total_steps: {total}
+n_envs: {n_envs}
+checkpoint_every: 8
+env:
+  scenes: [train_loop]
+  max_decisions: 12
+  observation: {{max_nodes: 64, max_neighbours: 4, memory_length: 3}}
+  episode:
+    sim: {{dynamics: kinematic}}
+    navigator: {{replan_rate_hz: 0.5, replan_when_blocked: true}}
+policy: {{hidden: 16}}
+ppo: {{n_steps: 8, batch_size: 8, n_epochs: 1}}
+eval: {{every: 0}}
+"""
+
+
+def _train_cli(args, **kw):
+    return subprocess.run([sys.executable, "-m", "mjexplore.cli", "train", "--no-progress",
+                           *args], capture_output=True, text=True, **kw)
+
+
+@pytest.mark.slow
+def test_training_saves_resumes_and_loads(tmp_path):
+    from mjexplore.policies.weights import load_policy
+
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text(TINY.format(total=16, n_envs=1))
+    out = tmp_path / "run"
+    r = _train_cli(["--config", str(cfg), "--out", str(out)])
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout.splitlines()[-1])["num_timesteps"] == 16
+    again = _train_cli(["--config", str(cfg), "--out", str(out)])
+    assert again.returncode == 2 and "--resume" in again.stderr
+    cfg.write_text(TINY.format(total=32, n_envs=1))
+    r = _train_cli(["--config", str(cfg), "--out", str(out), "--resume"])
+    assert r.returncode == 0, r.stderr
+    summary = json.loads(r.stdout.splitlines()[-1])
+    assert summary["resumed_from"] == 16 and summary["num_timesteps"] == 32
+    state = load_checkpoint(out / "checkpoints" / "step_000000032.pt")
+    assert state["num_timesteps"] == 32 and "git_revision" in state
+    assert from_dict(TrainConfig, json.loads(state["config"])).total_steps == 32
+    policy, meta = load_policy(out / "policy.safetensors", expected_kind="gvn")
+    assert meta["observation"].max_nodes == 64
+    assert meta["provenance"]["num_timesteps"] == 32
+    assert (out / "tb").is_dir() and (out / "config.yaml").is_file()
+
+
+@pytest.mark.slow
+def test_training_killed_with_sigkill_resumes_from_last_checkpoint(tmp_path):
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text(TINY.format(total=400, n_envs=2))
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "mjexplore.cli", "train", "--no-progress",
+                             "--config", str(cfg), "--out", str(out)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
+    latest = out / "checkpoints" / "latest.json"
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and proc.poll() is None:
+        if latest.is_file() and json.loads(latest.read_text())["num_timesteps"] >= 32:
+            break
+        time.sleep(0.5)
+    assert proc.poll() is None, "training ended before it could be killed"
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    saved = json.loads(latest.read_text())["num_timesteps"]
+    assert not list((out / "checkpoints").glob("*.tmp*"))
+    cfg.write_text(TINY.format(total=saved + 16, n_envs=2))
+    r = _train_cli(["--config", str(cfg), "--out", str(out), "--resume"])
+    assert r.returncode == 0, r.stderr
+    summary = json.loads(r.stdout.splitlines()[-1])
+    assert summary["resumed_from"] == saved
+    assert summary["num_timesteps"] >= saved + 16
+
+
+# ----------------------------------------------------------------------------- weights
+
+
+def test_damaged_weights_are_refused(tmp_path):
+    from mjexplore.policies.weights import load_policy, save_policy_weights
+
+    policy = _policy()
+    path = tmp_path / "p.safetensors"
+    save_policy_weights(path, policy, "gvn", {"masking": "iam", "hidden": 16}, SMALL)
+    loaded, _ = load_policy(path)
+    obs = _random_obs(SMALL, 2, np.random.default_rng(4))
+    with torch.no_grad():
+        assert torch.allclose(policy.predict_values(obs), loaded.predict_values(obs))
+    (tmp_path / "cut.safetensors").write_bytes(path.read_bytes()[:1000])
+    with pytest.raises(UserInputError, match="not a readable safetensors"):
+        load_policy(tmp_path / "cut.safetensors")
+    (tmp_path / "x.pt").write_bytes(b"\x80\x04not a weights file")
+    with pytest.raises(UserInputError):
+        load_policy(tmp_path / "x.pt")
+    with pytest.raises(UserInputError, match="cannot read"):
+        load_policy(tmp_path / "missing.safetensors")
+
+
+@pytest.mark.skipif(not SHIPPED.is_file(), reason="no shipped GVN weights in training/")
+def test_shipped_policy_selects_only_valid_nodes_and_caches_memory_exactly():
+    from mjexplore.envs.exploration import ter_action_mask
+    from mjexplore.explorers.gvn import GvnExplorer
+
+    explorer = GvnExplorer()
+    chosen = []
+    original = explorer.select_goal
+
+    def checked(state):
+        ter, _, _ = state.extras["tracker"].ter(state.grid, state.pose)
+        padded = ter.padded(explorer.ter_config)
+        valid = ter_action_mask(padded, state, "frontiers")
+        goal = original(state)
+        if goal is None:
+            assert not valid.any()
+            return goal
+        idx = int(np.flatnonzero(np.all(padded.node_positions == goal.astype(np.float32),
+                                        axis=1))[0])
+        assert valid[idx]
+        chosen.append(idx)
+        return goal
+
+    explorer.select_goal = checked
+    episode = Episode(resolve_scene("train_loop"), explorer, 0,
+                      dataclasses.replace(FAST, max_time=120.0))
+    episode.run()
+    assert len(chosen) >= 3
+    # Cached fragments give the logits the full policy computes from the raw memory.
+    env = ExplorationEnv(EnvConfig(scenes=("train_loop",), episode=FAST,
+                                   observation=ObservationConfig(
+                                       max_nodes=explorer.ter_config.max_nodes)))
+    obs, _ = env.reset(seed=2)
+    explorer.reset(np.random.default_rng(0))
+    for _ in range(3):
+        mask = env.action_masks()
+        t = {k: torch.as_tensor(v)[None] for k, v in obs.items()}
+        with torch.no_grad():
+            full = explorer.policy.mlp_extractor.forward_actor(
+                explorer.policy.extract_features(t))[0]
+        current = {k: v for k, v in structured(obs, batch_dims=0).items()
+                   if not k.startswith("memory")}
+        cached, r = explorer.logits(current)
+        real = obs["node_mask"] > 0
+        assert torch.allclose(full[real], cached[real], atol=1e-4)
+        action = int(np.flatnonzero(mask)[int(torch.argmax(cached[torch.as_tensor(mask)]))])
+        with torch.no_grad():
+            frag = explorer.gvn.fragments(r, torch.as_tensor(current["node_mask"])[None],
+                                          torch.tensor([action]))
+        explorer._fragments = torch.cat([explorer._fragments[:, 1:], frag[:, None]], 1)
+        explorer._memory_mask = torch.cat([explorer._memory_mask[:, 1:], torch.ones(1, 1)], 1)
+        obs, _, term, trunc, _ = env.step(action)
+        if term or trunc:
+            break

@@ -1,0 +1,140 @@
+"""Decision throughput of the learning loop, in full physics and in the training mode.
+
+Runs the shipped GVN policy as the explorer for whole episodes (two worker processes, one
+per core) on the evaluation scenes, once with full MuJoCo contact dynamics and once in the
+kinematic training mode (training/gvn.yaml's episode settings), and times the parts of each
+decision: physics (simulator stepping without the lidar), lidar, mapping, topology
+(incremental GVD updates between decisions plus the TER build at the decision), navigation
+(planning and control) and the network (policy inference; also the full training-time
+forward that re-encodes the raw episodic memory). Prints one JSON line.
+
+Target (issue 5): topology + policy at most 8 ms per decision; ARiADNE's own environment
+spends about 390 ms per decision on this machine.
+
+Usage: python tools/bench_train.py [--scenes loop_with_corridor,maze] [--max-time 300]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import multiprocessing as mp
+import time
+from collections import defaultdict
+
+ARIADNE_MS_PER_DECISION = 390.0
+
+
+def _timed(counters, key, fn):
+    def wrapper(*args, **kwargs):
+        t = time.perf_counter()
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            counters[key] += time.perf_counter() - t
+    return wrapper
+
+
+def run(job: tuple[str, str, float]) -> dict:
+    scene, mode, max_time = job
+    import torch
+
+    torch.set_num_threads(1)
+    from mjexplore.config import load_yaml_config
+    from mjexplore.eval.episode import Episode, EpisodeConfig
+    from mjexplore.explorers.gvn import DEFAULT_WEIGHTS, GvnExplorer
+    from mjexplore.scenes.canonical import resolve_scene
+    from mjexplore.training import TrainConfig
+
+    if mode == "training":
+        config = load_yaml_config(TrainConfig, DEFAULT_WEIGHTS.parent / "gvn.yaml").env.episode
+    else:
+        config = EpisodeConfig()
+    config = dataclasses.replace(config, max_time=max_time)
+    explorer = GvnExplorer()
+    episode = Episode(resolve_scene(scene), explorer, 0, config)
+    c: dict[str, float] = defaultdict(float)
+    sim, lidar = episode.sim, episode.sim.lidar
+    lidar.scan = _timed(c, "lidar", lidar.scan)
+    sim.step = _timed(c, "sim_step", sim.step)
+    episode.mapper.integrate = _timed(c, "mapping", episode.mapper.integrate)
+    episode.tracker.observe = _timed(c, "gvd", episode.tracker.observe)
+    episode.tracker.ter = _timed(c, "ter", episode.tracker.ter)
+    episode.navigator.update = _timed(c, "navigation", episode.navigator.update)
+    explorer.logits = _timed(c, "policy", explorer.logits)
+    t0 = time.perf_counter()
+    result = episode.run()
+    wall = time.perf_counter() - t0
+    decisions = max(result.metrics["decisions"], 1)
+    # The training-time forward (raw memory re-encoded) on this episode's last observation.
+    from mjexplore.envs.observation import TerMemory, ter_arrays
+
+    ter, _, _ = episode.tracker.ter(episode.mapper.grid, episode.sim.pose)
+    memory = TerMemory(_obs_config(explorer))
+    current = ter_arrays(ter.padded(explorer.ter_config))
+    for _ in range(memory.config.memory_length):
+        memory.remember(current, 0)
+    obs = {k: torch.as_tensor(v)[None] for k, v in memory.observation(current).items()}
+    with torch.no_grad():
+        t = time.perf_counter()
+        for _ in range(10):
+            explorer.policy.evaluate_actions(obs, torch.zeros(1, dtype=torch.long))
+        c["training_forward"] = (time.perf_counter() - t) / 10 * decisions
+    physics = c["sim_step"] - c["lidar"]
+    return {"scene": scene, "mode": mode, "wall_s": wall, "decisions": decisions,
+            "sim_time_s": result.metrics["exploration_time_s"],
+            "physics": physics, "lidar": c["lidar"], "mapping": c["mapping"],
+            "topology": c["gvd"] + c["ter"], "ter": c["ter"], "navigation": c["navigation"],
+            "policy": c["policy"], "training_forward": c["training_forward"]}
+
+
+def _obs_config(explorer):
+    from mjexplore.envs.observation import ObservationConfig
+
+    return ObservationConfig(max_nodes=explorer.ter_config.max_nodes,
+                             max_neighbours=explorer.ter_config.max_neighbours,
+                             memory_length=explorer.memory_length)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenes", default="loop_with_corridor,maze")
+    parser.add_argument("--max-time", type=float, default=300.0,
+                        help="simulated seconds per episode")
+    args = parser.parse_args()
+    scenes = [s for s in args.scenes.split(",") if s]
+    out: dict[str, float | str] = {}
+    for mode in ("physics", "training"):
+        jobs = [(s, mode, args.max_time) for s in scenes]
+        t = time.perf_counter()
+        with mp.get_context("spawn").Pool(2) as pool:
+            rows = pool.map(run, jobs)
+        wall = time.perf_counter() - t
+        n = sum(r["decisions"] for r in rows)
+        busy = sum(r["wall_s"] for r in rows)
+        cores = min(2, len(jobs))
+        out[f"{mode}_decisions_per_s_2cores"] = round(n / max(busy / cores, 1e-9), 2)
+        out[f"{mode}_rtf_per_core"] = round(sum(r["sim_time_s"] for r in rows) / busy, 1)
+        for part in ("physics", "lidar", "mapping", "topology", "navigation", "policy"):
+            out[f"{mode}_share_{part}"] = round(sum(r[part] for r in rows) / busy, 3)
+        out[f"{mode}_ms_per_decision"] = round(busy / n * 1e3, 1)
+        if mode == "training":
+            topo = sum(r["topology"] for r in rows) / n * 1e3
+            ter = sum(r["ter"] for r in rows) / n * 1e3
+            pol = sum(r["policy"] for r in rows) / n * 1e3
+            fwd = sum(r["training_forward"] for r in rows) / n * 1e3
+            out.update(topology_ms_per_decision=round(topo, 2), ter_build_ms=round(ter, 2),
+                       policy_ms_per_decision=round(pol, 2),
+                       topology_plus_policy_ms=round(topo + pol, 2),
+                       target_ms=8.0,
+                       training_forward_ms=round(fwd, 2),
+                       ariadne_ms_per_decision=ARIADNE_MS_PER_DECISION,
+                       speedup_vs_ariadne=round(ARIADNE_MS_PER_DECISION / (topo + pol), 1))
+        out[f"{mode}_bench_wall_s"] = round(wall, 1)
+    out["decisions"] = "GVN policy, seed 0, " + ",".join(scenes)
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main()
