@@ -26,8 +26,8 @@ system-deps:
 
 demo: install
 	$(BIN)/mjexplore scene-gen office --seed 0 --size 40x25 --out runs/demo/scene
-	$(BIN)/mjexplore explore --scene runs/demo/scene --explorer gvn --seed 0 --out runs/demo/explore
-	@echo "demo outputs in runs/demo/: scene/ (scene.xml, map, preview.png) and explore/ (metrics.json, ratio.png, map.png, kinematics.png, episode.mcap)"
+	$(BIN)/mjexplore explore --scene runs/demo/scene --explorer gvn --seed 0 --out runs/demo/explore --video runs/demo/explore/video.mp4
+	@echo "demo outputs in runs/demo/: scene/ (scene.xml, map, preview.png) and explore/ (metrics.json, video.mp4, ter.png, scene.png, ratio.png, map.png, kinematics.png, episode.mcap)"
 
 test: system-deps $(VENV)/.installed-test
 	$(BIN)/python -m pytest -n 2 -q
@@ -36,6 +36,7 @@ bench: system-deps $(VENV)/.installed-test
 	$(BIN)/python tools/bench_sim.py
 	$(BIN)/python tools/bench_topology.py
 	$(BIN)/python tools/bench_train.py
+	$(BIN)/python tools/bench_render.py
 
 scenes: install
 	$(BIN)/python tools/regenerate_scenes.py

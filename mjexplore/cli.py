@@ -142,13 +142,55 @@ def cmd_explore(args: argparse.Namespace) -> int:
 
     kwargs = {}
     if args.policy is not None:
-        if args.explorer != "gvn":
-            raise UserInputError("--policy applies to --explorer gvn only.")
+        if not args.explorer.startswith("gvn"):
+            raise UserInputError("--policy applies to --explorer gvn (or gvn_unmasked) only.")
         kwargs["policy"] = str(args.policy)
     make_explorer(args.explorer, **kwargs)  # Fails early on a bad name or weights file.
+    video = _video_config(args) if args.video is not None else None
+    if video is not None:
+        from mjexplore.render.gl import check_rendering
+
+        check_rendering()  # Fails now, not after the episode, if GL cannot load.
     metrics = write_run(args.out, resolve_scene(args.scene), args.explorer, args.seed,
-                        _episode_config(args), mcap=not args.no_mcap, explorer_kwargs=kwargs)
+                        _episode_config(args), mcap=not args.no_mcap, explorer_kwargs=kwargs,
+                        video=video)
+    if video is not None:
+        target = Path(args.video)
+        inside = Path(args.out) / "video.mp4"
+        if target.resolve() != inside.resolve():
+            from mjexplore.io.atomic import write_bytes_atomic
+
+            write_bytes_atomic(target, inside.read_bytes())
+        metrics["video"] = str(target)
     print(json.dumps(metrics))
+    return 0
+
+
+def _video_config(args: argparse.Namespace):
+    from mjexplore.render.recorder import VideoConfig
+
+    w, h = args.video_size
+    if int(w) != w or int(h) != h or w % 2 or h % 2 or w < 16 or h < 16:
+        raise UserInputError(f"--video-size {w:g}x{h:g} must be even whole pixels, at least 16 "
+                             "(e.g. 640x480).")
+    return VideoConfig(width=int(w), height=int(h), fps=args.video_fps,
+                       sim_seconds_per_frame=args.video_period)
+
+
+def _add_video_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--video-size", type=_size, default=(640.0, 480.0), metavar="WxH",
+                   help="size of each panel in pixels; the frame is two panels wide (640x480)")
+    p.add_argument("--video-fps", type=_positive, default=20.0, help="video frame rate (20)")
+    p.add_argument("--video-period", type=_positive, default=1.0,
+                   help="simulated seconds between frames (1.0: 20x real time at 20 fps)")
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    from mjexplore.render.gl import check_rendering
+    from mjexplore.render.replay import render_run
+
+    check_rendering()
+    print(json.dumps(render_run(args.run_dir, args.out, _video_config(args))))
     return 0
 
 
@@ -253,6 +295,10 @@ def build_parser() -> argparse.ArgumentParser:
     explore.add_argument("--seed", type=_seed, default=0)
     explore.add_argument("--out", type=Path, required=True, help="run folder")
     explore.add_argument("--no-mcap", action="store_true", help="do not write episode.mcap")
+    explore.add_argument("--video", default=None, metavar="PATH",
+                         help="also film the episode (3D view beside the map panel) into "
+                         "an H.264 MP4 at PATH (and OUT/video.mp4)")
+    _add_video_args(explore)
     _add_episode_args(explore)
     explore.set_defaults(func=cmd_explore)
 
@@ -269,6 +315,15 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--mcap", action="store_true", help="also write an MCAP per episode")
     _add_episode_args(bench)
     bench.set_defaults(func=cmd_bench)
+
+    ren = sub.add_parser(
+        "render", help="re-render a recorded run (its episode.mcap) as a video",
+        description="Rebuild the frames of a run folder written by 'mjexplore explore' from its "
+                    "episode.mcap (3D view beside the map panel) into an H.264 MP4.")
+    ren.add_argument("run_dir", type=Path, help="run folder")
+    ren.add_argument("--out", type=Path, default=None, help="video path (RUN_DIR/video.mp4)")
+    _add_video_args(ren)
+    ren.set_defaults(func=cmd_render)
 
     tr = sub.add_parser(
         "train", help="train a policy with MaskablePPO (checkpoints, resume, TensorBoard)",

@@ -443,3 +443,18 @@ def test_shipped_policy_selects_only_valid_nodes_and_caches_memory_exactly():
         obs, _, term, trunc, _ = env.step(action)
         if term or trunc:
             break
+
+
+def test_cli_refuses_bad_policy_weights(tmp_path):
+    bad = tmp_path / "bad.safetensors"
+    bad.write_bytes(b"garbage")
+    out = tmp_path / "run"
+    r = subprocess.run([sys.executable, "-m", "mjexplore.cli", "explore", "--scene", "train_loop",
+                        "--explorer", "gvn", "--policy", str(bad), "--out", str(out)],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "safetensors" in r.stderr
+    assert not out.exists()
+    r = subprocess.run([sys.executable, "-m", "mjexplore.cli", "explore", "--scene", "train_loop",
+                        "--explorer", "nearest", "--policy", str(bad), "--out", str(out)],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "--explorer gvn" in r.stderr

@@ -25,18 +25,59 @@ from mjexplore.io.provenance import git_revision
 from mjexplore.scenes.scene import SceneFiles
 
 
+class Observers:
+    """Fans an episode's observer hooks out to several observers (each may be None)."""
+
+    def __init__(self, *observers: Any) -> None:
+        self.observers = [o for o in observers if o is not None]
+
+    def on_scan(self, episode, scan) -> None:
+        for o in self.observers:
+            o.on_scan(episode, scan)
+
+    def on_decision(self, episode, state) -> None:
+        for o in self.observers:
+            o.on_decision(episode, state)
+
+    def on_step(self, episode) -> None:
+        for o in self.observers:
+            o.on_step(episode)
+
+    def close(self) -> None:
+        """Closes every observer, even if one fails (files are left readable)."""
+        errors = []
+        for o in self.observers:
+            try:
+                o.close()
+            except Exception as exc:  # noqa: BLE001 - re-raised below
+                errors.append(exc)
+        if errors:
+            raise errors[0]
+
+
 def run_episode(scene: SceneFiles, explorer: str, seed: int, config: EpisodeConfig,
                 mcap_path: str | os.PathLike | None = None,
-                explorer_kwargs: dict | None = None) -> EpisodeResult:
-    """Runs one episode, optionally logging it to MCAP."""
-    log = McapEpisodeLog(mcap_path) if mcap_path is not None else None
+                explorer_kwargs: dict | None = None, video_path: str | os.PathLike | None = None,
+                video: Any = None, stills_dir: str | os.PathLike | None = None) -> EpisodeResult:
+    """Runs one episode, optionally logging it to MCAP, filming it (``video_path`` with a
+    :class:`~mjexplore.render.recorder.VideoConfig`) and writing still figures."""
+    title = f"{scene.metadata.get('name', Path(scene.xml).parent.name)} / {explorer} / seed {seed}"
+    film = None
+    if video_path is not None:
+        from mjexplore.render.recorder import EpisodeVideo
+
+        film = EpisodeVideo(video_path, video, title)
+    observers = Observers(McapEpisodeLog(mcap_path) if mcap_path is not None else None, film)
     episode = Episode(scene, make_explorer(explorer, **(explorer_kwargs or {})), seed, config,
-                      observer=log)
+                      observer=observers)
     try:
         result = episode.run()
     finally:
-        if log is not None:
-            log.close()
+        observers.close()
+    if stills_dir is not None:
+        from mjexplore.render.recorder import write_stills
+
+        write_stills(episode, stills_dir, title, render_3d=video_path is not None)
     return result
 
 
@@ -49,11 +90,18 @@ def resolved_config(scene: SceneFiles, explorer: str, seed: int, config: Episode
 
 def write_run(out_dir: str | os.PathLike, scene: SceneFiles, explorer: str, seed: int,
               config: EpisodeConfig, mcap: bool = True,
-              explorer_kwargs: dict | None = None) -> dict[str, Any]:
-    """Runs an episode and writes its run folder atomically; returns the metrics."""
+              explorer_kwargs: dict | None = None, video: Any = None) -> dict[str, Any]:
+    """Runs an episode and writes its run folder atomically; returns the metrics.
+
+    With ``video`` (a :class:`~mjexplore.render.recorder.VideoConfig`) the folder also gets
+    ``video.mp4`` and the 3D still ``scene.png``; ``ter.png`` (final map, trajectory and TER)
+    is always written.
+    """
     with atomic_directory(out_dir) as tmp:
         result = run_episode(scene, explorer, seed, config,
-                             tmp / "episode.mcap" if mcap else None, explorer_kwargs)
+                             tmp / "episode.mcap" if mcap else None, explorer_kwargs,
+                             video_path=tmp / "video.mp4" if video is not None else None,
+                             video=video, stills_dir=tmp)
         metrics = {"scene": scene.metadata.get("name", Path(scene.xml).parent.name),
                    "explorer": explorer, "seed": seed, **result.metrics}
         write_text_atomic(tmp / "metrics.json", json.dumps(metrics, indent=2) + "\n")

@@ -65,6 +65,7 @@ class GvnExplorer:
 
     def select_goal(self, state: ExplorationState) -> np.ndarray | None:
         ter, _, _ = state.extras["tracker"].ter(state.grid, state.pose)
+        state.extras["ter"] = ter  # Observers (MCAP, video) draw the same TER.
         padded = ter.padded(self.ter_config)
         valid = ter_action_mask(padded, state, "frontiers")
         if not valid.any():
@@ -86,3 +87,13 @@ class GvnExplorer:
         self._memory_mask = torch.cat([self._memory_mask[:, 1:], torch.ones(1, 1)], 1)
         self.waypoint = bool(padded.node_features[action, 5] != FRONTIER_FLAG)
         return padded.node_positions[action].astype(float)
+
+
+@register("gvn_unmasked")
+class GvnUnmaskedExplorer(GvnExplorer):
+    """The paper's "masking removed" ablation: a policy trained with masking, run without
+    it (any TER node may be chosen; padding slots never)."""
+
+    def __init__(self, policy: str | os.PathLike | None = None,
+                 deterministic: bool = True) -> None:
+        super().__init__(policy, masking=False, deterministic=deterministic)

@@ -133,6 +133,7 @@ class McapEpisodeLog:
         ter = state.extras.get("ter")
         if ter is None:
             ter, _, _ = episode.tracker.ter(state.grid, state.pose)
+            state.extras["ter"] = ter  # Shared with other observers.
         self.log_ter(t, ter)
 
     def on_step(self, episode) -> None:

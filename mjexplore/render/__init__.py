@@ -1,0 +1,1 @@
+"""Offscreen rendering: 3D views of the scene, 2D map panels, episode videos and stills."""
