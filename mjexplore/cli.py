@@ -349,6 +349,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UserInputError as exc:
         print(f"mjexplore {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"mjexplore {args.command}: interrupted; finished outputs are kept (an "
+              "interrupted episode's run folder is complete, with end_reason 'interrupted').",
+              file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

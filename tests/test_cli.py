@@ -65,7 +65,67 @@ BAD = {
     "bench no workers": lambda p: ["bench", "--workers", "0", "--out", str(p / "o")],
     "bench unknown explorer": lambda p: ["bench", "--explorers", "nearest,magic", "--out",
                                          str(p / "o")],
+    # Scene files.
+    "malformed MJCF": lambda p: ["explore", "--scene", str(_write(p / "bad.xml", "<mujoco><wor"))
+                                 , "--out", str(p / "o")],
+    "map missing image": lambda p: ["scene-gen", "--from-map", str(_write(
+        p / "m.yaml", "image: gone.pgm\nresolution: 0.05\norigin: [0, 0, 0]\nnegate: 0\n"
+        "occupied_thresh: 0.65\nfree_thresh: 0.196\n")), "--out", str(p / "o")],
+    "map no free space": lambda p: ["scene-gen", "--from-map", str(solid_map(p)), "--out",
+                                    str(p / "o")],
+    "map yaml not a mapping": lambda p: ["scene-gen", "--from-map", str(_write(
+        p / "l.yaml", "- just\n- a list\n")), "--out", str(p / "o")],
+    # Training configs and checkpoints.
+    "train missing config": lambda p: ["train", "--config", str(p / "none.yaml"), "--out",
+                                       str(p / "o")],
+    "train unknown key": lambda p: ["train", "--config", str(_write(p / "c.yaml", "ppo:\n  lr: 1\n")),
+                                    "--out", str(p / "o")],
+    "train wrong type": lambda p: ["train", "--config", str(_write(
+        p / "c.yaml", "total_steps: many\n")), "--out", str(p / "o")],
+    "train out of range": lambda p: ["train", "--config", str(_write(
+        p / "c.yaml", "ppo: {gamma: 1.5}\n")), "--out", str(p / "o")],
+    "train bad masking": lambda p: ["train", "--config", str(_write(
+        p / "c.yaml", "policy: {masking: maybe}\n")), "--out", str(p / "o")],
+    "train bad env": lambda p: ["train", "--config", str(_write(
+        p / "c.yaml", "env: {scenes: [], valid_actions: all_nodes}\n")), "--out", str(p / "o")],
+    "train yaml syntax": lambda p: ["train", "--config", str(_write(p / "c.yaml", "ppo: [1,\n")),
+                                    "--out", str(p / "o")],
+    "train resume nothing": lambda p: ["train", "--config", str(_write(p / "c.yaml", "seed: 1\n")),
+                                       "--out", str(p / "o"), "--resume"],
+    "truncated checkpoint": lambda p: ["train", "--config", str(_write(p / "c.yaml", "seed: 1\n")),
+                                       "--out", str(broken_run(p)), "--resume"],
+    "policy not weights": lambda p: ["explore", "--explorer", "gvn", "--policy",
+                                     str(_write(p / "w.safetensors", "not weights")), "--out",
+                                     str(p / "o")],
+    "policy for classic explorer": lambda p: ["explore", "--explorer", "nearest", "--policy",
+                                              str(_write(p / "w.safetensors", "x")), "--out",
+                                              str(p / "o")],
+    # Rendering.
+    "render not a run": lambda p: ["render", str(p), "--out", str(p / "o")],
+    "video odd size": lambda p: ["explore", "--video", str(p / "v.mp4"), "--video-size",
+                                 "641x480", "--out", str(p / "o")],
+    "video zero fps": lambda p: ["explore", "--video", str(p / "v.mp4"), "--video-fps", "0",
+                                 "--out", str(p / "o")],
 }
+
+
+def _write(path, text):
+    path.write_text(text)
+    return path
+
+
+def solid_map(tmp_path):
+    write_map(tmp_path / "solid.yaml", GridMap(np.full((30, 30), OCCUPIED, np.int8), 0.1,
+                                               (0.0, 0.0, 0.0)))
+    return tmp_path / "solid.yaml"
+
+
+def broken_run(tmp_path):
+    ckpt = tmp_path / "run" / "checkpoints"
+    ckpt.mkdir(parents=True)
+    (ckpt / "step_000000064.pt").write_bytes(b"PK\x03\x04truncated")
+    (ckpt / "latest.json").write_text('{"checkpoint": "step_000000064.pt"}')
+    return tmp_path / "run"
 
 
 @pytest.mark.parametrize("case", list(BAD))
@@ -78,6 +138,10 @@ def test_bad_input_exits_2_without_partial_files(tmp_path, case, capsys):
     assert "error" in err and len(err) > 40
     assert not (tmp_path / "o").exists()
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".o.")]
+
+
+def test_bad_input_table_is_large_enough():
+    assert len(BAD) + 1 >= 25  # The floor (+1: the corrupt map image below).
 
 
 def test_corrupt_map_image(tmp_path, capsys):

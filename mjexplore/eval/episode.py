@@ -5,14 +5,18 @@ the GVD updated; when a goal is reached (within zeta), vanishes (its frontier go
 or turns out unreachable, the explorer is asked for the next one. The episode ends when
 the exploration ratio reaches the target (98.5 % by default: ``explored``), when the
 explorer sees nothing left (``no_frontiers``), when the robot lingers (``lingering``, the
-paper's "terminated unexpectedly"), tips over (``tipped_over``), or at the time cap
-(``time_limit``).
+paper's "terminated unexpectedly"; a wedged robot ends so too), tips over (``tipped_over``),
+when the physics fails (``physics_fault``: non-finite state or MuJoCo's instability reset;
+the broken scans are not mapped), or at the time cap (``time_limit``). ``run`` turns Ctrl-C
+into ``interrupted`` with everything recorded so far intact.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import signal
+import threading
 from typing import Any
 
 import numpy as np
@@ -33,7 +37,7 @@ from mjexplore.topology.frontiers import find_frontiers
 from mjexplore.topology.pipeline import TopologyConfig, TopologyTracker
 
 END_REASONS = ("explored", "no_frontiers", "lingering", "tipped_over", "time_limit",
-               "decision_limit")
+               "decision_limit", "physics_fault", "interrupted")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -126,6 +130,37 @@ def episode_metrics(curve: np.ndarray, log: KinematicsLog, final_iou: float,
     }
 
 
+class _SigintFlag:
+    """Within the block, the first SIGINT sets ``raised`` instead of raising (main thread
+    only; elsewhere SIGINT keeps its usual effect)."""
+
+    def __init__(self) -> None:
+        self.raised = False
+        self._previous = None
+
+    def _handle(self, signum, frame) -> None:
+        if self.raised:
+            raise KeyboardInterrupt
+        self.raised = True
+
+    def __enter__(self) -> "_SigintFlag":
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGINT, self._handle)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C during :meth:`Episode.run`; carries the result of the episode so far."""
+
+    def __init__(self, result: "EpisodeResult") -> None:
+        super().__init__("episode interrupted")
+        self.result = result
+
+
 class _KnownCounter:
     """Exploration ratio kept up to date from the cells the mapper reports as changed."""
 
@@ -216,6 +251,8 @@ class Episode:
         return np.array([base[0] + c * ox - s * oy, base[1] + s * ox + c * oy, base[2]])
 
     def _integrate(self, scan) -> None:
+        if self.sim.physics_fault:
+            return  # A broken state would map garbage; the episode ends at the next check.
         grid = self.mapper.grid
         changed = self.mapper.integrate(scan, self._sensor_pose(scan))
         self.tracker.observe(grid, changed)
@@ -311,6 +348,8 @@ class Episode:
             self.end_reason = "explored"
         elif t >= cfg.max_time - 1e-9:
             self.end_reason = "time_limit"
+        elif sim.physics_fault:
+            self.end_reason = "physics_fault"
         elif not sim.is_upright:
             self.end_reason = "tipped_over"
         elif self.navigator.lingering(sim.pose, t):
@@ -377,8 +416,18 @@ class Episode:
         return False
 
     def run(self) -> EpisodeResult:
-        while self.step():
-            pass
+        """Steps to the end.
+
+        Ctrl-C (SIGINT) is taken between control periods (never inside MuJoCo or numba
+        code): the episode ends as ``interrupted`` and :class:`Interrupted`, carrying the
+        result so far, is raised. A second Ctrl-C interrupts at once.
+        """
+        with _SigintFlag() as flag:
+            while not flag.raised and self.step():
+                pass
+        if flag.raised:
+            self.end_reason = "interrupted"
+            raise Interrupted(self.result())
         return self.result()
 
     def result(self) -> EpisodeResult:

@@ -16,7 +16,7 @@ from typing import Any
 
 
 from mjexplore.drive import kinematics_csv
-from mjexplore.eval.episode import Episode, EpisodeConfig, EpisodeResult
+from mjexplore.eval.episode import Episode, EpisodeConfig, EpisodeResult, Interrupted
 from mjexplore.eval.plots import kinematics_figure, map_figure, ratio_figure
 from mjexplore.explorers import make_explorer
 from mjexplore.io.atomic import atomic_directory, write_text_atomic
@@ -73,7 +73,7 @@ def run_episode(scene: SceneFiles, explorer: str, seed: int, config: EpisodeConf
     try:
         result = episode.run()
     finally:
-        observers.close()
+        observers.close()  # Also on Ctrl-C: the MCAP and video are finished, readable files.
     if stills_dir is not None:
         from mjexplore.render.recorder import write_stills
 
@@ -97,11 +97,16 @@ def write_run(out_dir: str | os.PathLike, scene: SceneFiles, explorer: str, seed
     ``video.mp4`` and the 3D still ``scene.png``; ``ter.png`` (final map, trajectory and TER)
     is always written.
     """
+    interrupted = None
     with atomic_directory(out_dir) as tmp:
-        result = run_episode(scene, explorer, seed, config,
-                             tmp / "episode.mcap" if mcap else None, explorer_kwargs,
-                             video_path=tmp / "video.mp4" if video is not None else None,
-                             video=video, stills_dir=tmp)
+        try:
+            result = run_episode(scene, explorer, seed, config,
+                                 tmp / "episode.mcap" if mcap else None, explorer_kwargs,
+                                 video_path=tmp / "video.mp4" if video is not None else None,
+                                 video=video, stills_dir=tmp)
+        except Interrupted as exc:
+            # Ctrl-C: the run so far becomes a complete folder (end_reason 'interrupted').
+            interrupted, result = exc, exc.result
         metrics = {"scene": scene.metadata.get("name", Path(scene.xml).parent.name),
                    "explorer": explorer, "seed": seed, **result.metrics}
         write_text_atomic(tmp / "metrics.json", json.dumps(metrics, indent=2) + "\n")
@@ -115,6 +120,8 @@ def write_run(out_dir: str | os.PathLike, scene: SceneFiles, explorer: str, seed
         ratio_figure({explorer: [result.ratio_curve]}, tmp / "ratio.png", title)
         kinematics_figure({explorer: [result.kinematics]}, tmp / "kinematics.png", title)
         map_figure(result.grid, result.kinematics.pose[:, :2], result.goals, tmp / "map.png", title)
+    if interrupted is not None:
+        raise interrupted
     return metrics
 
 

@@ -14,6 +14,7 @@ import csv
 import dataclasses
 import io
 import json
+import logging
 import multiprocessing
 import os
 from pathlib import Path
@@ -33,6 +34,9 @@ METRICS = (("iou", "IoU"), ("exploration_ratio", "ER"), ("exploration_time_s", "
            ("path_length_m", "PL (m)"), ("t80_s", "T80 (s)"), ("t985_s", "T98.5 (s)"))
 
 
+log = logging.getLogger(__name__)
+
+
 @dataclasses.dataclass(frozen=True)
 class Job:
     scene: str
@@ -48,7 +52,17 @@ def _run_job(args: tuple[Job, Path, EpisodeConfig, bool]) -> dict[str, Any]:
     folder = job.folder(out)
     if (folder / "metrics.json").is_file():
         return json.loads((folder / "metrics.json").read_text())
-    metrics = write_run(folder, resolve_scene(job.scene), job.explorer, job.seed, config, mcap)
+    try:
+        metrics = write_run(folder, resolve_scene(job.scene), job.explorer, job.seed, config,
+                            mcap)
+    except Exception as exc:  # noqa: BLE001 - one broken episode must not end the sweep
+        log.exception("episode %s failed", job)
+        failure = {"scene": Path(job.scene).stem, "explorer": job.explorer, "seed": job.seed,
+                   "end_reason": "error", "error": f"{type(exc).__name__}: {exc}"}
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(folder.parent / f"{folder.name}.failed.json",
+                          json.dumps(failure, indent=2) + "\n")
+        return failure
     metrics["scene"] = Path(job.scene).stem
     return metrics
 
@@ -123,10 +137,15 @@ def write_summary(out: Path, jobs: list[Job]) -> None:
                      out / f"ratio_{scene}.png", f"{scene}: exploration ratio over time")
         kinematics_figure({m: [_read_kinematics(f) for f in fs] for m, fs in methods.items()},
                           out / f"kinematics_{scene}.png", f"{scene}: kinematics")
+    failed = [job for job in jobs if not (job.folder(out) / "metrics.json").is_file() and
+              job.folder(out).with_name(job.folder(out).name + ".failed.json").is_file()]
     buf = io.StringIO()
     csv.writer(buf).writerows([header] + rows)
     write_text_atomic(out / "results.csv", buf.getvalue())
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
-    write_text_atomic(out / "results.md", "\n".join(lines) + "\n\nMean +- std over runs; "
-                      "(k/n) where only k of n runs reached the level.\n")
+    notes = "\n\nMean +- std over runs; (k/n) where only k of n runs reached the level.\n"
+    if failed:
+        notes += "\nFailed episodes (see runs/.../seedN.failed.json; a re-run retries them): " + \
+            ", ".join(f"{Path(j.scene).stem}/{j.explorer}/seed{j.seed}" for j in failed) + "\n"
+    write_text_atomic(out / "results.md", "\n".join(lines) + notes)

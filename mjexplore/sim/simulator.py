@@ -203,6 +203,14 @@ class Simulator:
         return bool(self.data.xmat[self._base][8] > UPRIGHT_COS)
 
     @property
+    def physics_fault(self) -> bool:
+        """True once the state is not finite or MuJoCo has reset an unstable simulation
+        (``mjWARN_BADQACC``): the episode cannot go on."""
+        d = self.data
+        return bool(d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number > 0 or
+                    not np.isfinite(d.qpos).all() or not np.isfinite(d.qvel).all())
+
+    @property
     def in_collision(self) -> bool:
         return self._in_contact
 
