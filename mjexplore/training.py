@@ -31,6 +31,7 @@ from mjexplore.errors import UserInputError
 from mjexplore.eval.episode import EpisodeConfig
 from mjexplore.io.atomic import write_bytes_atomic, write_text_atomic
 from mjexplore.io.provenance import git_revision
+from mjexplore.policies.registry import layout_of
 from mjexplore.policies.weights import save_policy_weights
 
 log = logging.getLogger(__name__)
@@ -65,9 +66,11 @@ class PpoConfig:
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class PolicyConfig:
-    """Policy network and masking (see :mod:`mjexplore.policies.sb3`)."""
+    """Policy network and masking (see :mod:`mjexplore.policies.sb3`; ``features`` is the
+    CNN baseline's encoder width, the others are GVN sizes)."""
 
     masking: str = "iam"
+    features: int = 256
     hidden: int = 64
     gcn_layers: int = 3
     tcn_kernel: int = 3
@@ -104,7 +107,7 @@ class TrainConfig:
     """A training run.
 
     Attributes:
-        kind: Policy kind ('gvn').
+        kind: Policy kind: 'gvn' (needs ``env.decisions: ter``) or 'cnn' (``grid``).
         env: Training env settings.
         policy: Network and masking.
         ppo: PPO hyperparameters.
@@ -129,8 +132,15 @@ class TrainConfig:
     torch_threads: int = 1
 
     def __post_init__(self) -> None:
-        if self.kind != "gvn":
-            raise ValueError(f"kind {self.kind!r} is unknown: use 'gvn'")
+        from mjexplore.policies.registry import KINDS
+
+        if self.kind not in KINDS:
+            raise ValueError(f"kind {self.kind!r} is unknown: use one of {', '.join(KINDS)}")
+        wanted = "ter" if self.kind == "gvn" else "grid"
+        if self.env.decisions != wanted:
+            raise ValueError(f"kind {self.kind!r} needs env.decisions: {wanted}")
+        if self.kind == "cnn" and self.policy.masking != "iam":
+            raise ValueError("the cnn kind supports policy.masking: iam only")
         if self.total_steps < 1 or self.n_envs < 1 or self.checkpoint_every < 1:
             raise ValueError("total_steps, n_envs and checkpoint_every must be >= 1")
 
@@ -206,6 +216,8 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
 
 def _policy_kwargs(config: TrainConfig) -> dict[str, Any]:
     p = config.policy
+    if config.kind == "cnn":
+        return dict(masking=p.masking, features=p.features)
     return dict(masking=p.masking, hidden=p.hidden, gcn_layers=p.gcn_layers,
                 tcn_kernel=p.tcn_kernel, tcn_dilations=list(p.tcn_dilations))
 
@@ -242,7 +254,7 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
 
-    from mjexplore.policies.sb3 import GvnPolicy
+    from mjexplore.policies.registry import policy_class
 
     out = Path(out)
     ckpt = _Checkpointer(out, config)
@@ -274,7 +286,7 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
     venv.seed(config.seed + done)
     venv = VecMonitor(venv)
     ppo = config.ppo
-    model = MaskablePPO(GvnPolicy, venv, n_steps=ppo.n_steps, batch_size=ppo.batch_size,
+    model = MaskablePPO(policy_class(config.kind), venv, n_steps=ppo.n_steps, batch_size=ppo.batch_size,
                         n_epochs=ppo.n_epochs, learning_rate=ppo.learning_rate,
                         gamma=ppo.gamma, gae_lambda=ppo.gae_lambda, clip_range=ppo.clip_range,
                         ent_coef=ppo.ent_coef, vf_coef=ppo.vf_coef,
@@ -287,14 +299,14 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
         model._n_updates = int(state["n_updates"])
         log.info("resumed from %s at %d steps", latest, done)
 
-    obs_cfg = config.env.observation
+    layout = layout_of(config.kind, config.env)
     provenance = {"git_revision": git_revision(), "config": to_dict(config)}
     written: list[str] = []
     best = {"score": None}
 
     def export(name: str, steps: int, extra: dict | None = None) -> Path:
         path = out / name
-        save_policy_weights(path, model.policy, config.kind, _policy_kwargs(config), obs_cfg,
+        save_policy_weights(path, model.policy, config.kind, _policy_kwargs(config), layout,
                             {**provenance, "num_timesteps": steps, **(extra or {})})
         return path
 
@@ -365,20 +377,18 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
 def export_checkpoint(checkpoint: str | Path, out: str | Path) -> dict[str, Any]:
     """Writes the policy weights of a checkpoint as a safetensors file; returns its
     provenance."""
-    from gymnasium import spaces
-
     from mjexplore.config import from_dict
-    from mjexplore.envs.observation import observation_space
-    from mjexplore.policies.sb3 import GvnPolicy
+    from mjexplore.policies.registry import decisions_for, policy_class
 
     state = load_checkpoint(Path(checkpoint))
     config = from_dict(TrainConfig, json.loads(state["config"]))
-    obs_cfg = config.env.observation
-    policy = GvnPolicy(observation_space(obs_cfg), spaces.Discrete(obs_cfg.max_nodes),
-                       lambda _: 0.0, **_policy_kwargs(config))
+    layout = layout_of(config.kind, config.env)
+    decisions = decisions_for(config.kind, layout)
+    policy = policy_class(config.kind)(decisions.observation_space, decisions.action_space,
+                                       lambda _: 0.0, **_policy_kwargs(config))
     policy.load_state_dict(state["policy"])
     provenance = {"git_revision": state["git_revision"], "config": to_dict(config),
                   "num_timesteps": int(state["num_timesteps"]),
                   "checkpoint": Path(checkpoint).name}
-    save_policy_weights(out, policy, config.kind, _policy_kwargs(config), obs_cfg, provenance)
+    save_policy_weights(out, policy, config.kind, _policy_kwargs(config), layout, provenance)
     return provenance

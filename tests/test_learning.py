@@ -333,7 +333,7 @@ def test_training_saves_resumes_and_loads(tmp_path):
     assert state["num_timesteps"] == 32 and "git_revision" in state
     assert from_dict(TrainConfig, json.loads(state["config"])).total_steps == 32
     policy, meta = load_policy(out / "policy.safetensors", expected_kind="gvn")
-    assert meta["observation"].max_nodes == 64
+    assert meta["layout"]["max_nodes"] == 64
     assert meta["provenance"]["num_timesteps"] == 32
     assert (out / "tb").is_dir() and (out / "config.yaml").is_file()
 
@@ -374,7 +374,8 @@ def test_damaged_weights_are_refused(tmp_path):
 
     policy = _policy()
     path = tmp_path / "p.safetensors"
-    save_policy_weights(path, policy, "gvn", {"masking": "iam", "hidden": 16}, SMALL)
+    save_policy_weights(path, policy, "gvn", {"masking": "iam", "hidden": 16},
+                        dataclasses.asdict(SMALL))
     loaded, _ = load_policy(path)
     obs = _random_obs(SMALL, 2, np.random.default_rng(4))
     with torch.no_grad():
@@ -391,7 +392,7 @@ def test_damaged_weights_are_refused(tmp_path):
 
 @pytest.mark.skipif(not SHIPPED.is_file(), reason="no shipped GVN weights in training/")
 def test_shipped_policy_selects_only_valid_nodes_and_caches_memory_exactly():
-    from mjexplore.envs.exploration import ter_action_mask
+    from mjexplore.envs.decisions import ter_action_mask
     from mjexplore.explorers.gvn import GvnExplorer
 
     explorer = GvnExplorer()

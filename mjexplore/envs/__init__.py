@@ -9,18 +9,22 @@ fields):
 * ``mjexplore/Explore-Train-v0``: the nine canonical training scenes, one per reset.
 * ``mjexplore/Explore-Procedural-v0``: a fresh generated layout per reset, in the
   kinematic training mode.
+* ``mjexplore/ExploreGrid-Procedural-v0``, ``mjexplore/ExploreGrid-Office-v0``: the same with
+  the grid decision space of the CNN baseline (map image in, coarse goal cell out).
 """
 
 from __future__ import annotations
 
 import gymnasium as gym
 
+from mjexplore.envs.decisions import GridConfig, GridDecisions, TerDecisions, ter_action_mask
 from mjexplore.envs.exploration import (EnvConfig, ExplorationEnv, NodeGoals, ProceduralScenes,
-                                        RewardConfig, ter_action_mask)
+                                        RewardConfig)
 from mjexplore.envs.observation import ObservationConfig, TerMemory
 
-__all__ = ["EnvConfig", "ExplorationEnv", "NodeGoals", "ObservationConfig", "ProceduralScenes",
-           "RewardConfig", "TerMemory", "ENV_IDS", "ter_action_mask"]
+__all__ = ["EnvConfig", "ExplorationEnv", "GridConfig", "GridDecisions", "NodeGoals",
+           "ObservationConfig", "ProceduralScenes", "RewardConfig", "TerDecisions", "TerMemory",
+           "ENV_IDS", "ter_action_mask"]
 
 ENTRY_POINT = "mjexplore.envs.exploration:ExplorationEnv"
 
@@ -41,6 +45,9 @@ def _configs() -> dict[str, EnvConfig]:
                                                 episode=kinematic),
         "mjexplore/Explore-Procedural-v0": EnvConfig(procedural=ProceduralScenes(),
                                                      episode=kinematic),
+        "mjexplore/ExploreGrid-Procedural-v0": EnvConfig(procedural=ProceduralScenes(),
+                                                         episode=kinematic, decisions="grid"),
+        "mjexplore/ExploreGrid-Office-v0": EnvConfig(scenes=("office",), decisions="grid"),
     }
 
 

@@ -11,16 +11,17 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from mjexplore.envs.observation import ObservationConfig, TerMemory, observation_space, ter_arrays
+from mjexplore.envs.decisions import GridConfig, GridDecisions, TerDecisions
+from mjexplore.envs.observation import ObservationConfig
 from mjexplore.errors import UserInputError
 from mjexplore.eval.episode import Episode, EpisodeConfig
 from mjexplore.explorers.base import ExplorationState
 from mjexplore.mapping.metrics import accuracy
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.scenes.scene import SceneFiles, load_scene_files
-from mjexplore.topology.ter import FRONTIER_FLAG, PaddedTer, Ter
 
 VALID_ACTIONS = ("frontiers", "all_nodes")
+DECISIONS = ("ter", "grid")
 TERMINAL_REASONS = ("explored", "no_frontiers", "tipped_over")
 TRAIN_FAMILIES = ("office", "maze", "loop", "corridor", "rooms", "loop+rooms",
                   "corridor+rooms", "maze+loop")
@@ -78,7 +79,10 @@ class EnvConfig:
         scenes: Scene names or paths (see :func:`resolve_scene`), one drawn per reset.
         procedural: If set, a generated layout per reset instead of ``scenes``.
         episode: Episode settings (physics or kinematic dynamics, limits).
-        observation: Observation layout (N_max, K, epsilon).
+        decisions: 'ter' (TER nodes, the GVN) or 'grid' (map image and coarse goal cells,
+            the CNN baseline); see :mod:`mjexplore.envs.decisions`.
+        observation: TER observation layout (N_max, K, epsilon).
+        grid: Grid decision space (image size, action cells).
         reward: Reward weights.
         valid_actions: 'frontiers' (invalid action masking: frontier nodes that are not
             blacklisted) or 'all_nodes' (every TER node; the paper's "without IAM").
@@ -88,12 +92,17 @@ class EnvConfig:
     scenes: tuple[str, ...] = ()
     procedural: ProceduralScenes | None = None
     episode: EpisodeConfig = dataclasses.field(default_factory=EpisodeConfig)
+    decisions: str = "ter"
     observation: ObservationConfig = dataclasses.field(default_factory=ObservationConfig)
+    grid: GridConfig = dataclasses.field(default_factory=GridConfig)
     reward: RewardConfig = dataclasses.field(default_factory=RewardConfig)
     valid_actions: str = "frontiers"
     max_decisions: int = 400
 
     def __post_init__(self) -> None:
+        if self.decisions not in DECISIONS:
+            raise UserInputError(f"decisions {self.decisions!r} is unknown: use one of "
+                                 f"{', '.join(DECISIONS)}.")
         if self.valid_actions not in VALID_ACTIONS:
             raise UserInputError(f"valid_actions {self.valid_actions!r} is unknown: use one of "
                                  f"{', '.join(VALID_ACTIONS)}.")
@@ -121,19 +130,6 @@ class NodeGoals:
 
     def select_goal(self, state: ExplorationState) -> np.ndarray | None:
         raise RuntimeError("NodeGoals takes goals from its caller; use Episode.adopt_goal")
-
-
-def ter_action_mask(ter_padded: PaddedTer, state: ExplorationState, valid_actions: str) -> np.ndarray:
-    """Valid actions of a padded TER: frontier nodes not blacklisted, or all real nodes."""
-    real = ter_padded.node_mask > 0
-    if valid_actions == "all_nodes":
-        mask = real.copy()
-        mask[real] = state.allowed(ter_padded.node_positions[real])
-        return mask
-    mask = ter_padded.action_mask.copy()
-    if mask.any():
-        mask[mask] = state.allowed(ter_padded.node_positions[mask])
-    return mask
 
 
 class ExplorationEnv(gym.Env):
@@ -193,22 +189,23 @@ class ExplorationEnv(gym.Env):
     def __init__(self, config: EnvConfig | None = None, **overrides: Any) -> None:
         config = config or EnvConfig(scenes=("loop_with_corridor",))
         self.config = dataclasses.replace(config, **overrides) if overrides else config
-        obs_cfg = self.config.observation
-        topo = self.config.episode.topology
-        ter_cfg = dataclasses.replace(topo.ter, max_nodes=obs_cfg.max_nodes,
-                                      max_neighbours=obs_cfg.max_neighbours)
-        self._episode_config = dataclasses.replace(
-            self.config.episode, topology=dataclasses.replace(topo, ter=ter_cfg))
-        self.observation_space = observation_space(obs_cfg)
-        self.action_space = spaces.Discrete(obs_cfg.max_nodes)
-        self.memory = TerMemory(obs_cfg)
+        cfg = self.config
+        if cfg.decisions == "ter":
+            self.decisions = TerDecisions(cfg.observation, cfg.valid_actions)
+            topo = cfg.episode.topology
+            episode = dataclasses.replace(cfg.episode, topology=dataclasses.replace(
+                topo, ter=dataclasses.replace(topo.ter, **{
+                    "max_nodes": cfg.observation.max_nodes,
+                    "max_neighbours": cfg.observation.max_neighbours})))
+        else:
+            self.decisions = GridDecisions(cfg.grid)
+            episode = cfg.episode
+        self._episode_config = episode
+        self.observation_space = self.decisions.observation_space
+        self.action_space = self.decisions.action_space
         self.goals = NodeGoals()
         self.episode: Episode | None = None
         self._scene_cache: dict[str, SceneFiles] = {}
-        self._current: dict[str, np.ndarray] | None = None
-        self._padded: PaddedTer | None = None
-        self._ter: Ter | None = None
-        self._mask = np.zeros(obs_cfg.max_nodes, bool)
         self._decisions = 0
 
     # ------------------------------------------------------------------ scenes
@@ -243,34 +240,21 @@ class ExplorationEnv(gym.Env):
     # ------------------------------------------------------------------ decisions
 
     def _prepare_decision(self) -> bool:
-        """Builds the TER observation at a due decision; False if the episode is over."""
+        """Builds the observation at a due decision; False if the episode is over."""
         ep = self.episode
         if not ep.run_to_decision():
             return False
-        state = ep.decision_state()
-        ter, _, _ = ep.tracker.ter(ep.mapper.grid, ep.sim.pose)
-        padded = ter.padded(self._episode_config.topology.ter)
-        mask = ter_action_mask(padded, state, "frontiers")
-        if not mask.any():
+        if not self.decisions.prepare(ep.decision_state()):
             ep.end_reason = "no_frontiers"
             return False
-        if self.config.valid_actions == "all_nodes":
-            mask = ter_action_mask(padded, state, "all_nodes")
-        self._ter, self._padded, self._mask = ter, padded, mask
-        self._current = ter_arrays(padded)
         return True
 
     def action_masks(self) -> np.ndarray:
-        """Valid actions now (bool, N_max), for sb3-contrib's MaskablePPO."""
-        return self._mask.copy()
+        """Valid actions now (bool), for sb3-contrib's MaskablePPO."""
+        return self.decisions.mask.copy()
 
     def _observation(self) -> dict[str, np.ndarray]:
-        if self._current is None:  # Episode over before any decision: an empty TER.
-            self._current = {k: np.zeros(v.shape, np.float32)
-                             for k, v in self.observation_space.spaces.items()
-                             if not k.startswith("memory")}
-            self._current["neighbours"][:] = -1.0
-        return self.memory.observation(self._current)
+        return self.decisions.observation()
 
     def _progress(self) -> tuple[int, int, int]:
         """(observable cells known, accuracy in cells, kinematics rows) now."""
@@ -282,7 +266,7 @@ class ExplorationEnv(gym.Env):
         ep = self.episode
         return {"exploration_ratio": float(ep.curve[-1][1]), "sim_time": float(ep.sim.time),
                 "decisions": self._decisions, "end_reason": ep.end_reason,
-                "action_mask": self._mask.copy()}
+                "action_mask": self.decisions.mask.copy()}
 
     # ------------------------------------------------------------------ gym API
 
@@ -293,9 +277,7 @@ class ExplorationEnv(gym.Env):
         self.goals = NodeGoals()
         self.episode = Episode(scene, self.goals, int(rng.integers(2**31 - 1)),
                                self._episode_config)
-        self.memory.reset()
-        self._current = None
-        self._mask = np.zeros(self.config.observation.max_nodes, bool)
+        self.decisions.reset()
         self._decisions = 0
         self._prepare_decision()
         self._before = self._progress()
@@ -307,12 +289,11 @@ class ExplorationEnv(gym.Env):
             raise RuntimeError("call reset() before step()")
         action = int(action)
         cfg = self.config.reward
-        invalid = ep.end_reason is not None or not (
-            0 <= action < len(self._mask) and self._padded.node_mask[action] > 0)
+        choice = None if ep.end_reason is not None else self.decisions.act(action)
+        invalid = choice is None
         if not invalid:
-            self.memory.remember(self._current, action)
-            self.goals.waypoint = bool(self._padded.node_features[action, 5] != FRONTIER_FLAG)
-            ep.adopt_goal(self._padded.node_positions[action].astype(float))
+            goal, self.goals.waypoint = choice
+            ep.adopt_goal(goal)
             self._decisions += 1
             if self._decisions >= self.config.max_decisions:
                 ep.end_reason = "decision_limit"

@@ -118,7 +118,7 @@ def make_explorer(name: str, **kwargs) -> Explorer:
     """
     import importlib
 
-    for module in ("nearest", "potential", "rrt", "oracle", "gvn"):  # Each registers itself.
+    for module in ("nearest", "potential", "rrt", "oracle", "gvn", "cnn"):  # Each registers itself.
         try:
             importlib.import_module(f"mjexplore.explorers.{module}")
         except ModuleNotFoundError:

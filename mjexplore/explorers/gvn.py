@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mjexplore.envs.exploration import ter_action_mask
+from mjexplore.envs.decisions import ter_action_mask
 from mjexplore.envs.observation import ter_arrays
 from mjexplore.explorers.base import ExplorationState, register
 from mjexplore.topology.ter import FRONTIER_FLAG, TerConfig
@@ -39,7 +39,7 @@ class GvnExplorer:
 
         self.policy, meta = load_policy(policy or DEFAULT_WEIGHTS, expected_kind="gvn")
         self.gvn = self.policy.features_extractor.gvn
-        obs = meta["observation"]
+        obs = meta["decisions"].config
         self.ter_config = TerConfig(max_nodes=obs.max_nodes, max_neighbours=obs.max_neighbours)
         self.memory_length = obs.memory_length
         self.masking = masking

@@ -13,9 +13,6 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from gymnasium import spaces
-
-from mjexplore.envs.observation import ObservationConfig, observation_space
 from mjexplore.errors import UserInputError
 from mjexplore.io.atomic import write_bytes_atomic
 
@@ -24,9 +21,10 @@ ALIASES = ("pi_features_extractor.", "vf_features_extractor.")
 
 
 def save_policy_weights(path: str | os.PathLike, policy: torch.nn.Module, kind: str,
-                        policy_kwargs: dict[str, Any], observation: ObservationConfig,
+                        policy_kwargs: dict[str, Any], layout: dict[str, Any],
                         provenance: dict[str, Any] | None = None) -> None:
-    """Writes ``policy``'s weights atomically."""
+    """Writes ``policy``'s weights atomically; ``layout`` is the decision space's config
+    (see :mod:`mjexplore.policies.registry`)."""
     from safetensors.torch import save
 
     tensors, seen = {}, set()
@@ -37,9 +35,7 @@ def save_policy_weights(path: str | os.PathLike, policy: torch.nn.Module, kind: 
         seen.add(v.data_ptr())
         tensors[k] = v.detach().cpu().contiguous()
     meta = {"format": FORMAT, "kind": kind, "policy_kwargs": json.dumps(policy_kwargs),
-            "observation": json.dumps({"max_nodes": observation.max_nodes,
-                                       "max_neighbours": observation.max_neighbours,
-                                       "memory_length": observation.memory_length}),
+            "layout": json.dumps(layout),
             "provenance": json.dumps(provenance or {}, default=str)}
     write_bytes_atomic(path, save(tensors, metadata=meta))
 
@@ -73,7 +69,7 @@ def read_policy_weights(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor
                              f"weights (format {meta.get('format')!r}); {hint}")
     try:
         decoded = {"kind": meta["kind"], "policy_kwargs": json.loads(meta["policy_kwargs"]),
-                   "observation": ObservationConfig(**json.loads(meta["observation"])),
+                   "layout": json.loads(meta["layout"]),
                    "provenance": json.loads(meta.get("provenance", "{}"))}
     except (KeyError, TypeError, ValueError) as exc:
         raise UserInputError(f"{str(path)!r} has damaged metadata ({exc}); {hint}") from None
@@ -84,23 +80,26 @@ def load_policy(path: str | os.PathLike, expected_kind: str | None = None):
     """Rebuilds the policy stored at ``path`` in evaluation mode.
 
     Returns:
-        (policy, metadata).
+        (policy, metadata); ``metadata["decisions"]`` is the policy's decision space.
 
     Raises:
         UserInputError: unreadable file, another kind of policy, or weights that do not
             fit the network they describe.
     """
-    from mjexplore.policies.registry import policy_class
+    from mjexplore.policies.registry import decisions_for, policy_class
 
     tensors, meta = read_policy_weights(path)
     if expected_kind is not None and meta["kind"] != expected_kind:
         raise UserInputError(f"{str(path)!r} holds a {meta['kind']!r} policy, not "
                              f"{expected_kind!r}: pick the matching --explorer.")
-    obs_cfg: ObservationConfig = meta["observation"]
-    cls, space_fn = policy_class(meta["kind"])
-    obs_space = space_fn(obs_cfg)
-    action_space = spaces.Discrete(obs_cfg.max_nodes)
-    policy = cls(obs_space, action_space, lambda _: 0.0, **meta["policy_kwargs"])
+    decisions = decisions_for(meta["kind"], meta["layout"])
+    meta["decisions"] = decisions
+    try:
+        policy = policy_class(meta["kind"])(decisions.observation_space, decisions.action_space,
+                                            lambda _: 0.0, **meta["policy_kwargs"])
+    except (TypeError, ValueError) as exc:
+        raise UserInputError(f"{str(path)!r} describes a network this version cannot build "
+                             f"({exc}).") from None
     problem = None
     try:
         result = policy.load_state_dict(tensors, strict=False)

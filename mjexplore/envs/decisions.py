@@ -1,0 +1,211 @@
+"""What a learned explorer sees and chooses at a decision: two decision spaces.
+
+* :class:`TerDecisions` (GVN): observation = the padded TER and the raw episodic memory;
+  action = a TER node (a frontier node becomes a frontier goal, another node a waypoint).
+* :class:`GridDecisions` (the paper's "Naive Exp" CNN baseline, its ref. [27]):
+  observation = the whole map resized to S x S pixels in five channels; action = a cell of a
+  coarse K x K grid over the map; the goal is the reachable frontier nearest that cell.
+
+The whole map (not a robot-centred crop) is used for the grid because the action is a
+*global* goal anywhere on the map: a crop would hide the places the policy must be able
+to pick, and the map's extent is known from the start (the mapper's grid has the scene's
+size), so the resized image keeps a fixed scale per scene.
+
+Both take only an :class:`~mjexplore.explorers.base.ExplorationState`, so the env and the
+deployed explorers share them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+from gymnasium import spaces
+
+from mjexplore.envs.observation import ObservationConfig, TerMemory, observation_space, ter_arrays
+from mjexplore.explorers.base import ExplorationState
+from mjexplore.topology.ter import FRONTIER_FLAG, PaddedTer, TerConfig
+
+GRID_CHANNELS = ("free", "occupied", "unknown", "robot", "trajectory")
+
+
+def ter_action_mask(ter_padded: PaddedTer, state: ExplorationState, valid_actions: str) -> np.ndarray:
+    """Valid actions of a padded TER: frontier nodes not blacklisted, or all real nodes."""
+    real = ter_padded.node_mask > 0
+    if valid_actions == "all_nodes":
+        mask = real.copy()
+        mask[real] = state.allowed(ter_padded.node_positions[real])
+        return mask
+    mask = ter_padded.action_mask.copy()
+    if mask.any():
+        mask[mask] = state.allowed(ter_padded.node_positions[mask])
+    return mask
+
+
+class TerDecisions:
+    """TER-node decisions (see the module docstring).
+
+    Args:
+        config: Observation layout (N_max, K, epsilon).
+        valid_actions: 'frontiers' (invalid action masking) or 'all_nodes'.
+    """
+
+    def __init__(self, config: ObservationConfig, valid_actions: str = "frontiers") -> None:
+        self.config = config
+        self.valid_actions = valid_actions
+        self.ter_config = TerConfig(max_nodes=config.max_nodes,
+                                    max_neighbours=config.max_neighbours)
+        self.observation_space = observation_space(config)
+        self.action_space = spaces.Discrete(config.max_nodes)
+        self.memory = TerMemory(config)
+        self.reset()
+
+    def reset(self) -> None:
+        self.memory.reset()
+        self._padded: PaddedTer | None = None
+        self._current: dict[str, np.ndarray] | None = None
+        self.mask = np.zeros(self.config.max_nodes, bool)
+
+    def prepare(self, state: ExplorationState) -> bool:
+        """Builds the observation and mask; False when no valid frontier is left."""
+        ter, _, _ = state.extras["tracker"].ter(state.grid, state.pose)
+        state.extras["ter"] = ter
+        padded = ter.padded(self.ter_config)
+        mask = ter_action_mask(padded, state, "frontiers")
+        if not mask.any():
+            return False
+        if self.valid_actions == "all_nodes":
+            mask = ter_action_mask(padded, state, "all_nodes")
+        self._padded, self.mask = padded, mask
+        self._current = ter_arrays(padded)
+        return True
+
+    def observation(self) -> dict[str, np.ndarray]:
+        if self._current is None:  # Over before any decision: an empty TER.
+            self._current = {k: np.zeros(v.shape, np.float32)
+                             for k, v in self.observation_space.spaces.items()
+                             if not k.startswith("memory")}
+            self._current["neighbours"][:] = -1.0
+        return self.memory.observation(self._current)
+
+    def act(self, action: int) -> tuple[np.ndarray, bool] | None:
+        """(goal (x, y), is_waypoint) for a node, or None for a padding slot."""
+        p = self._padded
+        if p is None or not 0 <= action < len(p.node_mask) or p.node_mask[action] <= 0:
+            return None
+        self.memory.remember(self._current, action)
+        waypoint = bool(p.node_features[action, 5] != FRONTIER_FLAG)
+        return p.node_positions[action].astype(float), waypoint
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class GridConfig:
+    """Grid decision space.
+
+    Attributes:
+        image_size: S, pixels per side of the resized map.
+        action_cells: K, coarse cells per side of the action grid.
+    """
+
+    image_size: int = 64
+    action_cells: int = 16
+
+    def __post_init__(self) -> None:
+        if self.image_size < 16 or self.action_cells < 2:
+            raise ValueError("image_size must be >= 16 and action_cells >= 2")
+
+
+class GridDecisions:
+    """Map-image decisions (see the module docstring).
+
+    The map is placed in the lower-left corner of a square of side max(rows, cols) cells
+    (the rest reads as unknown), so image pixels and action cells are square in metres.
+    Channels, each in [0, 1] (area fractions after resizing): free, occupied, unknown,
+    robot (a 3 x 3 pixel mark), trajectory (pixels the robot passed).
+    """
+
+    def __init__(self, config: GridConfig) -> None:
+        self.config = config
+        s, k = config.image_size, config.action_cells
+        self.observation_space = spaces.Dict({"image": spaces.Box(
+            0.0, 1.0, shape=(len(GRID_CHANNELS) * s * s,), dtype=np.float32)})
+        self.action_space = spaces.Discrete(k * k)
+        self.reset()
+
+    def reset(self) -> None:
+        s = self.config.image_size
+        self._image = np.zeros((len(GRID_CHANNELS), s, s), np.float32)
+        self._image[2] = 1.0
+        self.mask = np.zeros(self.config.action_cells ** 2, bool)
+        self._targets: list[np.ndarray] = []
+        self._state: ExplorationState | None = None
+
+    def _square(self, layer: np.ndarray, side: int, fill: float) -> np.ndarray:
+        out = np.full((side, side), fill, np.float32)
+        out[:layer.shape[0], :layer.shape[1]] = layer
+        return out
+
+    def cell_centres(self, state: ExplorationState) -> np.ndarray:
+        """(K*K, 2) map-frame centres of the action cells, row-major from the lower left."""
+        g = state.grid
+        side = max(g.shape) * g.resolution
+        k = self.config.action_cells
+        c = (np.arange(k) + 0.5) * side / k
+        yy, xx = np.meshgrid(c, c, indexing="ij")
+        return np.column_stack([g.origin[0] + xx.ravel(), g.origin[1] + yy.ravel()])
+
+    def prepare(self, state: ExplorationState) -> bool:
+        """Builds the image and mask; False when no reachable frontier is left."""
+        g = state.grid
+        if not state.frontiers:
+            return False
+        dist = state.frontier_distances()
+        reachable = np.isfinite(dist)
+        if not reachable.any():
+            return False
+        self._targets = [f.goal for f, ok in zip(state.frontiers, reachable) if ok]
+        self._state = state
+        s, k = self.config.image_size, self.config.action_cells
+        side = max(g.shape)
+        data = g.data
+        layers = [(data == 0), (data > 0), (data < 0)]
+        img = self._image
+        for i, (layer, fill) in enumerate(zip(layers, (0.0, 0.0, 1.0))):
+            img[i] = cv2.resize(self._square(layer.astype(np.float32), side, fill)[::-1], (s, s),
+                                interpolation=cv2.INTER_AREA)
+        np.clip(img[:3], 0.0, 1.0, out=img[:3])  # Resampling round-off.
+        img[3:] = 0.0
+        scale = s / (side * g.resolution)
+
+        def pixel(xy: np.ndarray) -> np.ndarray:
+            col = (xy[:, 0] - g.origin[0]) * scale
+            row = s - 1 - (xy[:, 1] - g.origin[1]) * scale
+            return np.clip(np.column_stack([row, col]).astype(int), 0, s - 1)
+
+        r, c = pixel(np.asarray(state.pose[:2])[None])[0]
+        img[3, max(r - 1, 0):r + 2, max(c - 1, 0):c + 2] = 1.0
+        if len(state.visited):
+            rc = pixel(np.asarray(state.visited))
+            img[4, rc[:, 0], rc[:, 1]] = 1.0
+        # Valid cells: a known free cell or a frontier cell inside.
+        fine = (data == 0).copy()
+        for f in state.frontiers:
+            fine[f.cells[:, 0], f.cells[:, 1]] = True
+        sq = self._square(fine.astype(np.float32), side, 0.0)
+        edges = np.linspace(0, side, k + 1).round().astype(int)
+        rows_any = np.maximum.reduceat(sq, edges[:-1], axis=0)
+        cells = np.maximum.reduceat(rows_any, edges[:-1], axis=1)
+        self.mask = cells.reshape(-1) > 0
+        return True
+
+    def observation(self) -> dict[str, np.ndarray]:
+        return {"image": self._image.reshape(-1).copy()}
+
+    def act(self, action: int) -> tuple[np.ndarray, bool] | None:
+        """The reachable frontier nearest the chosen cell's centre (never a waypoint)."""
+        if self._state is None or not 0 <= action < len(self.mask) or not self._targets:
+            return None
+        centre = self.cell_centres(self._state)[action]
+        targets = np.array(self._targets)
+        return targets[int(np.argmin(np.linalg.norm(targets - centre, axis=1)))], False
