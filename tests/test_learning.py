@@ -437,8 +437,8 @@ def test_shipped_policy_selects_only_valid_nodes_and_caches_memory_exactly():
         assert torch.allclose(full[real], cached[real], atol=1e-4)
         action = int(np.flatnonzero(mask)[int(torch.argmax(cached[torch.as_tensor(mask)]))])
         with torch.no_grad():
-            frag = explorer.gvn.fragments(r, torch.as_tensor(current["node_mask"])[None],
-                                          torch.tensor([action]))
+            real_mask = torch.as_tensor(current["node_mask"][:r.shape[1]])[None]
+            frag = explorer.gvn.fragments(r, real_mask, torch.tensor([action]))
         explorer._fragments = torch.cat([explorer._fragments[:, 1:], frag[:, None]], 1)
         explorer._memory_mask = torch.cat([explorer._memory_mask[:, 1:], torch.ones(1, 1)], 1)
         obs, _, term, trunc, _ = env.step(action)

@@ -54,14 +54,25 @@ class GvnExplorer:
         self._memory_mask = torch.zeros(1, self.memory_length)
 
     def logits(self, current: dict[str, np.ndarray]) -> tuple[torch.Tensor, torch.Tensor]:
-        """Node logits (N,) for the current TER arrays, and the node embeddings (1, N, d)."""
-        t = {k: torch.as_tensor(v)[None] for k, v in current.items()}
+        """Node logits (N,; -inf on padding) for the current TER arrays, and the embeddings
+        (1, n, d) of the n real nodes.
+
+        Real nodes come first in a padded TER and never point at padding, so only they are
+        encoded (padding contributes nothing to a real node's output).
+        """
+        n = max(int(current["node_mask"].sum()), 1)
+        t = {k: torch.as_tensor(v[:n])[None] for k, v in current.items()}
+        gvn = self.gvn
         with torch.no_grad():
-            r = self.gvn.spatial(t["node_features"], t["neighbours"], t["node_mask"])
-            h = self.gvn.memory_from_fragments(self._fragments, self._memory_mask)
-            z, pooled = self.gvn.fuse(r, t["node_mask"], h)
-            logits = self.policy.mlp_extractor.forward_actor(torch.cat([z.flatten(1), pooled], -1))
-        return logits[0], r
+            r = gvn.spatial(t["node_features"], t["neighbours"], t["node_mask"])
+            h = gvn.memory_from_fragments(self._fragments, self._memory_mask)
+            z, pooled = gvn.fuse(r, t["node_mask"], h)
+            heads = self.policy.mlp_extractor
+            real = heads.actor(z[0]).squeeze(-1)
+        logits = torch.full((len(current["node_mask"]),), -torch.inf)
+        logits[:n] = real
+        del pooled
+        return logits, r
 
     def select_goal(self, state: ExplorationState) -> np.ndarray | None:
         ter, _, _ = state.extras["tracker"].ter(state.grid, state.pose)
@@ -81,7 +92,8 @@ class GvnExplorer:
             p = torch.softmax(masked.double(), 0).numpy()
             action = int(self.rng.choice(len(p), p=p / p.sum()))
         with torch.no_grad():
-            frag = self.gvn.fragments(r, torch.as_tensor(current["node_mask"])[None],
+            n = r.shape[1]
+            frag = self.gvn.fragments(r, torch.as_tensor(current["node_mask"][:n])[None],
                                       torch.tensor([action]))
         self._fragments = torch.cat([self._fragments[:, 1:], frag[:, None]], 1)
         self._memory_mask = torch.cat([self._memory_mask[:, 1:], torch.ones(1, 1)], 1)
