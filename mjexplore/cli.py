@@ -344,6 +344,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
+    from mjexplore.memory import bound_heap_growth
+
+    bound_heap_growth()  # Long runs on large maps: see mjexplore/memory.py.
     try:
         return args.func(args)
     except UserInputError as exc:

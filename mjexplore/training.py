@@ -168,6 +168,9 @@ class _Checkpointer:
     def __init__(self, out: Path, config: TrainConfig) -> None:
         self.dir = out / "checkpoints"
         self.config = config
+        # The code that runs is the code imported at the start, whatever the checkout
+        # becomes while training runs.
+        self.revision = git_revision()
 
     def latest(self) -> Path | None:
         marker = self.dir / "latest.json"
@@ -188,7 +191,7 @@ class _Checkpointer:
                     "policy": model.policy.state_dict(),
                     "optimizer": model.policy.optimizer.state_dict(),
                     "config": json.dumps(to_dict(self.config)),
-                    "git_revision": git_revision()}, buf)
+                    "git_revision": self.revision}, buf)
         path = self.dir / f"step_{steps:09d}.pt"
         write_bytes_atomic(path, buf.getvalue())
         write_text_atomic(self.dir / "latest.json", json.dumps({"checkpoint": path.name,
@@ -274,7 +277,7 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
                                  "(only total_steps may change): resume with "
                                  f"{str(out / 'config.yaml')!r}.")
     out.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(out / "config.yaml", f"# git revision {git_revision()}\n" +
+    write_text_atomic(out / "config.yaml", f"# git revision {ckpt.revision}\n" +
                       yaml.safe_dump(to_dict(config), sort_keys=False))
 
     done = int(state["num_timesteps"]) if state else 0
@@ -300,7 +303,7 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
         log.info("resumed from %s at %d steps", latest, done)
 
     layout = layout_of(config.kind, config.env)
-    provenance = {"git_revision": git_revision(), "config": to_dict(config)}
+    provenance = {"git_revision": ckpt.revision, "config": to_dict(config)}
     written: list[str] = []
     best = {"score": None}
 
@@ -374,9 +377,11 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
             "weights": str(final), "resumed_from": done}
 
 
-def export_checkpoint(checkpoint: str | Path, out: str | Path) -> dict[str, Any]:
+def export_checkpoint(checkpoint: str | Path, out: str | Path,
+                      git_revision_override: str | None = None) -> dict[str, Any]:
     """Writes the policy weights of a checkpoint as a safetensors file; returns its
-    provenance."""
+    provenance. ``git_revision_override`` corrects the recorded revision of checkpoints
+    written before it was fixed at the start of training."""
     from mjexplore.config import from_dict
     from mjexplore.policies.registry import decisions_for, policy_class
 
@@ -387,7 +392,8 @@ def export_checkpoint(checkpoint: str | Path, out: str | Path) -> dict[str, Any]
     policy = policy_class(config.kind)(decisions.observation_space, decisions.action_space,
                                        lambda _: 0.0, **_policy_kwargs(config))
     policy.load_state_dict(state["policy"])
-    provenance = {"git_revision": state["git_revision"], "config": to_dict(config),
+    provenance = {"git_revision": git_revision_override or state["git_revision"],
+                  "config": to_dict(config),
                   "num_timesteps": int(state["num_timesteps"]),
                   "checkpoint": Path(checkpoint).name}
     save_policy_weights(out, policy, config.kind, _policy_kwargs(config), layout, provenance)

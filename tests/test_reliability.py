@@ -172,3 +172,13 @@ def test_any_map_with_a_room_imports_as_a_valid_scene(tmp_path_factory, width, h
     assert (gt.data[data == OCCUPIED] == OCCUPIED).all()
 
 
+
+
+def test_heap_growth_bound_is_set_on_glibc():
+    import platform
+
+    from mjexplore.memory import bound_heap_growth
+
+    result = bound_heap_growth()
+    if platform.libc_ver()[0] == "glibc":
+        assert result

@@ -2,7 +2,9 @@
 
 Generates a W x H m office (default 100 x 100), explores it with the nearest-frontier
 explorer in full physics (no MCAP: its map snapshots alone would grow with the episode),
-and samples the process's resident memory every 60 s of simulated time. Prints one JSON
+and samples the process's resident memory every 60 s of simulated time, with malloc's
+thresholds fixed as the CLI does (mjexplore/memory.py; --default-malloc for glibc's
+defaults). Prints one JSON
 line: the episode's end, its simulated time, peak RSS, and RSS at each quarter of the
 episode (bounded memory: the later quarters grow only by the per-step logs, a few MB).
 
@@ -30,7 +32,12 @@ def main() -> None:
     parser.add_argument("--size", default="100x100")
     parser.add_argument("--max-time", type=float, default=20000.0)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--default-malloc", action="store_true",
+                        help="leave glibc's malloc thresholds alone (the unbounded baseline)")
     args = parser.parse_args()
+    from mjexplore.memory import bound_heap_growth
+
+    bounded = False if args.default_malloc else bound_heap_growth()
     from mjexplore.eval.episode import Episode, EpisodeConfig
     from mjexplore.explorers import make_explorer
     from mjexplore.scenes.generate import generate_scene
@@ -54,7 +61,8 @@ def main() -> None:
     end = samples[-1][0]
     quarters = [min(samples, key=lambda s: abs(s[0] - q * end))[1] for q in (0.25, 0.5, 0.75, 1.0)]
     print(json.dumps({
-        "scene": f"office {args.size} m", "grid_cells": int(scene.ground_truth.data.size),
+        "scene": f"office {args.size} m", "malloc_thresholds_fixed": bounded,
+        "grid_cells": int(scene.ground_truth.data.size),
         "end_reason": result.metrics["end_reason"],
         "exploration_ratio": result.metrics["exploration_ratio"],
         "sim_time_s": result.metrics["exploration_time_s"],

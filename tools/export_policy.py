@@ -16,8 +16,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("checkpoint")
     parser.add_argument("out")
+    parser.add_argument("--git-revision", default=None,
+                        help="the revision the run was started from, if the checkpoint "
+                        "records another")
     args = parser.parse_args()
-    provenance = export_checkpoint(args.checkpoint, args.out)
+    provenance = export_checkpoint(args.checkpoint, args.out, args.git_revision)
     print(json.dumps({"out": args.out, "num_timesteps": provenance["num_timesteps"],
                       "git_revision": provenance["git_revision"]}))
 

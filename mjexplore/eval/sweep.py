@@ -95,6 +95,9 @@ def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Pa
 def _single_thread() -> None:
     os.environ["OMP_NUM_THREADS"] = "1"
     os.environ["NUMBA_NUM_THREADS"] = "1"
+    from mjexplore.memory import bound_heap_growth
+
+    bound_heap_growth()
 
 
 def _read_curve(folder: Path) -> np.ndarray:

@@ -1,5 +1,9 @@
 """The GVN explorer: a trained policy picks a TER node at each decision (the paper's method).
 
+When frontiers remain but none is a TER node (the TER links a frontier only where a GVD
+vertex of the robot's component, or the robot, sees it), the nearest frontier is taken
+(``fallbacks`` counts how often), so that the episode does not end with open frontiers.
+
 The policy's episodic memory is kept here as encoded fragments: with fixed weights,
 encoding each decision's TER once and caching its fragment gives the same numbers as
 re-encoding the raw memory at every decision (as training does), at a tenth of the cost.
@@ -17,6 +21,7 @@ import torch
 from mjexplore.envs.decisions import ter_action_mask
 from mjexplore.envs.observation import ter_arrays
 from mjexplore.explorers.base import ExplorationState, register
+from mjexplore.explorers.nearest import NearestFrontier
 from mjexplore.topology.ter import FRONTIER_FLAG, TerConfig
 
 DEFAULT_WEIGHTS = Path(__file__).resolve().parents[2] / "training" / "gvn_policy.safetensors"
@@ -45,11 +50,13 @@ class GvnExplorer:
         self.masking = masking
         self.deterministic = deterministic
         self.waypoint = False
+        self._fallback = NearestFrontier()
         self.reset(np.random.default_rng(0))
 
     def reset(self, rng: np.random.Generator) -> None:
         self.rng = rng
         self.waypoint = False
+        self.fallbacks = 0
         self._fragments = torch.zeros(1, self.memory_length, self.gvn.config.hidden)
         self._memory_mask = torch.zeros(1, self.memory_length)
 
@@ -80,7 +87,11 @@ class GvnExplorer:
         padded = ter.padded(self.ter_config)
         valid = ter_action_mask(padded, state, "frontiers")
         if not valid.any():
-            return None
+            # Frontiers the TER cannot link (no GVD vertex of the robot's component sees
+            # them) are not nodes; rather than end with them open, take the nearest one.
+            self.waypoint = False
+            self.fallbacks += 1
+            return self._fallback.select_goal(state)
         if not self.masking:
             valid = ter_action_mask(padded, state, "all_nodes")
         current = ter_arrays(padded)
