@@ -63,8 +63,8 @@ class TerDecisions:
 
     def reset(self) -> None:
         self.memory.reset()
-        self._padded: PaddedTer | None = None
-        self._current: dict[str, np.ndarray] | None = None
+        self.padded: PaddedTer | None = None  # The TER of the current decision...
+        self.current: dict[str, np.ndarray] | None = None  # ...as observation arrays.
         self.mask = np.zeros(self.config.max_nodes, bool)
 
     def prepare(self, state: ExplorationState) -> bool:
@@ -77,24 +77,24 @@ class TerDecisions:
             return False
         if self.valid_actions == "all_nodes":
             mask = ter_action_mask(padded, state, "all_nodes")
-        self._padded, self.mask = padded, mask
-        self._current = ter_arrays(padded)
+        self.padded, self.mask = padded, mask
+        self.current = ter_arrays(padded)
         return True
 
     def observation(self) -> dict[str, np.ndarray]:
-        if self._current is None:  # Over before any decision: an empty TER.
-            self._current = {k: np.zeros(v.shape, np.float32)
+        if self.current is None:  # Over before any decision: an empty TER.
+            self.current = {k: np.zeros(v.shape, np.float32)
                              for k, v in self.observation_space.spaces.items()
                              if not k.startswith("memory")}
-            self._current["neighbours"][:] = -1.0
-        return self.memory.observation(self._current)
+            self.current["neighbours"][:] = -1.0
+        return self.memory.observation(self.current)
 
     def act(self, action: int) -> tuple[np.ndarray, bool] | None:
         """(goal (x, y), is_waypoint) for a node, or None for a padding slot."""
-        p = self._padded
+        p = self.padded
         if p is None or not 0 <= action < len(p.node_mask) or p.node_mask[action] <= 0:
             return None
-        self.memory.remember(self._current, action)
+        self.memory.remember(self.current, action)
         waypoint = bool(p.node_features[action, 5] != FRONTIER_FLAG)
         return p.node_positions[action].astype(float), waypoint
 

@@ -9,7 +9,6 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 
 from mjexplore.envs.decisions import GridConfig, GridDecisions, TerDecisions
 from mjexplore.envs.observation import ObservationConfig

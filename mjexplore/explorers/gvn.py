@@ -11,18 +11,15 @@ re-encoding the raw memory at every decision (as training does), at a tenth of t
 
 from __future__ import annotations
 
-import dataclasses
 import os
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from mjexplore.envs.decisions import ter_action_mask
-from mjexplore.envs.observation import ter_arrays
+from mjexplore.envs.decisions import TerDecisions
 from mjexplore.explorers.base import ExplorationState, register
 from mjexplore.explorers.nearest import NearestFrontier
-from mjexplore.topology.ter import FRONTIER_FLAG, TerConfig
 
 DEFAULT_WEIGHTS = Path(__file__).resolve().parents[2] / "training" / "gvn_policy.safetensors"
 
@@ -45,7 +42,8 @@ class GvnExplorer:
         self.policy, meta = load_policy(policy or DEFAULT_WEIGHTS, expected_kind="gvn")
         self.gvn = self.policy.features_extractor.gvn
         obs = meta["decisions"].config
-        self.ter_config = TerConfig(max_nodes=obs.max_nodes, max_neighbours=obs.max_neighbours)
+        self.decisions = TerDecisions(obs, "frontiers" if masking else "all_nodes")
+        self.ter_config = self.decisions.ter_config
         self.memory_length = obs.memory_length
         self.masking = masking
         self.deterministic = deterministic
@@ -57,6 +55,7 @@ class GvnExplorer:
         self.rng = rng
         self.waypoint = False
         self.fallbacks = 0
+        self.decisions.reset()
         self._fragments = torch.zeros(1, self.memory_length, self.gvn.config.hidden)
         self._memory_mask = torch.zeros(1, self.memory_length)
 
@@ -73,30 +72,22 @@ class GvnExplorer:
         with torch.no_grad():
             r = gvn.spatial(t["node_features"], t["neighbours"], t["node_mask"])
             h = gvn.memory_from_fragments(self._fragments, self._memory_mask)
-            z, pooled = gvn.fuse(r, t["node_mask"], h)
-            heads = self.policy.mlp_extractor
-            real = heads.actor(z[0]).squeeze(-1)
+            z, _ = gvn.fuse(r, t["node_mask"], h)
+            real = self.policy.mlp_extractor.actor(z[0]).squeeze(-1)
         logits = torch.full((len(current["node_mask"]),), -torch.inf)
         logits[:n] = real
-        del pooled
         return logits, r
 
     def select_goal(self, state: ExplorationState) -> np.ndarray | None:
-        ter, _, _ = state.extras["tracker"].ter(state.grid, state.pose)
-        state.extras["ter"] = ter  # Observers (MCAP, video) draw the same TER.
-        padded = ter.padded(self.ter_config)
-        valid = ter_action_mask(padded, state, "frontiers")
-        if not valid.any():
+        d = self.decisions
+        if not d.prepare(state):
             # Frontiers the TER cannot link (no GVD vertex of the robot's component sees
             # them) are not nodes; rather than end with them open, take the nearest one.
             self.waypoint = False
             self.fallbacks += 1
             return self._fallback.select_goal(state)
-        if not self.masking:
-            valid = ter_action_mask(padded, state, "all_nodes")
-        current = ter_arrays(padded)
-        logits, r = self.logits(current)
-        masked = torch.where(torch.as_tensor(valid), logits, torch.tensor(-1e8))
+        logits, r = self.logits(d.current)
+        masked = torch.where(torch.as_tensor(d.mask), logits, torch.tensor(-1e8))
         if self.deterministic:
             action = int(torch.argmax(masked))
         else:
@@ -104,12 +95,12 @@ class GvnExplorer:
             action = int(self.rng.choice(len(p), p=p / p.sum()))
         with torch.no_grad():
             n = r.shape[1]
-            frag = self.gvn.fragments(r, torch.as_tensor(current["node_mask"][:n])[None],
+            frag = self.gvn.fragments(r, torch.as_tensor(d.current["node_mask"][:n])[None],
                                       torch.tensor([action]))
         self._fragments = torch.cat([self._fragments[:, 1:], frag[:, None]], 1)
         self._memory_mask = torch.cat([self._memory_mask[:, 1:], torch.ones(1, 1)], 1)
-        self.waypoint = bool(padded.node_features[action, 5] != FRONTIER_FLAG)
-        return padded.node_positions[action].astype(float)
+        goal, self.waypoint = d.act(action)
+        return goal
 
 
 @register("gvn_unmasked")
