@@ -288,10 +288,10 @@ def build_parser() -> argparse.ArgumentParser:
     explore.add_argument("--scene", default="office",
                          help="canonical scene name, scene folder, MJCF or map_server YAML")
     explore.add_argument("--explorer", default="nearest",
-                         help="nearest, rrt, potential, oracle or gvn")
+                         help="nearest, rrt, potential, oracle, gvn, gvn_unmasked or cnn")
     explore.add_argument("--policy", type=Path, default=None,
-                         help="weights for --explorer gvn (default: the shipped "
-                         "training/gvn_policy.safetensors)")
+                         help="weights for --explorer gvn or gvn_unmasked (default: the "
+                         "shipped training/gvn_policy.safetensors)")
     explore.add_argument("--seed", type=_seed, default=0)
     explore.add_argument("--out", type=Path, required=True, help="run folder")
     explore.add_argument("--no-mcap", action="store_true", help="do not write episode.mcap")
