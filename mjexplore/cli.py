@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import shlex
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -205,7 +206,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.workers < 1 or args.seeds < 1:
         raise UserInputError("--workers and --seeds must be at least 1.")
     run_sweep(scenes, explorers, list(range(args.seeds)), Path(args.out),
-              _episode_config(args), workers=args.workers, mcap=args.mcap)
+              _episode_config(args), workers=args.workers, mcap=args.mcap,
+              command=args.command_line)
     print((Path(args.out) / "results.md").read_text())
     return 0
 
@@ -216,6 +218,31 @@ def cmd_train(args: argparse.Namespace) -> int:
     config = load_train_config(args.config)
     summary = train(config, args.out, resume=args.resume, progress=not args.no_progress)
     print(json.dumps(summary))
+    return 0
+
+
+def cmd_collect(args: argparse.Namespace) -> int:
+    from mjexplore.eval.summaries import collect_sweep, write_summary
+
+    if not args.experiment.replace("_", "").isalnum():
+        raise UserInputError(f"--experiment {args.experiment!r}: use letters, digits and '_' "
+                             "(it names the summary file).")
+    summary = collect_sweep(args.sweep, args.experiment, command=args.command,
+                            kinematics_series=args.kinematics, reference=args.reference,
+                            stills=args.stills, media_dir=args.figures)
+    path = write_summary(summary, args.data / f"{args.experiment}.json")
+    print(json.dumps({"summary": str(path), "runs": len(summary["runs"]),
+                      "methods": sorted({r["method"] for r in summary["runs"]})}))
+    return 0
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from mjexplore.eval.report import build_report
+
+    if not args.data.is_dir():
+        raise UserInputError(f"{str(args.data)!r} is not a folder of sweep summaries: make them "
+                             "with 'mjexplore collect SWEEP --experiment NAME'.")
+    print(build_report(args.data, args.out, args.figures))
     return 0
 
 
@@ -336,12 +363,48 @@ def build_parser() -> argparse.ArgumentParser:
                     help="continue the run in --out from its last checkpoint")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
     tr.set_defaults(func=cmd_train)
+
+    co = sub.add_parser(
+        "collect", help="summarise a bench sweep for the results report",
+        description="Keep what the report needs from a sweep's run folders (metrics, ratio "
+                    "curves at 1 s, kinematic statistics) in DATA/EXPERIMENT.json, small "
+                    "enough to commit. Experiments the report knows: table1, ablation, "
+                    "lobby_real, explore_bench, ariadne.")
+    co.add_argument("sweep", type=Path, help="the sweep's --out folder")
+    co.add_argument("--experiment", required=True, help="summary name (e.g. table1)")
+    co.add_argument("--data", type=Path, default=Path("docs/results/data"),
+                    help="summaries folder (docs/results/data)")
+    co.add_argument("--command", default=None,
+                    help="the sweep's command (default: the one recorded in sweep.json)")
+    co.add_argument("--kinematics", action="store_true",
+                    help="also keep velocity and acceleration over time (Fig. 9)")
+    co.add_argument("--reference", type=Path, default=None,
+                    help="JSON-lines reference results to keep (ARiADNE's greedy_reference)")
+    co.add_argument("--stills", default=None, metavar="METHOD",
+                    help="copy METHOD's seed-0 ter.png per scene into --figures")
+    co.add_argument("--figures", type=Path, default=Path("docs/results"),
+                    help="report figures folder, for --stills (docs/results)")
+    co.set_defaults(func=cmd_collect)
+
+    rep = sub.add_parser(
+        "report", help="write docs/results.md from the collected sweep summaries",
+        description="Regenerate the results report (the paper's tables and figures) from the "
+                    "summaries in --data; runs nothing.")
+    rep.add_argument("--data", type=Path, default=Path("docs/results/data"),
+                     help="summaries folder (docs/results/data)")
+    rep.add_argument("--out", type=Path, default=Path("docs/results.md"),
+                     help="report file (docs/results.md)")
+    rep.add_argument("--figures", type=Path, default=None,
+                     help="figures folder (default: docs/results beside --out)")
+    rep.set_defaults(func=cmd_report)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
+    args.command_line = shlex.join(["mjexplore"] + argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     from mjexplore.memory import bound_heap_growth

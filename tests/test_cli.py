@@ -106,6 +106,19 @@ BAD = {
                                  "641x480", "--out", str(p / "o")],
     "video zero fps": lambda p: ["explore", "--video", str(p / "v.mp4"), "--video-fps", "0",
                                  "--out", str(p / "o")],
+    # Results report.
+    "collect not a sweep": lambda p: ["collect", str(p), "--experiment", "table1", "--data",
+                                      str(p / "o")],
+    "collect bad experiment name": lambda p: ["collect", str(p), "--experiment", "../t1",
+                                              "--data", str(p / "o")],
+    "report no data": lambda p: ["report", "--data", str(p / "none"), "--out",
+                                 str(p / "o" / "r.md")],
+    "report damaged summary": lambda p: ["report", "--data",
+                                         str(_write(p / "table1.json", "{").parent),
+                                         "--out", str(p / "o" / "r.md")],
+    "report unknown summary": lambda p: ["report", "--data",
+                                         str(_write(p / "table_1.json", "{}").parent),
+                                         "--out", str(p / "o" / "r.md")],
 }
 
 

@@ -27,6 +27,7 @@ from mjexplore.eval.episode import EpisodeConfig
 from mjexplore.eval.plots import kinematics_figure, ratio_figure
 from mjexplore.eval.run import write_run
 from mjexplore.io.atomic import write_text_atomic
+from mjexplore.io.provenance import git_revision
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.sim.kinematics import KinematicsLog
 
@@ -69,10 +70,18 @@ def _run_job(args: tuple[Job, Path, EpisodeConfig, bool]) -> dict[str, Any]:
 
 def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Path,
               config: EpisodeConfig, workers: int = 2, mcap: bool = False,
-              progress: bool = True) -> list[dict[str, Any]]:
-    """Runs (or resumes) a sweep and writes its summary; returns every episode's metrics."""
+              progress: bool = True, command: str | None = None) -> list[dict[str, Any]]:
+    """Runs (or resumes) a sweep and writes its summary; returns every episode's metrics.
+
+    ``command`` (the command line that started the sweep) is kept in ``OUT/sweep.json`` with
+    the code revision, for the reports made from the sweep.
+    """
     for scene in scenes:
         resolve_scene(scene)  # Fail early, in the parent, on a bad scene.
+    out.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(out / "sweep.json", json.dumps(
+        {"command": command, "git_revision": git_revision(), "scenes": scenes,
+         "explorers": explorers, "seeds": seeds}, indent=2) + "\n")
     jobs = [Job(s, e, seed) for s in scenes for e in explorers for seed in seeds]
     args = [(job, out, config, mcap) for job in jobs]
     results = []
@@ -112,7 +121,8 @@ def _read_kinematics(folder: Path) -> KinematicsLog:
                          cmd_angular=table[:, 6], pose=table[:, 7:10], odom_pose=table[:, 10:13])
 
 
-def _mean_std(values: list) -> str:
+def format_mean_std(values: list) -> str:
+    """``mean +- std`` of the values that are not None, with ``(k/n)`` when some are None."""
     vals = [v for v in values if v is not None]
     if not vals:
         return "-"
@@ -128,14 +138,10 @@ def write_summary(out: Path, jobs: list[Job]) -> None:
         folder = job.folder(out)
         if (folder / "metrics.json").is_file():
             by_scene.setdefault(Path(job.scene).stem, {}).setdefault(job.explorer, []).append(folder)
-    header = ["scene", "method", "runs", "explored"] + [label for _, label in METRICS]
-    rows = []
+    header, rows = summary_table(
+        {(scene, method): [json.loads((f / "metrics.json").read_text()) for f in folders]
+         for scene, methods in by_scene.items() for method, folders in methods.items()})
     for scene, methods in by_scene.items():
-        for method, folders in methods.items():
-            ms = [json.loads((f / "metrics.json").read_text()) for f in folders]
-            explored = sum(m["end_reason"] == "explored" for m in ms)
-            rows.append([scene, method, len(ms), explored] +
-                        [_mean_std([m[key] for m in ms]) for key, _ in METRICS])
         ratio_figure({m: [_read_curve(f) for f in fs] for m, fs in methods.items()},
                      out / f"ratio_{scene}.png", f"{scene}: exploration ratio over time")
         kinematics_figure({m: [_read_kinematics(f) for f in fs] for m, fs in methods.items()},
@@ -145,10 +151,31 @@ def write_summary(out: Path, jobs: list[Job]) -> None:
     buf = io.StringIO()
     csv.writer(buf).writerows([header] + rows)
     write_text_atomic(out / "results.csv", buf.getvalue())
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
-    notes = "\n\nMean +- std over runs; (k/n) where only k of n runs reached the level.\n"
+    notes = "\n\n" + MEAN_STD_NOTE + "\n"
     if failed:
         notes += "\nFailed episodes (see runs/.../seedN.failed.json; a re-run retries them): " + \
             ", ".join(f"{Path(j.scene).stem}/{j.explorer}/seed{j.seed}" for j in failed) + "\n"
-    write_text_atomic(out / "results.md", "\n".join(lines) + notes)
+    write_text_atomic(out / "results.md", markdown_table(header, rows) + notes)
+
+
+MEAN_STD_NOTE = "Mean +- std over runs; (k/n) where only k of n runs reached the level."
+
+
+def summary_table(groups: dict[tuple[str, str], list[dict[str, Any]]]
+                  ) -> tuple[list[str], list[list[Any]]]:
+    """Table-1 header and rows (scene, method, runs, explored, then mean +- std of each of
+    ``METRICS``) from each (scene, method)'s episode metrics, in the order given."""
+    header = ["scene", "method", "runs", "explored"] + [label for _, label in METRICS]
+    rows = []
+    for (scene, method), ms in groups.items():
+        explored = sum(m["end_reason"] == "explored" for m in ms)
+        rows.append([scene, method, len(ms), explored] +
+                    [format_mean_std([m.get(key) for m in ms]) for key, _ in METRICS])
+    return header, rows
+
+
+def markdown_table(header: list[str], rows: list[list[Any]]) -> str:
+    """A GitHub-flavoured markdown table."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return "\n".join(lines)

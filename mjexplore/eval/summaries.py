@@ -1,0 +1,231 @@
+"""Compact, committable summaries of benchmark sweeps, the input of the results report.
+
+A sweep's run folders hold megabytes per episode (10 Hz kinematics, 0.1 s ratio curves,
+figures). ``collect_sweep`` keeps what the report needs from each episode: its metrics, the
+exploration ratio resampled every ``RATIO_DT`` simulated seconds, kinematic smoothness
+statistics and, on request, the velocity and acceleration as ``KINEMATICS_DT``-second bin
+means (the paper's Fig. 9). One JSON file per experiment, a few hundred kilobytes, so the
+report regenerates in seconds from files in the repository, without re-running anything.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mjexplore.errors import UserInputError
+from mjexplore.eval.plots import resample
+from mjexplore.io.atomic import write_text_atomic
+from mjexplore.io.provenance import git_revision
+
+FORMAT = "mjexplore-sweep-summary"
+VERSION = 1
+RATIO_DT = 2.0  # s between stored exploration-ratio samples.
+KINEMATICS_DT = 1.0  # s per bin of the stored velocity and acceleration series.
+KINEMATIC_FIELDS = ("linear_velocity", "angular_velocity", "linear_acceleration",
+                    "angular_acceleration")
+# Shipped weights of the learned explorers (recorded by hash so a summary names its policy).
+POLICY_FILES = {"gvn": "training/gvn_policy.safetensors", "gvn_unmasked":
+                "training/gvn_policy.safetensors", "cnn": "training/cnn_policy.safetensors"}
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _sha256(path: Path) -> str | None:
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:16] if path.is_file() else None
+
+
+def _run_folders(sweep: Path) -> list[Path]:
+    return sorted(p.parent for p in sweep.glob("runs/*/*/seed*/metrics.json"))
+
+
+def _ratio(folder: Path) -> dict[str, Any]:
+    curve = np.loadtxt(folder / "ratio.csv", delimiter=",", skiprows=1, ndmin=2)
+    times = np.arange(0.0, curve[-1, 0] + 1e-9, RATIO_DT)
+    return {"dt": RATIO_DT, "t_end": round(float(curve[-1, 0]), 3),
+            "values": [round(float(v), 3) for v in resample(curve, times)]}
+
+
+def _kinematics(folder: Path, series: bool) -> dict[str, Any]:
+    table = np.loadtxt(folder / "kinematics.csv", delimiter=",", skiprows=1, ndmin=2)
+    t = table[:, 0]
+    columns = dict(zip(KINEMATIC_FIELDS, table[:, 1:5].T))
+    out: dict[str, Any] = {"stats": {
+        "linear_velocity_std": round(float(np.std(columns["linear_velocity"])), 4),
+        "angular_velocity_rms": round(float(np.sqrt(np.mean(columns["angular_velocity"] ** 2))),
+                                      4),
+        "linear_acceleration_rms": round(
+            float(np.sqrt(np.mean(columns["linear_acceleration"] ** 2))), 4),
+        "angular_acceleration_rms": round(
+            float(np.sqrt(np.mean(columns["angular_acceleration"] ** 2))), 4)}}
+    if series:
+        bins = np.floor(t / KINEMATICS_DT).astype(int)
+        counts = np.bincount(bins)
+        keep = counts > 0
+        out["series"] = {"dt": KINEMATICS_DT, **{
+            name: [round(float(v), 3) for v in
+                   (np.bincount(bins, weights=values)[keep] / counts[keep])]
+            for name, values in columns.items()}}
+    return out
+
+
+def collect_sweep(sweep: str | os.PathLike, experiment: str, command: str | None = None,
+                  kinematics_series: bool = False, reference: str | os.PathLike | None = None,
+                  stills: str | None = None, media_dir: str | os.PathLike | None = None
+                  ) -> dict[str, Any]:
+    """Summarises every finished episode of a sweep folder.
+
+    Args:
+        sweep: A ``mjexplore bench --out`` folder (``runs/SCENE/METHOD/seedN`` inside).
+        experiment: The name the report knows the summary by (e.g. ``table1``).
+        command: The command that made the sweep; defaults to the one in ``sweep.json``.
+        kinematics_series: Also keep velocity and acceleration over time (Fig. 9).
+        reference: A JSON-lines file of reference results to keep beside the runs (e.g.
+            ARiADNE's greedy planner: one object per map with ``map`` and ``travel``).
+        stills: A method whose seed-0 ``ter.png`` per scene is copied to ``media_dir`` as
+            ``EXPERIMENT_SCENE_METHOD.png``.
+        media_dir: Where stills go (needed with ``stills``).
+
+    Returns:
+        The summary, as :func:`write_summary` stores it.
+
+    Raises:
+        UserInputError: ``sweep`` holds no finished episode, or the reference is unreadable.
+    """
+    sweep = Path(sweep)
+    folders = _run_folders(sweep)
+    if not folders:
+        raise UserInputError(f"{str(sweep)!r} holds no finished episode (no "
+                             "runs/SCENE/METHOD/seedN/metrics.json): give the --out folder of "
+                             "a 'mjexplore bench' sweep.")
+    info = json.loads((sweep / "sweep.json").read_text()) if (sweep / "sweep.json").is_file() \
+        else {}
+    runs, revisions, settings = [], set(), None
+    for folder in folders:
+        config = json.loads((folder / "config.json").read_text())
+        revisions.add(config.get("git_revision"))
+        settings = settings or config["episode"]
+        clash = _differing_setting(settings, config["episode"])
+        if clash:
+            raise UserInputError(f"{folder} ran with another {clash} than the sweep's first "
+                                 "episode: a summary mixes no settings; sweep it into its own "
+                                 "--out folder.")
+        metrics = json.loads((folder / "metrics.json").read_text())
+        runs.append({"scene": folder.parent.parent.name, "method": folder.parent.name,
+                     "seed": int(config["seed"]),
+                     "resolution": config.get("scene_metadata", {}).get("resolution"),
+                     "metrics": {k: v for k, v in metrics.items()
+                                 if k not in ("scene", "explorer", "seed")},
+                     "ratio": _ratio(folder),
+                     "kinematics": _kinematics(folder, kinematics_series)})
+    methods = sorted({r["method"] for r in runs})
+    summary = {"format": FORMAT, "version": VERSION, "experiment": experiment,
+               "command": command or info.get("command"),
+               "collected_at_revision": git_revision(),
+               "run_revisions": sorted(r for r in revisions if r),
+               "policies": {m: _sha256(REPO / POLICY_FILES[m]) for m in methods
+                            if m in POLICY_FILES},
+               "episode": settings, "reference": _read_reference(reference), "runs": runs}
+    if stills is not None:
+        summary["stills"] = _copy_stills(folders, experiment, stills, media_dir)
+        summary["stills_method"] = stills
+    return summary
+
+
+def _flatten(tree: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    flat = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            flat.update(_flatten(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
+def _differing_setting(a: dict[str, Any], b: dict[str, Any]) -> str | None:
+    """The first episode setting two runs both record with different values, if any. The
+    per-run seed differs by design; settings only one records (added in a later revision
+    with the earlier behaviour as default) are not compared."""
+    fa, fb = _flatten(a), _flatten(b)
+    for key in sorted(fa.keys() & fb.keys()):
+        if key != "sim.seed" and fa[key] != fb[key]:
+            return key
+    return None
+
+
+def _copy_stills(folders: list[Path], experiment: str, method: str,
+                 media_dir: str | os.PathLike | None) -> dict[str, str]:
+    """Copies ``method``'s seed-0 ``ter.png`` per scene; returns scene -> file name."""
+    if media_dir is None:
+        raise UserInputError("stills need a figures folder to copy them to.")
+    media = Path(media_dir)
+    media.mkdir(parents=True, exist_ok=True)
+    copied = {}
+    for folder in folders:
+        scene = folder.parent.parent.name
+        if folder.parent.name == method and folder.name == "seed0" and \
+                (folder / "ter.png").is_file():
+            target = media / f"{experiment}_{scene}_{method}.png"
+            shutil.copyfile(folder / "ter.png", target.with_suffix(".tmp"))
+            os.replace(target.with_suffix(".tmp"), target)
+            copied[scene] = target.name
+    if not copied:
+        raise UserInputError(f"no seed-0 run of {method!r} with a ter.png in the sweep: check "
+                             "the method name given to --stills.")
+    return copied
+
+
+def _read_reference(path: str | os.PathLike | None) -> list[dict[str, Any]] | None:
+    if path is None:
+        return None
+    try:
+        lines = Path(path).read_text().splitlines()
+        return [json.loads(line) for line in lines if line.strip()]
+    except (OSError, ValueError) as exc:
+        raise UserInputError(f"cannot read the reference {str(path)!r} ({exc}): give a JSON-lines "
+                             "file, one object per line.") from None
+
+
+def write_summary(summary: dict[str, Any], path: str | os.PathLike) -> Path:
+    """Writes a summary atomically, one line per run (so it diffs run by run)."""
+    path = Path(path)
+    head = json.dumps({k: v for k, v in summary.items() if k != "runs"}, indent=1)
+    runs = ",\n".join(json.dumps(run, separators=(",", ":")) for run in summary["runs"])
+    write_text_atomic(path, head[:-2] + ',\n "runs": [\n' + runs + "\n ]\n}\n")
+    return path
+
+
+def read_summary(path: str | os.PathLike) -> dict[str, Any]:
+    """Reads and checks a summary written by :func:`write_summary`.
+
+    Raises:
+        UserInputError: The file is missing, not JSON, or not a sweep summary of this version.
+    """
+    try:
+        summary = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as exc:
+        raise UserInputError(f"cannot read the sweep summary {str(path)!r} ({exc}): re-create "
+                             "it with 'mjexplore collect'.") from None
+    if not isinstance(summary, dict) or summary.get("format") != FORMAT or \
+            summary.get("version") != VERSION or not isinstance(summary.get("runs"), list):
+        raise UserInputError(f"{str(path)!r} is not a version-{VERSION} mjexplore sweep "
+                             "summary: re-create it with 'mjexplore collect'.")
+    for run in summary["runs"]:
+        if not {"scene", "method", "seed", "metrics", "ratio"} <= set(run):
+            raise UserInputError(f"{str(path)!r} has a run without scene/method/seed/metrics/"
+                                 "ratio: re-create it with 'mjexplore collect'.")
+    return summary
+
+
+def ratio_curve(run: dict[str, Any]) -> np.ndarray:
+    """A stored run's exploration ratio as (N, 2) rows of (t s, ratio)."""
+    values = np.asarray(run["ratio"]["values"], dtype=float)
+    return np.column_stack([np.arange(len(values)) * run["ratio"]["dt"], values])
+
+
+__all__ = ["collect_sweep", "ratio_curve", "read_summary", "write_summary"]
