@@ -289,6 +289,22 @@ def test_train_config_round_trip_and_errors(tmp_path):
         load_train_config(path)
 
 
+def test_ablation_configs_differ_from_the_shipped_one_only_in_masking():
+    import dataclasses
+
+    shipped = load_train_config(REPO / "training" / "gvn.yaml")
+    for name, masking, valid in (("gvn_naive", "naive", "frontiers"),
+                                 ("gvn_none", "none", "all_nodes")):
+        config = load_train_config(REPO / "training" / f"{name}.yaml")
+        assert (config.policy.masking, config.env.valid_actions) == (masking, valid)
+        assert config.total_steps == 27648  # The shipped policy's budget.
+        same = dataclasses.replace(
+            config, total_steps=shipped.total_steps,
+            policy=dataclasses.replace(config.policy, masking="iam"),
+            env=dataclasses.replace(config.env, valid_actions="frontiers"))
+        assert same == shipped
+
+
 # ----------------------------------------------------------------------------- training
 
 TINY = """
@@ -461,3 +477,12 @@ def test_cli_refuses_bad_policy_weights(tmp_path):
                         "--explorer", "nearest", "--policy", str(bad), "--out", str(out)],
                        capture_output=True, text=True)
     assert r.returncode == 2 and "--explorer gvn" in r.stderr
+
+
+def test_ablation_explorers_say_how_to_make_their_missing_policy(tmp_path, monkeypatch):
+    from mjexplore.explorers import gvn, make_explorer
+
+    monkeypatch.setattr(gvn, "DEFAULT_WEIGHTS", tmp_path / "gvn_policy.safetensors")
+    for name in ("gvn_naive", "gvn_none"):
+        with pytest.raises(UserInputError, match=f"training/{name}.yaml"):
+            make_explorer(name)

@@ -60,7 +60,7 @@ def ratio_figure(curves: dict[str, list[np.ndarray]], path: str | os.PathLike,
 def kinematics_figure(logs: dict[str, list], path: str | os.PathLike, title: str = "") -> None:
     """Linear and angular velocity and acceleration over time per method (mean and spread)."""
     fig, axes = plt.subplots(4, len(logs), figsize=(4 * len(logs), 8), squeeze=False,
-                             sharex="col")
+                             sharex="col", sharey="row")  # Same scales: methods compare.
     names = [("linear_velocity", "v (m/s)"), ("angular_velocity", "omega (rad/s)"),
              ("linear_acceleration", "a (m/s^2)"), ("angular_acceleration", "alpha (rad/s^2)")]
     for col, (method, runs) in enumerate(logs.items()):

@@ -32,7 +32,9 @@ KINEMATIC_FIELDS = ("linear_velocity", "angular_velocity", "linear_acceleration"
                     "angular_acceleration")
 # Shipped weights of the learned explorers (recorded by hash so a summary names its policy).
 POLICY_FILES = {"gvn": "training/gvn_policy.safetensors", "gvn_unmasked":
-                "training/gvn_policy.safetensors", "cnn": "training/cnn_policy.safetensors"}
+                "training/gvn_policy.safetensors", "cnn": "training/cnn_policy.safetensors",
+                "gvn_naive": "training/gvn_naive_policy.safetensors",
+                "gvn_none": "training/gvn_none_policy.safetensors"}
 REPO = Path(__file__).resolve().parents[2]
 
 

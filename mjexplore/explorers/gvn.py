@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from mjexplore.envs.decisions import TerDecisions
+from mjexplore.errors import UserInputError
 from mjexplore.explorers.base import ExplorationState, register
 from mjexplore.explorers.nearest import NearestFrontier
 
@@ -111,3 +112,36 @@ class GvnUnmaskedExplorer(GvnExplorer):
     def __init__(self, policy: str | os.PathLike | None = None,
                  deterministic: bool = True) -> None:
         super().__init__(policy, masking=False, deterministic=deterministic)
+
+
+def _ablation_weights(name: str) -> Path:
+    path = DEFAULT_WEIGHTS.with_name(f"{name}_policy.safetensors")
+    if not path.is_file():
+        raise UserInputError(
+            f"--explorer {name} runs the policy in {path}, which is not there yet: train it "
+            f"with 'mjexplore train --config training/{name}.yaml --out runs/train/{name}', "
+            f"then 'python tools/export_policy.py runs/train/{name}/checkpoints/step_N.pt "
+            f"{path}' (or pass --policy).")
+    return path
+
+
+@register("gvn_naive")
+class GvnNaiveExplorer(GvnExplorer):
+    """The "naive masking" ablation: a policy trained with masked sampling but an unmasked
+    gradient (training/gvn_naive.yaml), run with the mask."""
+
+    def __init__(self, policy: str | os.PathLike | None = None,
+                 deterministic: bool = True) -> None:
+        super().__init__(policy or _ablation_weights("gvn_naive"), masking=True,
+                         deterministic=deterministic)
+
+
+@register("gvn_none")
+class GvnNoMaskingExplorer(GvnExplorer):
+    """The "without IAM" ablation: a policy trained with every TER node valid and no mask
+    (training/gvn_none.yaml), run the same way."""
+
+    def __init__(self, policy: str | os.PathLike | None = None,
+                 deterministic: bool = True) -> None:
+        super().__init__(policy or _ablation_weights("gvn_none"), masking=False,
+                         deterministic=deterministic)
