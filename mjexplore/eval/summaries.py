@@ -38,8 +38,15 @@ POLICY_FILES = {"gvn": "training/gvn_policy.safetensors", "gvn_unmasked":
 REPO = Path(__file__).resolve().parents[2]
 
 
-def _sha256(path: Path) -> str | None:
-    return hashlib.sha256(path.read_bytes()).hexdigest()[:16] if path.is_file() else None
+def _policy_record(path: Path) -> dict[str, Any] | None:
+    """The weights' hash prefix and training steps (``None`` if the file is missing)."""
+    if not path.is_file():
+        return None
+    from mjexplore.policies.weights import read_policy_weights
+
+    _, meta = read_policy_weights(path)
+    return {"sha256": hashlib.sha256(path.read_bytes()).hexdigest()[:16],
+            "num_timesteps": meta["provenance"].get("num_timesteps")}
 
 
 def _run_folders(sweep: Path) -> list[Path]:
@@ -130,7 +137,7 @@ def collect_sweep(sweep: str | os.PathLike, experiment: str, command: str | None
                "command": command or info.get("command"),
                "collected_at_revision": git_revision(),
                "run_revisions": sorted(r for r in revisions if r),
-               "policies": {m: _sha256(REPO / POLICY_FILES[m]) for m in methods
+               "policies": {m: _policy_record(REPO / POLICY_FILES[m]) for m in methods
                             if m in POLICY_FILES},
                "episode": settings, "reference": _read_reference(reference), "runs": runs}
     if stills is not None:
