@@ -327,7 +327,8 @@ def build_report(data_dir: str | os.PathLike, out: str | os.PathLike,
 
 def _section(name: str, summary, groups, figures: Path, rel: str) -> list[str]:
     if name == "ariadne":
-        return [relative_table(groups), "", reference_table(summary), ""]
+        return [relative_table(groups), "", reference_table(summary), "",
+                _other_ends(groups), ""]
     rename = ABLATION_NAMES if name == "ablation" else None
     lines = [_table(groups, rename), "", _other_ends(groups, rename), ""]
     if name == "ablation":
