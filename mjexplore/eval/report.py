@@ -139,6 +139,10 @@ def _mean_level_time(runs: list[dict[str, Any]], key: str) -> tuple[float | None
     return (float(np.mean(reached)) if reached else None), len(reached)
 
 
+def _reached(n: int, runs: list) -> str:
+    return "" if n == len(runs) else f" ({n}/{len(runs)})"
+
+
 def claims_table(groups) -> tuple[str, list[bool]]:
     """gvn's speed-up over the potential field to 80 % and 98.5 % per scene, beside the
     paper's range; returns the markdown and, per (scene, level), whether gvn is faster."""
@@ -158,9 +162,8 @@ def claims_table(groups) -> tuple[str, list[bool]]:
             gain = 100.0 * (p - g) / p
             verdict = "yes" if lo <= gain <= hi else ("faster, by more" if gain > hi else
                                                        "faster, by less" if gain > 0 else "no")
-            note = lambda n, runs: "" if n == len(runs) else f" ({n}/{len(runs)})"  # noqa: E731
-            rows.append([scene, label, f"{g:.1f}{note(ng, methods['gvn'])}",
-                         f"{p:.1f}{note(npot, methods['potential'])}", f"{gain:+.1f} %",
+            rows.append([scene, label, f"{g:.1f}{_reached(ng, methods['gvn'])}",
+                         f"{p:.1f}{_reached(npot, methods['potential'])}", f"{gain:+.1f} %",
                          f"{lo}-{hi} %", verdict])
             faster.append(gain > 0)
     return markdown_table(header, rows), faster
@@ -177,6 +180,13 @@ SETTING = (
     "with the same planner and controller as gvn: only the choice of goals differs.")
 
 
+def _ratio_of_means(runs: list[dict[str, Any]], baseline: list[dict[str, Any]],
+                    key: str) -> float:
+    """Mean of ``key`` over ``runs`` divided by its mean over ``baseline``."""
+    return float(np.mean([r["metrics"][key] for r in runs]) /
+                 np.mean([r["metrics"][key] for r in baseline]))
+
+
 def _verdict(groups, faster: list[bool]) -> str:
     """One sentence per method pair the paper ranks: how gvn fares against the others."""
     parts = [f"gvn is faster than the potential field on {sum(faster)} of the {len(faster)} "
@@ -184,9 +194,8 @@ def _verdict(groups, faster: list[bool]) -> str:
     for other in ("potential", "nearest"):
         pairs = [(ms["gvn"], ms[other]) for ms in groups.values() if "gvn" in ms and other in ms]
         if pairs:
-            mean = lambda runs, k: float(np.mean([r["metrics"][k] for r in runs]))  # noqa: E731
-            et = [mean(g, "exploration_time_s") / mean(o, "exploration_time_s") for g, o in pairs]
-            pl = [mean(g, "path_length_m") / mean(o, "path_length_m") for g, o in pairs]
+            et = [_ratio_of_means(g, o, "exploration_time_s") for g, o in pairs]
+            pl = [_ratio_of_means(g, o, "path_length_m") for g, o in pairs]
             parts.append(f"Averaged over the {len(pairs)} scenes, gvn's ET is "
                          f"{np.mean(et):.2f}x and its PL {np.mean(pl):.2f}x {other}'s.")
     return " ".join(parts)
@@ -222,10 +231,8 @@ def relative_table(groups, baseline: str = "nearest") -> str:
         et, pl, n = [], [], 0
         for ms in groups.values():
             if m in ms and baseline in ms:
-                mean = lambda runs, k: np.mean([r["metrics"][k] for r in runs])  # noqa: E731
-                et.append(mean(ms[m], "exploration_time_s") /
-                          mean(ms[baseline], "exploration_time_s"))
-                pl.append(mean(ms[m], "path_length_m") / mean(ms[baseline], "path_length_m"))
+                et.append(_ratio_of_means(ms[m], ms[baseline], "exploration_time_s"))
+                pl.append(_ratio_of_means(ms[m], ms[baseline], "path_length_m"))
                 n += sum(r["metrics"]["end_reason"] == "explored" for r in ms[m])
         if et:
             runs = sum(len(ms.get(m, [])) for ms in groups.values())
