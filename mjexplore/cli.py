@@ -367,7 +367,7 @@ def build_parser() -> argparse.ArgumentParser:
     co = sub.add_parser(
         "collect", help="summarise a bench sweep for the results report",
         description="Keep what the report needs from a sweep's run folders (metrics, ratio "
-                    "curves at 1 s, kinematic statistics) in DATA/EXPERIMENT.json, small "
+                    "curves every 2 s, kinematic statistics) in DATA/EXPERIMENT.json, small "
                     "enough to commit. Experiments the report knows: table1, ablation, "
                     "lobby_real, explore_bench, ariadne.")
     co.add_argument("sweep", type=Path, help="the sweep's --out folder")

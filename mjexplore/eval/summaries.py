@@ -21,6 +21,7 @@ import numpy as np
 
 from mjexplore.errors import UserInputError
 from mjexplore.eval.plots import resample
+from mjexplore.eval.sweep import read_kinematics, read_ratio_curve
 from mjexplore.io.atomic import write_text_atomic
 from mjexplore.io.provenance import git_revision
 
@@ -54,26 +55,26 @@ def _run_folders(sweep: Path) -> list[Path]:
 
 
 def _ratio(folder: Path) -> dict[str, Any]:
-    curve = np.loadtxt(folder / "ratio.csv", delimiter=",", skiprows=1, ndmin=2)
+    curve = read_ratio_curve(folder)
     times = np.arange(0.0, curve[-1, 0] + 1e-9, RATIO_DT)
     return {"dt": RATIO_DT, "t_end": round(float(curve[-1, 0]), 3),
             "values": [round(float(v), 3) for v in resample(curve, times)]}
 
 
+def _rms(values: np.ndarray) -> float:
+    return round(float(np.sqrt(np.mean(values ** 2))), 4)
+
+
 def _kinematics(folder: Path, series: bool) -> dict[str, Any]:
-    table = np.loadtxt(folder / "kinematics.csv", delimiter=",", skiprows=1, ndmin=2)
-    t = table[:, 0]
-    columns = dict(zip(KINEMATIC_FIELDS, table[:, 1:5].T))
+    log = read_kinematics(folder)
+    columns = {name: getattr(log, name) for name in KINEMATIC_FIELDS}
     out: dict[str, Any] = {"stats": {
-        "linear_velocity_std": round(float(np.std(columns["linear_velocity"])), 4),
-        "angular_velocity_rms": round(float(np.sqrt(np.mean(columns["angular_velocity"] ** 2))),
-                                      4),
-        "linear_acceleration_rms": round(
-            float(np.sqrt(np.mean(columns["linear_acceleration"] ** 2))), 4),
-        "angular_acceleration_rms": round(
-            float(np.sqrt(np.mean(columns["angular_acceleration"] ** 2))), 4)}}
+        "linear_velocity_std": round(float(np.std(log.linear_velocity)), 4),
+        "angular_velocity_rms": _rms(log.angular_velocity),
+        "linear_acceleration_rms": _rms(log.linear_acceleration),
+        "angular_acceleration_rms": _rms(log.angular_acceleration)}}
     if series:
-        bins = np.floor(t / KINEMATICS_DT).astype(int)
+        bins = np.floor(log.t / KINEMATICS_DT).astype(int)
         counts = np.bincount(bins)
         keep = counts > 0
         out["series"] = {"dt": KINEMATICS_DT, **{

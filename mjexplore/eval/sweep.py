@@ -109,11 +109,13 @@ def _single_thread() -> None:
     bound_heap_growth()
 
 
-def _read_curve(folder: Path) -> np.ndarray:
+def read_ratio_curve(folder: Path) -> np.ndarray:
+    """A run folder's exploration ratio as (N, 2) rows of (t s, ratio)."""
     return np.loadtxt(folder / "ratio.csv", delimiter=",", skiprows=1, ndmin=2)
 
 
-def _read_kinematics(folder: Path) -> KinematicsLog:
+def read_kinematics(folder: Path) -> KinematicsLog:
+    """A run folder's logged kinematics (``kinematics.csv``)."""
     table = np.loadtxt(folder / "kinematics.csv", delimiter=",", skiprows=1, ndmin=2)
     return KinematicsLog(t=table[:, 0], linear_velocity=table[:, 1],
                          angular_velocity=table[:, 2], linear_acceleration=table[:, 3],
@@ -142,9 +144,9 @@ def write_summary(out: Path, jobs: list[Job]) -> None:
         {(scene, method): [json.loads((f / "metrics.json").read_text()) for f in folders]
          for scene, methods in by_scene.items() for method, folders in methods.items()})
     for scene, methods in by_scene.items():
-        ratio_figure({m: [_read_curve(f) for f in fs] for m, fs in methods.items()},
+        ratio_figure({m: [read_ratio_curve(f) for f in fs] for m, fs in methods.items()},
                      out / f"ratio_{scene}.png", f"{scene}: exploration ratio over time")
-        kinematics_figure({m: [_read_kinematics(f) for f in fs] for m, fs in methods.items()},
+        kinematics_figure({m: [read_kinematics(f) for f in fs] for m, fs in methods.items()},
                           out / f"kinematics_{scene}.png", f"{scene}: kinematics")
     failed = [job for job in jobs if not (job.folder(out) / "metrics.json").is_file() and
               job.folder(out).with_name(job.folder(out).name + ".failed.json").is_file()]
