@@ -221,6 +221,22 @@ def _carve_partition(canvas: Canvas, regions: list[_Region], rng: np.random.Gene
             door(i, j)
 
 
+def _fitted_width(drawn: float, smallest: float, room: float) -> float | None:
+    """A drawn corridor width, narrowed to the room there is; None if even the smallest fails.
+
+    Narrowing (rather than redrawing) keeps every region that fits the draw unchanged, and
+    lets a composite scene's narrow parts take the narrow end of the range.
+
+    Args:
+        drawn: The width drawn from the configured range, metres.
+        smallest: The range's lower end, metres.
+        room: The widest corridor the region can take, metres.
+    """
+    if room < smallest:
+        return None
+    return min(drawn, room)
+
+
 def carve_rooms(canvas: Canvas, region: Rect, rng: np.random.Generator,
                 cfg: GeneratorConfig) -> None:
     """Rooms from a binary-space partition, joined by doors."""
@@ -234,10 +250,12 @@ def carve_office(canvas: Canvas, region: Rect, rng: np.random.Generator,
     """Rooms off corridors: one main corridor along the long side, cross corridors, rooms."""
     transpose = region.h > region.w
     r = Rect(region.y0, region.x0, region.y1, region.x1) if transpose else region
-    cw = rng.uniform(*cfg.office_corridor_width)
     lo, hi = cfg.room_size
-    if r.h < 2 * lo + cw:
-        raise UserInputError(f"office needs at least {2 * lo + cw + cfg.wall_thickness:.1f} m "
+    cw = _fitted_width(rng.uniform(*cfg.office_corridor_width), cfg.office_corridor_width[0],
+                       r.h - 2 * lo)
+    if cw is None:
+        raise UserInputError(f"office needs at least "
+                             f"{2 * lo + cfg.office_corridor_width[0] + cfg.wall_thickness:.1f} m "
                              "on its short side: make the scene larger.")
     yc0 = rng.uniform(r.y0 + lo, r.y1 - lo - cw)
     yc1 = yc0 + cw
@@ -347,14 +365,16 @@ def carve_loop(canvas: Canvas, region: Rect, rng: np.random.Generator,
                cfg: GeneratorConfig) -> None:
     """A ring corridor round a solid core, maybe crossed, with dead-end side corridors."""
     half = cfg.wall_thickness / 2
-    w = rng.uniform(*cfg.loop_corridor_width)
-    min_side = 2 * w + 2.0 + cfg.wall_thickness
-    if min(region.w, region.h) < min_side:
+    side = min(region.w, region.h)
+    w = _fitted_width(rng.uniform(*cfg.loop_corridor_width), cfg.loop_corridor_width[0],
+                      (side - 2.0 - cfg.wall_thickness) / 2)
+    if w is None:
+        min_side = 2 * cfg.loop_corridor_width[0] + 2.0 + cfg.wall_thickness
         raise UserInputError(f"loop needs at least {min_side:.1f} m on each side: make the "
                              "scene larger.")
     margin = half
-    if min(region.w, region.h) >= 14.0:
-        margin = rng.uniform(2.0, min(4.5, min(region.w, region.h) / 2 - w - 2.5))
+    if side >= 14.0:
+        margin = rng.uniform(2.0, min(4.5, side / 2 - w - 2.5))
     ring = region.inset(margin)
     for strip in (Rect(ring.x0, ring.y0, ring.x1, ring.y0 + w),
                   Rect(ring.x0, ring.y1 - w, ring.x1, ring.y1),
