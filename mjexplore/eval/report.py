@@ -41,13 +41,21 @@ class Experiment:
         name: The summary's file stem in the data folder.
         title: Section heading.
         about: What the experiment is, one paragraph.
-        command: The sweep that makes it (then ``mjexplore collect`` of its folder).
+        methods: The explorers it compares, in the report's order.
+        sweep: The sweep that makes it (then ``mjexplore collect`` of its folder), with
+            ``{explorers}`` where the comma-joined methods go.
     """
 
     name: str
     title: str
     about: str
-    command: str
+    methods: tuple[str, ...]
+    sweep: str
+
+    @property
+    def command(self) -> str:
+        """The sweep's command line."""
+        return self.sweep.format(explorers=",".join(self.methods))
 
 
 EVAL_SCENES = "loop_with_corridor,maze,office"
@@ -60,25 +68,29 @@ EXPERIMENTS = (
                "noise. The oracle plans a covering tour of viewpoints on the ground truth: a "
                "reference for how fast the map can be seen (it is not optimal in ET or PL: "
                "its greedy tour can be beaten on small maps).",
-               f"mjexplore bench --scenes {EVAL_SCENES} --explorers "
-               "nearest,rrt,potential,cnn,gvn,oracle --seeds 10 --workers 2 --out runs/table1"),
+               ("nearest", "rrt", "potential", "cnn", "gvn", "oracle"),
+               f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 10 "
+               "--workers 2 --out runs/table1"),
     Experiment("ablation", "Table 2: invalid action masking",
                "The ablation of the paper's Table 2 on the loop and maze scenes, 5 runs each: "
                "policies trained without masking (all TER nodes valid), with naive masking "
                "(masked sampling, unmasked gradient), with IAM; and the IAM policy run without "
                "its mask (masking removed).",
-               "mjexplore bench --scenes loop_with_corridor,maze --explorers "
-               "gvn_none,gvn_naive,gvn_unmasked,gvn --seeds 5 --workers 2 --out runs/ablation"),
+               ("gvn_none", "gvn_naive", "gvn_unmasked", "gvn"),
+               "mjexplore bench --scenes loop_with_corridor,maze --explorers {explorers} "
+               "--seeds 5 --workers 2 --out runs/ablation"),
     Experiment("lobby_real", "Table 3 and Fig. 9: the real-robot setting",
                "The paper's robot experiment in simulation: the 17.5 x 4 m lobby with the real "
                "profile (0.18 m/s, 5 m lidar, 5 Hz decisions), 5 runs per method.",
-               "mjexplore bench --scenes lobby --explorers gvn,potential,nearest --profile real "
-               "--seeds 5 --workers 2 --out runs/lobby_real"),
+               ("nearest", "potential", "gvn"),
+               "mjexplore bench --scenes lobby --explorers {explorers} --profile real --seeds 5 "
+               "--workers 2 --out runs/lobby_real"),
     Experiment("explore_bench", "Generalisation: the Explore-Bench maps",
                "The six Explore-Bench maps (ROS map_server maps imported as MJCF, 7 m lidar), "
                "which no policy was trained on.",
-               f"mjexplore bench --scenes {EXPLORE_BENCH} --explorers nearest,rrt,potential,cnn,"
-               "gvn --seeds 2 --lidar-range 7 --workers 2 --out runs/explore_bench"),
+               ("nearest", "rrt", "potential", "cnn", "gvn"),
+               f"mjexplore bench --scenes {EXPLORE_BENCH} --explorers {{explorers}} --seeds 2 "
+               "--lidar-range 7 --workers 2 --out runs/explore_bench"),
     Experiment("ariadne", "Generalisation: the ARiADNE test maps",
                "ARiADNE's 100 test maps at 0.1 m per pixel (64 x 48 m) with an 8 m lidar, which "
                "no policy was trained on. Path lengths are set beside the greedy planner's, "
@@ -86,10 +98,11 @@ EXPERIMENTS = (
                "completion tests differ: ARiADNE's greedy run stops when its graph has no "
                "utility left (99.9 % of the free pixels seen on average), an mjexplore episode "
                "at 98.5 % of the observable free space; the last 1.5 % costs path.",
+               ("nearest", "rrt", "potential", "cnn", "gvn"),
                "for f in ../shared/data/ariadne_test/img_*.png; do mjexplore scene-gen "
                "--from-map $f --resolution 0.1 --out runs/ariadne_scenes/$(basename $f .png); "
                "done; mjexplore bench --scenes $(ls -d runs/ariadne_scenes/* | paste -sd,) "
-               "--explorers nearest,gvn --seeds 1 --lidar-range 8 --workers 2 "
+               "--explorers {explorers} --seeds 1 --lidar-range 8 --workers 2 "
                "--out runs/ariadne"),
 )
 
@@ -314,6 +327,12 @@ def build_report(data_dir: str | os.PathLike, out: str | os.PathLike,
                 f"{m} trained for {rec['num_timesteps']:,} decision steps (weights sha256 "
                 f"`{rec['sha256']}`)" for m, rec in policies.items()) + ".", ""]
         lines += _section(exp.name, summary, groups, figures, rel)
+        ran = {m for methods in groups.values() for m in methods}
+        absent = tuple(m for m in exp.methods if m not in ran)
+        if absent:
+            lines += [f"Not in this sweep yet: {', '.join(absent)}. Add them with "
+                      f"`{dataclasses.replace(exp, methods=absent).command}`, then collect the "
+                      "folder again and rerun the report.", ""]
         stills = summary.get("stills") or {}
         if stills:
             method = summary.get("stills_method", "gvn")
@@ -340,9 +359,9 @@ def _section(name: str, summary, groups, figures: Path, rel: str) -> list[str]:
     lines = [_table(groups, rename), "", _other_ends(groups, rename), ""]
     if name == "ablation":
         ran = {m for ms in groups.values() for m in ms}
-        lines += [f"- Not run yet: {ABLATION_NAMES[m]}, for want of its policy: train it with "
-                  f"`mjexplore train --config training/{m}.yaml --out runs/train/{m}`, export "
-                  f"it to `training/{m}_policy.safetensors` and sweep `--explorers {m}`."
+        lines += [f"- {ABLATION_NAMES[m]} needs its own policy: train it with "
+                  f"`mjexplore train --config training/{m}.yaml --out runs/train/{m}` and "
+                  f"export it to `training/{m}_policy.safetensors` (tools/export_policy.py)."
                   for m in ("gvn_none", "gvn_naive") if m not in ran]
         lines += [""]
     if name == "table1":
