@@ -24,8 +24,8 @@ from mjexplore.envs.observation import observation_space, structured
 from mjexplore.errors import UserInputError
 from mjexplore.eval.episode import Episode, EpisodeConfig
 from mjexplore.navigation.navigator import NavigatorConfig
-from mjexplore.policies.gvn import CausalConv, GraphConv, GvnConfig, TemporalEncoder, \
-    normalized_adjacency
+from mjexplore.policies.gvn import CausalConv, GraphConv, GvnConfig, SpatialEncoder, \
+    TemporalEncoder, normalized_adjacency
 from mjexplore.policies.sb3 import GvnPolicy
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.sim.simulator import SimConfig
@@ -89,18 +89,37 @@ def test_gcn_layer_equals_dense_formula():
         fill[a] += 1
         fill[b] += 1
     mask = np.array([[1, 1, 1, 1, 1, 0]], np.float32)
-    h = torch.as_tensor(rng.normal(size=(1, n, 4)), dtype=torch.float32)
+    h = torch.as_tensor(rng.normal(size=(5, 4)), dtype=torch.float32)  # The real nodes.
     layer = GraphConv(4, 5)
-    out = layer(h, normalized_adjacency(torch.as_tensor(neigh), torch.as_tensor(mask)))
+    real_rows = torch.as_tensor(mask).reshape(-1).nonzero().squeeze(1)
+    out = layer(h, normalized_adjacency(torch.as_tensor(neigh), real_rows))
     a = np.zeros((5, 5))
     for i, j in edges:
         a[i, j] = a[j, i] = 1
     a_hat = a + np.eye(5)
     d = np.diag(a_hat.sum(1) ** -0.5)
     w = layer.weight.weight.detach().numpy().T
-    dense = d @ a_hat @ d @ h[0, :5].numpy() @ w
-    np.testing.assert_allclose(out[0, :5].detach().numpy(), dense, rtol=1e-5, atol=1e-6)
-    assert torch.all(out[0, 5] == 0)  # Padding takes no part.
+    dense = d @ a_hat @ d @ h.numpy() @ w
+    np.testing.assert_allclose(out.detach().numpy(), dense, rtol=1e-5, atol=1e-6)
+
+
+def test_spatial_encoder_ignores_padding_and_batch_neighbours():
+    """A graph's embeddings do not depend on how much padding or which other graphs share
+    the batch (only real nodes are computed)."""
+    torch.manual_seed(0)
+    encoder = SpatialEncoder(GvnConfig(hidden=8))
+    feats = torch.randn(1, 4, 6)
+    neigh = torch.tensor([[[1, -1], [0, 2], [1, 3], [2, -1]]], dtype=torch.float32)
+    alone = encoder(feats, neigh, torch.ones(1, 4))
+    # The same graph padded to 7 slots, after an empty graph and before a different one.
+    f = torch.zeros(3, 7, 6)
+    n = torch.full((3, 7, 2), -1.0)
+    m = torch.zeros(3, 7)
+    f[1, :4], n[1, :4], m[1, :4] = feats[0], neigh[0], 1
+    f[2, :2], n[2, 0, 0], n[2, 1, 0], m[2, :2] = torch.randn(2, 6), 1, 0, 1
+    batched = encoder(f, n, m)
+    assert torch.allclose(batched[1, :4], alone[0], atol=1e-6)
+    assert torch.all(batched[0] == 0) and torch.all(batched[1, 4:] == 0)
 
 
 def test_tcn_is_causal():
@@ -455,8 +474,10 @@ def test_shipped_policy_selects_only_valid_nodes_and_caches_memory_exactly():
         assert torch.allclose(full[real], cached[real], atol=1e-4)
         action = int(np.flatnonzero(mask)[int(torch.argmax(cached[torch.as_tensor(mask)]))])
         with torch.no_grad():
-            real_mask = torch.as_tensor(current["node_mask"][:r.shape[1]])[None]
-            frag = explorer.gvn.fragments(r, real_mask, torch.tensor([action]))
+            n = r.shape[1]
+            frag = explorer.gvn.fragments(r[0], torch.arange(n),
+                                          torch.as_tensor(current["node_mask"][:n])[None],
+                                          torch.tensor([action]))
         explorer._fragments = torch.cat([explorer._fragments[:, 1:], frag[:, None]], 1)
         explorer._memory_mask = torch.cat([explorer._memory_mask[:, 1:], torch.ones(1, 1)], 1)
         obs, _, term, trunc, _ = env.step(action)

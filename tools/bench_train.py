@@ -6,7 +6,9 @@ kinematic training mode (training/gvn.yaml's episode settings), and times the pa
 decision: physics (simulator stepping without the lidar), lidar, mapping, topology
 (incremental GVD updates between decisions plus the TER build at the decision), navigation
 (planning and control) and the network (policy inference; also the full training-time
-forward that re-encodes the raw episodic memory). Prints one JSON line.
+forward that re-encodes the raw episodic memory, and PPO's update: forward and backward
+over minibatches of the last observation with a full memory, n_epochs times per decision,
+set against the rollout's own cost per decision). Prints one JSON line.
 
 Target (issue 5): topology + policy at most 8 ms per decision; ARiADNE's own environment
 spends about 390 ms per decision on this machine.
@@ -47,8 +49,9 @@ def run(job: tuple[str, str, float]) -> dict:
     from mjexplore.scenes.canonical import resolve_scene
     from mjexplore.training import TrainConfig
 
+    train_config = load_yaml_config(TrainConfig, DEFAULT_WEIGHTS.parent / "gvn.yaml")
     if mode == "training":
-        config = load_yaml_config(TrainConfig, DEFAULT_WEIGHTS.parent / "gvn.yaml").env.episode
+        config = train_config.env.episode
     else:
         config = EpisodeConfig()
     config = dataclasses.replace(config, max_time=max_time)
@@ -81,12 +84,23 @@ def run(job: tuple[str, str, float]) -> dict:
         for _ in range(10):
             explorer.policy.evaluate_actions(obs, torch.zeros(1, dtype=torch.long))
         c["training_forward"] = (time.perf_counter() - t) / 10 * decisions
+    # PPO's update: forward and backward over a minibatch of such observations, n_epochs
+    # times per collected decision.
+    ppo = train_config.ppo
+    batch = {k: v.repeat(ppo.batch_size, *([1] * (v.dim() - 1))) for k, v in obs.items()}
+    actions = torch.zeros(ppo.batch_size, dtype=torch.long)
+    t = time.perf_counter()
+    for _ in range(3):
+        values, log_prob, entropy = explorer.policy.evaluate_actions(batch, actions)
+        (values.sum() + log_prob.sum() + entropy.sum()).backward()
+    c["update"] = (time.perf_counter() - t) / 3 * ppo.n_epochs / ppo.batch_size * decisions
     physics = c["sim_step"] - c["lidar"]
     return {"scene": scene, "mode": mode, "wall_s": wall, "decisions": decisions,
             "sim_time_s": result.metrics["exploration_time_s"],
             "physics": physics, "lidar": c["lidar"], "mapping": c["mapping"],
             "topology": c["gvd"] + c["ter"], "ter": c["ter"], "navigation": c["navigation"],
-            "policy": c["policy"], "training_forward": c["training_forward"]}
+            "policy": c["policy"], "training_forward": c["training_forward"],
+            "update": c["update"]}
 
 
 def _obs_config(explorer):
@@ -124,11 +138,14 @@ def main() -> None:
             ter = sum(r["ter"] for r in rows) / n * 1e3
             pol = sum(r["policy"] for r in rows) / n * 1e3
             fwd = sum(r["training_forward"] for r in rows) / n * 1e3
+            update = sum(r["update"] for r in rows) / n * 1e3
             out.update(topology_ms_per_decision=round(topo, 2), ter_build_ms=round(ter, 2),
                        policy_ms_per_decision=round(pol, 2),
                        topology_plus_policy_ms=round(topo + pol, 2),
                        target_ms=8.0,
                        training_forward_ms=round(fwd, 2),
+                       update_ms_per_decision=round(update, 2),
+                       update_share_of_training=round(update / (update + busy / n * 1e3), 3),
                        ariadne_ms_per_decision=ARIADNE_MS_PER_DECISION,
                        speedup_vs_ariadne=round(ARIADNE_MS_PER_DECISION / (topo + pol), 1))
         out[f"{mode}_bench_wall_s"] = round(wall, 1)

@@ -96,7 +96,8 @@ class GvnExplorer:
             action = int(self.rng.choice(len(p), p=p / p.sum()))
         with torch.no_grad():
             n = r.shape[1]
-            frag = self.gvn.fragments(r, torch.as_tensor(d.current["node_mask"][:n])[None],
+            frag = self.gvn.fragments(r[0], torch.arange(n),
+                                      torch.as_tensor(d.current["node_mask"][:n])[None],
                                       torch.tensor([action]))
         self._fragments = torch.cat([self._fragments[:, 1:], frag[:, None]], 1)
         self._memory_mask = torch.cat([self._memory_mask[:, 1:], torch.ones(1, 1)], 1)

@@ -53,32 +53,37 @@ class GvnConfig:
     tcn_dilations: tuple[int, ...] = (1, 2, 4)
 
 
-def normalized_adjacency(neighbours: torch.Tensor, node_mask: torch.Tensor) -> torch.Tensor:
-    """D^-1/2 (A + I) D^-1/2 of a batch of padded graphs as one sparse block matrix.
+def normalized_adjacency(neighbours: torch.Tensor, real_rows: torch.Tensor) -> torch.Tensor:
+    """D^-1/2 (A + I) D^-1/2 of a batch of padded graphs, over their real nodes only.
+
+    Padding nodes take no part (they would only add empty rows and columns), so the matrix
+    is one sparse block-diagonal (R, R) over the R real nodes, in the order of
+    ``real_rows``. An edge to a padding slot still counts in its node's degree.
 
     Args:
         neighbours: (M, N, K) neighbour indices within each graph, -1 for empty slots.
-        node_mask: (M, N) 1 for real nodes.
+        real_rows: (R,) flat indices (graph * N + node) of the real nodes, ascending.
 
     Returns:
-        Sparse (M N, M N) float tensor; rows and columns of padding nodes are empty.
+        Sparse (R, R) float tensor.
     """
     m, n, k = neighbours.shape
-    real = node_mask > 0
-    edge = (neighbours >= 0) & real[..., None]
-    idx = neighbours.long().clamp(min=0)
-    degree = 1.0 + edge.sum(-1).to(torch.float32)  # (M, N), self loop included.
-    base = (torch.arange(m, device=neighbours.device) * n)[:, None, None]
-    rows = (base + torch.arange(n, device=neighbours.device)[None, :, None]).expand(m, n, k)
-    cols = base + idx
-    inv_sqrt = degree.rsqrt()
-    w_edge = inv_sqrt[..., None] * torch.gather(inv_sqrt, 1, idx.view(m, -1)).view(m, n, k)
-    self_idx = (base[..., 0] + torch.arange(n, device=neighbours.device)[None])[real]
-    indices = torch.cat([torch.stack([rows[edge], cols[edge]]),
-                         torch.stack([self_idx, self_idx])], dim=1)
-    values = torch.cat([w_edge[edge], (1.0 / degree)[real]])
-    return torch.sparse_coo_tensor(indices, values, (m * n, m * n),
-                                   check_invariants=False).coalesce()
+    device = neighbours.device
+    r = len(real_rows)
+    slots = neighbours.reshape(m * n, k)[real_rows].long()  # (R, K)
+    edge = slots >= 0
+    inv_sqrt = (1.0 + edge.sum(-1).to(torch.float32)).rsqrt()  # Self loop included.
+    # Flat index -> position among the real nodes (R for padding).
+    position = torch.full((m * n,), r, dtype=torch.long, device=device)
+    position[real_rows] = torch.arange(r, device=device)
+    target = position[(real_rows // n)[:, None] * n + slots.clamp(min=0)]
+    kept = edge & (target < r)  # An edge to a padding slot joins nothing.
+    rows = torch.arange(r, device=device)[:, None].expand(r, k)[kept]
+    cols = target[kept]
+    self_idx = torch.arange(r, device=device)
+    indices = torch.cat([torch.stack([rows, cols]), torch.stack([self_idx, self_idx])], dim=1)
+    values = torch.cat([inv_sqrt[rows] * inv_sqrt[cols], inv_sqrt.square()])
+    return torch.sparse_coo_tensor(indices, values, (r, r), check_invariants=False).coalesce()
 
 
 class GraphConv(nn.Module):
@@ -89,9 +94,8 @@ class GraphConv(nn.Module):
         self.weight = nn.Linear(in_features, out_features, bias=False)
 
     def forward(self, h: torch.Tensor, adjacency: torch.Tensor) -> torch.Tensor:
-        m, n, _ = h.shape
-        out = torch.sparse.mm(adjacency, self.weight(h).reshape(m * n, -1))
-        return out.view(m, n, -1)
+        """(R, in) node rows, sparse (R, R) A_norm -> (R, out)."""
+        return torch.sparse.mm(adjacency, self.weight(h))
 
 
 class SpatialEncoder(nn.Module):
@@ -105,15 +109,29 @@ class SpatialEncoder(nn.Module):
             GraphConv(NUM_FEATURES if i == 0 else d, d) for i in range(config.gcn_layers))
         self.input_skip = nn.Linear(NUM_FEATURES, d, bias=False)
 
-    def forward(self, features: torch.Tensor, neighbours: torch.Tensor,
-                node_mask: torch.Tensor) -> torch.Tensor:
-        """(M, N, 6), (M, N, K), (M, N) -> node embeddings (M, N, d), zero on padding."""
-        adjacency = normalized_adjacency(neighbours, node_mask)
-        h = features * self.scale
+    def rows(self, features: torch.Tensor, neighbours: torch.Tensor,
+             node_mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(M, N, 6), (M, N, K), (M, N) -> embeddings (R, d) of the R real nodes and their
+        flat indices (R,) (graph * N + node, ascending).
+
+        Only real nodes are computed: most of the N slots (and every slot of an unfilled
+        memory entry) are padding, whose rows and columns of A_norm are empty.
+        """
+        m, n, _ = features.shape
+        real_rows = (node_mask.reshape(-1) > 0).nonzero().squeeze(1)
+        adjacency = normalized_adjacency(neighbours, real_rows)
+        h = features.reshape(m * n, -1)[real_rows] * self.scale
         for i, layer in enumerate(self.layers):
             skip = self.input_skip(h) if i == 0 else h
             h = F.relu(layer(h, adjacency)) + skip
-        return h * node_mask[..., None]
+        return h, real_rows
+
+    def forward(self, features: torch.Tensor, neighbours: torch.Tensor,
+                node_mask: torch.Tensor) -> torch.Tensor:
+        """(M, N, 6), (M, N, K), (M, N) -> node embeddings (M, N, d), zero on padding."""
+        m, n, _ = features.shape
+        h, real_rows = self.rows(features, neighbours, node_mask)
+        return h.new_zeros(m * n, h.shape[-1]).index_copy(0, real_rows, h).view(m, n, -1)
 
 
 class CausalConv(nn.Module):
@@ -167,14 +185,27 @@ class GVN(nn.Module):
         self.attention = nn.Linear(d, 1)
         self.aggregator = nn.Sequential(nn.Linear(2 * d, d), nn.ReLU(), nn.Linear(d, d), nn.ReLU())
 
-    def fragments(self, embeddings: torch.Tensor, node_mask: torch.Tensor,
+    def fragments(self, rows: torch.Tensor, real_rows: torch.Tensor, node_mask: torch.Tensor,
                   choice: torch.Tensor) -> torch.Tensor:
-        """Memory fragments (M, d) from node embeddings (M, N, d) of remembered TERs and
-        the node chosen on each (M,)."""
-        m, n, _ = embeddings.shape
-        chosen = embeddings[torch.arange(m, device=embeddings.device),
-                            choice.long().clamp(0, n - 1)]
-        return self.fragment(torch.cat([masked_mean(embeddings, node_mask), chosen], -1))
+        """Memory fragments (M, d) of M remembered TERs: the mean of their node embeddings
+        beside the embedding of the node chosen on each.
+
+        Args:
+            rows: (R, d) embeddings of the real nodes (:meth:`SpatialEncoder.rows`).
+            real_rows: (R,) their flat indices, graph * N + node.
+            node_mask: (M, N) 1 for real nodes.
+            choice: (M,) the node chosen on each TER (a padding node gives zeros).
+        """
+        m, n = node_mask.shape
+        d = rows.shape[-1]
+        mean = (rows.new_zeros(m, d).index_add(0, real_rows // n, rows)
+                / node_mask.sum(-1, keepdim=True).clamp(min=1.0))
+        position = torch.full((m * n,), len(real_rows), dtype=torch.long,
+                              device=rows.device)
+        position[real_rows] = torch.arange(len(real_rows), device=rows.device)
+        chosen_flat = torch.arange(m, device=rows.device) * n + choice.long().clamp(0, n - 1)
+        chosen = torch.cat([rows, rows.new_zeros(1, d)])[position[chosen_flat]]
+        return self.fragment(torch.cat([mean, chosen], -1))
 
     def memory_from_fragments(self, fragments: torch.Tensor,
                               memory_mask: torch.Tensor) -> torch.Tensor:
@@ -186,9 +217,11 @@ class GVN(nn.Module):
         observation."""
         b, e, n = obs["memory_node_mask"].shape
         node_mask = obs["memory_node_mask"].reshape(b * e, n)
-        r = self.spatial(obs["memory_node_features"].reshape(b * e, n, -1),
-                         obs["memory_neighbours"].reshape(b * e, n, -1), node_mask)
-        frag = self.fragments(r, node_mask, obs["memory_choice"].reshape(b * e)).view(b, e, -1)
+        rows, real_rows = self.spatial.rows(obs["memory_node_features"].reshape(b * e, n, -1),
+                                            obs["memory_neighbours"].reshape(b * e, n, -1),
+                                            node_mask)
+        frag = self.fragments(rows, real_rows, node_mask,
+                              obs["memory_choice"].reshape(b * e)).view(b, e, -1)
         return self.memory_from_fragments(frag, obs["memory_mask"])
 
     def fuse(self, r: torch.Tensor, node_mask: torch.Tensor,
