@@ -144,7 +144,8 @@ def cmd_explore(args: argparse.Namespace) -> int:
     kwargs = {}
     if args.policy is not None:
         if not args.explorer.startswith("gvn"):
-            raise UserInputError("--policy applies to --explorer gvn (or gvn_unmasked) only.")
+            raise UserInputError("--policy applies to the gvn explorers only (gvn, gvn_unmasked, "
+                                 "gvn_naive, gvn_none).")
         kwargs["policy"] = str(args.policy)
     make_explorer(args.explorer, **kwargs)  # Fails early on a bad name or weights file.
     video = _video_config(args) if args.video is not None else None
@@ -315,10 +316,11 @@ def build_parser() -> argparse.ArgumentParser:
     explore.add_argument("--scene", default="office",
                          help="canonical scene name, scene folder, MJCF or map_server YAML")
     explore.add_argument("--explorer", default="nearest",
-                         help="nearest, rrt, potential, oracle, gvn, gvn_unmasked or cnn")
+                         help="nearest, rrt, potential, oracle, cnn or gvn; the masking "
+                         "ablation's gvn_unmasked, gvn_naive, gvn_none")
     explore.add_argument("--policy", type=Path, default=None,
-                         help="weights for --explorer gvn or gvn_unmasked (default: the "
-                         "shipped training/gvn_policy.safetensors)")
+                         help="weights for a gvn explorer (default: the shipped "
+                         "training/gvn*_policy.safetensors it names)")
     explore.add_argument("--seed", type=_seed, default=0)
     explore.add_argument("--out", type=Path, required=True, help="run folder")
     explore.add_argument("--no-mcap", action="store_true", help="do not write episode.mcap")
