@@ -144,8 +144,8 @@ def cmd_explore(args: argparse.Namespace) -> int:
     kwargs = {}
     if args.policy is not None:
         if not args.explorer.startswith("gvn"):
-            raise UserInputError("--policy applies to the gvn explorers only (gvn, gvn_unmasked, "
-                                 "gvn_naive, gvn_none).")
+            raise UserInputError("--policy applies to --explorer gvn, gvn_unmasked, gvn_naive "
+                                 "or gvn_none only.")
         kwargs["policy"] = str(args.policy)
     make_explorer(args.explorer, **kwargs)  # Fails early on a bad name or weights file.
     video = _video_config(args) if args.video is not None else None
