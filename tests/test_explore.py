@@ -129,3 +129,19 @@ def test_mcap_log_reads_back(tmp_path):
     assert counts["/map"] == math.ceil(8.0 / 1.0) + 1
     assert counts["/kinematics"] == len(result.kinematics.t) - 1
     assert max(last.values()) <= 8.0e9 + 1
+
+
+def test_rrt_mean_shift_finds_one_mode_per_cluster():
+    from mjexplore.explorers.rrt import mean_shift
+
+    rng = np.random.default_rng(0)
+    centres = np.array([[1.0, 1.0], [1.25, 1.0], [4.0, 2.0], [8.0, -3.0]])
+    points = np.concatenate([c + rng.normal(0, 0.03, (40, 2)) for c in centres])
+    modes = mean_shift(points, bandwidth=0.3)
+    # The first two clusters lie within the bandwidth: one mode between them.
+    assert len(modes) == 3
+    for c in ([1.125, 1.0], [4.0, 2.0], [8.0, -3.0]):
+        assert np.min(np.hypot(*(modes - c).T)) < 0.15
+    # Kept modes are more than a bandwidth apart.
+    gaps = np.hypot(*(modes[:, None] - modes[None]).transpose(2, 0, 1))
+    assert gaps[~np.eye(len(modes), dtype=bool)].min() > 0.3

@@ -94,11 +94,15 @@ def mean_shift(points: np.ndarray, bandwidth: float, iterations: int = 10) -> np
         d = np.linalg.norm(modes[:, None] - points[None], axis=2)
         w = d <= bandwidth
         modes = (w[:, :, None] * points[None]).sum(axis=1) / w.sum(axis=1)[:, None]
-    out: list[np.ndarray] = []
-    for m in modes:
-        if all(np.hypot(*(m - o)) > bandwidth for o in out):
-            out.append(m)
-    return np.array(out).reshape(-1, 2)
+    # Greedy merge in order: a mode is kept unless an earlier kept one lies within the
+    # bandwidth (one vectorised pass per kept mode).
+    suppressed = np.zeros(len(modes), bool)
+    kept = []
+    while not suppressed.all():
+        i = int(np.argmin(suppressed))
+        kept.append(i)
+        suppressed |= np.hypot(*(modes - modes[i]).T) <= bandwidth
+    return modes[kept].reshape(-1, 2)
 
 
 @register("rrt")
