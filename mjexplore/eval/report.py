@@ -357,13 +357,6 @@ def _section(name: str, summary, groups, figures: Path, rel: str) -> list[str]:
                 _other_ends(groups), ""]
     rename = ABLATION_NAMES if name == "ablation" else None
     lines = [_table(groups, rename), "", _other_ends(groups, rename), ""]
-    if name == "ablation":
-        ran = {m for ms in groups.values() for m in ms}
-        untrained = [m for m in ("gvn_none", "gvn_naive") if m not in ran]
-        lines += [f"- {ABLATION_NAMES[m]} needs its own policy: train it with "
-                  f"`mjexplore train --config training/{m}.yaml --out runs/train/{m}` and "
-                  f"export it to `training/{m}_policy.safetensors` (tools/export_policy.py)."
-                  for m in untrained] + ([""] if untrained else [])
     if name == "table1":
         claims, faster = claims_table(groups)
         if faster:

@@ -53,6 +53,15 @@ class GvnConfig:
     tcn_dilations: tuple[int, ...] = (1, 2, 4)
 
 
+def real_positions(real_rows: torch.Tensor, size: int) -> torch.Tensor:
+    """(size,) map from a flat slot index to its position among ``real_rows`` (R, their
+    count, for padding slots)."""
+    r = len(real_rows)
+    position = torch.full((size,), r, dtype=torch.long, device=real_rows.device)
+    position[real_rows] = torch.arange(r, device=real_rows.device)
+    return position
+
+
 def normalized_adjacency(neighbours: torch.Tensor, real_rows: torch.Tensor) -> torch.Tensor:
     """D^-1/2 (A + I) D^-1/2 of a batch of padded graphs, over their real nodes only.
 
@@ -73,10 +82,8 @@ def normalized_adjacency(neighbours: torch.Tensor, real_rows: torch.Tensor) -> t
     slots = neighbours.reshape(m * n, k)[real_rows].long()  # (R, K)
     edge = slots >= 0
     inv_sqrt = (1.0 + edge.sum(-1).to(torch.float32)).rsqrt()  # Self loop included.
-    # Flat index -> position among the real nodes (R for padding).
-    position = torch.full((m * n,), r, dtype=torch.long, device=device)
-    position[real_rows] = torch.arange(r, device=device)
-    target = position[(real_rows // n)[:, None] * n + slots.clamp(min=0)]
+    neighbour_flat = (real_rows // n)[:, None] * n + slots.clamp(min=0)
+    target = real_positions(real_rows, m * n)[neighbour_flat]
     kept = edge & (target < r)  # An edge to a padding slot joins nothing.
     rows = torch.arange(r, device=device)[:, None].expand(r, k)[kept]
     cols = target[kept]
@@ -200,11 +207,9 @@ class GVN(nn.Module):
         d = rows.shape[-1]
         mean = (rows.new_zeros(m, d).index_add(0, real_rows // n, rows)
                 / node_mask.sum(-1, keepdim=True).clamp(min=1.0))
-        position = torch.full((m * n,), len(real_rows), dtype=torch.long,
-                              device=rows.device)
-        position[real_rows] = torch.arange(len(real_rows), device=rows.device)
         chosen_flat = torch.arange(m, device=rows.device) * n + choice.long().clamp(0, n - 1)
-        chosen = torch.cat([rows, rows.new_zeros(1, d)])[position[chosen_flat]]
+        chosen = torch.cat([rows, rows.new_zeros(1, d)])[real_positions(real_rows, m * n)
+                                                         [chosen_flat]]
         return self.fragment(torch.cat([mean, chosen], -1))
 
     def memory_from_fragments(self, fragments: torch.Tensor,
