@@ -17,6 +17,21 @@ FREE = 0
 OCCUPIED = 100
 
 
+def is_free(values: np.ndarray) -> np.ndarray:
+    """Cell values known to be free (occupancy below 50 %)."""
+    return (values >= 0) & (values < 50)
+
+
+def is_occupied(values: np.ndarray) -> np.ndarray:
+    """Cell values known to be occupied (occupancy 50 % or more)."""
+    return values >= 50
+
+
+def is_known(values: np.ndarray) -> np.ndarray:
+    """Cell values that are not unknown."""
+    return values >= 0
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class GridMap:
     """An occupancy grid in the ``map`` frame.
@@ -52,16 +67,16 @@ class GridMap:
     @property
     def free(self) -> np.ndarray:
         """Boolean mask of cells known to be free (occupancy below 50 %)."""
-        return (self.data >= 0) & (self.data < 50)
+        return is_free(self.data)
 
     @property
     def occupied(self) -> np.ndarray:
         """Boolean mask of cells known to be occupied (occupancy 50 % or more)."""
-        return self.data >= 50
+        return is_occupied(self.data)
 
     @property
     def known(self) -> np.ndarray:
-        return self.data >= 0
+        return is_known(self.data)
 
     def world_to_cell(self, xy: np.ndarray) -> np.ndarray:
         """Maps points (..., 2) in metres to integer (row, col) indices (may be out of bounds)."""

@@ -127,3 +127,46 @@ def test_tracker_with_ground_truth_gain(box_room):
     assert (ter.flags == ROBOT_FLAG).sum() == 1
     with pytest.raises(ValueError):
         TopologyTracker((5, 5), TopologyConfig(gain="ground_truth"))
+
+
+def test_links_go_to_the_nearest_target_a_free_segment_reaches(explored_office):
+    from mjexplore.topology.ter import _link
+
+    mapper, tracker, pose = explored_office
+    grid = mapper.grid
+    free = grid.free
+    targets = grid.cell_to_world(tracker.graph(grid, free).positions)
+    free_cells = np.argwhere(free)
+    some = free_cells[np.random.default_rng(0).choice(len(free_cells), 200, replace=False)]
+    points = np.concatenate([[f.goal for f in tracker.frontiers(grid)], [pose[:2]],
+                             grid.cell_to_world(some)])
+    targets = np.concatenate([targets, targets[:3]])  # Exact ties: the lower index wins.
+
+    def reference(point, k):
+        cell = lambda xy: ((xy - grid.origin[:2]) / grid.resolution - 0.5)[::-1]  # noqa: E731
+        for i in np.argsort(np.linalg.norm(targets - point, axis=1), kind="stable")[:k]:
+            if segment_is_free(free, cell(point), cell(targets[i])):
+                return i
+        return -1
+
+    for k in (1, 3, 8):
+        expected = [reference(p, k) for p in points]
+        assert _link(free, grid, points, targets, k).tolist() == expected
+    assert -1 in [reference(p, 1) for p in points]  # Some nearest targets are hidden.
+    assert (_link(free, grid, points, targets[:0], 8) == -1).all()
+
+
+def test_frontiers_are_found_once_per_map_state(explored_office):
+    from mjexplore.topology.frontiers import find_frontiers
+
+    mapper, _, pose = explored_office
+    tracker = TopologyTracker(mapper.state.shape)
+    tracker.observe(mapper.grid)
+    first = tracker.frontiers(mapper.grid)
+    assert tracker.frontiers(mapper.grid) is first
+    assert tracker.ter(mapper.grid, pose)[1] is first
+    tracker.observe(mapper.grid, np.zeros((0, 2), np.int64))
+    again = tracker.frontiers(mapper.grid)
+    assert again is not first
+    assert [f.goal.tolist() for f in again] == [f.goal.tolist() for f in find_frontiers(
+        mapper.grid)]

@@ -89,6 +89,10 @@ class TerDecisions:
             self.current["neighbours"][:] = -1.0
         return self.memory.observation(self.current)
 
+    def action_positions(self) -> np.ndarray:
+        """(N_max, 2) map-frame positions (m) of the actions: the nodes (padding at 0)."""
+        return self.padded.node_positions
+
     def act(self, action: int) -> tuple[np.ndarray, bool] | None:
         """(goal (x, y), is_waypoint) for a node, or None for a padding slot."""
         p = self.padded
@@ -201,6 +205,10 @@ class GridDecisions:
 
     def observation(self) -> dict[str, np.ndarray]:
         return {"image": self._image.reshape(-1).copy()}
+
+    def action_positions(self) -> np.ndarray:
+        """(K*K, 2) map-frame positions (m) of the actions: the cell centres."""
+        return self.cell_centres(self._state)
 
     def act(self, action: int) -> tuple[np.ndarray, bool] | None:
         """The reachable frontier nearest the chosen cell's centre (never a waypoint)."""

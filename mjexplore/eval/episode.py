@@ -33,7 +33,6 @@ from mjexplore.errors import UserInputError
 from mjexplore.scenes.scene import SceneFiles, check_start
 from mjexplore.sim.kinematics import KinematicsLog
 from mjexplore.sim.simulator import SimConfig, Simulator
-from mjexplore.topology.frontiers import find_frontiers
 from mjexplore.topology.pipeline import TopologyConfig, TopologyTracker
 
 END_REASONS = ("explored", "no_frontiers", "lingering", "tipped_over", "time_limit",
@@ -294,8 +293,7 @@ class Episode:
                                  blacklist_radius=cfg.unreachable_radius,
                                  sensor_range=self.sim.lidar.config.range_max,
                                  extras={"tracker": self.tracker})
-        frontiers = find_frontiers(grid, cfg.topology.frontier_min_size,
-                                   cfg.topology.frontier_max_length)
+        frontiers = self.tracker.frontiers(grid)
         if frontiers:
             allowed = state.allowed([f.goal for f in frontiers])
             state.frontiers = [f for f, ok in zip(frontiers, allowed) if ok]

@@ -53,9 +53,12 @@ class Frontier:
         return len(self.cells)
 
 
-def frontier_mask(grid: GridMap) -> np.ndarray:
-    """Boolean mask of unknown cells with at least one free 4-neighbour."""
-    free = grid.free.astype(np.uint8)
+def frontier_mask(grid: GridMap, free: np.ndarray | None = None) -> np.ndarray:
+    """Boolean mask of unknown cells with at least one free 4-neighbour.
+
+    ``free`` is ``grid.free`` if already computed.
+    """
+    free = (grid.free if free is None else free).astype(np.uint8)
     near_free = cv2.dilate(free, FOUR_NEIGHBOURS, borderType=cv2.BORDER_CONSTANT,
                            borderValue=0).astype(bool)
     return (grid.data < 0) & near_free
@@ -70,15 +73,18 @@ def _split(cells: np.ndarray, max_cells: float) -> list[np.ndarray]:
     return [cells[idx] for idx in np.array_split(order, pieces)]
 
 
-def find_frontiers(grid: GridMap, min_size: int = 3, max_length: float = 2.0) -> list[Frontier]:
+def find_frontiers(grid: GridMap, min_size: int = 3, max_length: float = 2.0,
+                   free: np.ndarray | None = None) -> list[Frontier]:
     """Frontier clusters of a map, in a deterministic order (OpenCV's label order).
 
     Args:
         grid: The partial map.
         min_size: Clusters with fewer cells are noise and dropped.
         max_length: Clusters longer than this (metres) are cut into pieces.
+        free: ``grid.free`` if already computed.
     """
-    mask = frontier_mask(grid)
+    free = grid.free if free is None else free
+    mask = frontier_mask(grid, free)
     flat = np.flatnonzero(mask.reshape(-1))  # Much faster than 2D nonzero on bool.
     if len(flat) == 0:
         return []
@@ -109,7 +115,7 @@ def find_frontiers(grid: GridMap, min_size: int = 3, max_length: float = 2.0) ->
     d2 = ((allc - means[gid]) ** 2).sum(axis=1)
     first = np.lexsort((d2, gid))
     nearest = allc[first[np.r_[0, np.flatnonzero(np.diff(gid[first])) + 1]]]
-    goal_cells = _free_neighbours(grid.free, nearest)
+    goal_cells = _free_neighbours(free, nearest)
     centres = grid.cell_to_world(means)
     goals = grid.cell_to_world(goal_cells)
     return [Frontier(group, centres[i], (int(goal_cells[i, 0]), int(goal_cells[i, 1])),

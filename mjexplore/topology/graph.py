@@ -243,7 +243,8 @@ class GvdGraph:
 
 
 @numba.njit(cache=True)
-def _segment_free(free, r0, c0, r1, c1):
+def segment_free_cells(free, r0, c0, r1, c1):
+    """Kernel of :func:`segment_is_free` for other numba code (float cell coordinates)."""
     n = int(math.ceil(2.0 * max(abs(r1 - r0), abs(c1 - c0)))) + 1
     rows, cols = free.shape
     for i in range(n + 1):
@@ -258,7 +259,7 @@ def _segment_free(free, r0, c0, r1, c1):
 def segment_is_free(free: np.ndarray, a: np.ndarray, b: np.ndarray) -> bool:
     """True if every cell the straight segment from cell ``a`` to ``b`` (row, col, cell
     centres at integers) passes through is free, sampled every half cell."""
-    return bool(_segment_free(free, float(a[0]), float(a[1]), float(b[0]), float(b[1])))
+    return bool(segment_free_cells(free, float(a[0]), float(a[1]), float(b[0]), float(b[1])))
 
 
 def build_graph(voronoi: np.ndarray, distance2: np.ndarray, free: np.ndarray,
@@ -399,7 +400,7 @@ def _subdivide_edges(pos, clear, ea, eb, ptr, path, alive, dist2, free, cols, ma
             pa, pb = out_pos[va], out_pos[vb]
             span = math.hypot(pb[0] - pa[0], pb[1] - pa[1])
             if i1 - i0 <= 1 or (span <= max_side and va != vb and
-                                _segment_free(free, pa[0], pa[1], pb[0], pb[1])):
+                                segment_free_cells(free, pa[0], pa[1], pb[0], pb[1])):
                 if va != vb:
                     edges[n_edges, 0] = min(va, vb)
                     edges[n_edges, 1] = max(va, vb)

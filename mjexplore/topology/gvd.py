@@ -310,13 +310,28 @@ class DynamicGVD:
         """
         obst_flat = np.ascontiguousarray(obstacles).reshape(-1)
         dom_flat = (np.ones_like(obst_flat) if domain is None else
-                    np.ascontiguousarray(domain).reshape(-1) | obst_flat)
+                    np.ascontiguousarray(domain).reshape(-1))
         if cells is None:
             cells = np.flatnonzero((obst_flat != self._occ.astype(bool)) |
-                                   (dom_flat != self._domain.astype(bool)))
+                                   ((dom_flat | obst_flat) != self._domain.astype(bool)))
         cells = np.asarray(cells, np.int64)
-        want_obst = obst_flat[cells]
-        want_dom = dom_flat[cells]
+        return self.update_cells(cells, obst_flat[cells], dom_flat[cells])
+
+    def update_cells(self, cells: np.ndarray, obstacle: np.ndarray, domain: np.ndarray) -> int:
+        """:meth:`update` given only the cells that may have changed and their new state.
+
+        Costs nothing per map cell, only per cell given.
+
+        Args:
+            cells: Flat indices (int64) of the cells.
+            obstacle: Bool per cell, True if it is now an obstacle.
+            domain: Bool per cell, True if the field now covers it (obstacles always do).
+
+        Returns:
+            Number of cells whose distance or nearest obstacle changed.
+        """
+        want_obst = obstacle
+        want_dom = domain | obstacle
         occ = self._occ[cells] == 1
         dom = self._domain[cells] == 1
         to_set = cells[want_obst & ~occ]

@@ -19,9 +19,9 @@ import dataclasses
 
 import numpy as np
 
-from mjexplore.maps import GridMap
-from mjexplore.topology.frontiers import (estimated_information_gain, find_frontiers,
-                                          information_gain)
+from mjexplore.maps import GridMap, is_known, is_occupied
+from mjexplore.topology.frontiers import (Frontier, estimated_information_gain,
+                                          find_frontiers, information_gain)
 from mjexplore.topology.graph import GraphConfig, GvdGraph, build_graph
 from mjexplore.topology.gvd import DynamicGVD
 from mjexplore.topology.ter import Ter, TerConfig, build_ter
@@ -69,6 +69,7 @@ class TopologyTracker:
             raise ValueError("ground-truth information gain needs the ground truth map")
         self.ground_truth = ground_truth
         self.gvd = DynamicGVD(shape)
+        self._frontiers: list[Frontier] | None = None  # Of the map as last observed.
 
     def observe(self, grid: GridMap, changed: np.ndarray | None = None) -> int:
         """Updates the GVD after the map changed.
@@ -81,10 +82,24 @@ class TopologyTracker:
         Returns:
             Number of cells whose distance field changed.
         """
-        cells = None
-        if changed is not None:
-            cells = changed[:, 0] * grid.shape[1] + changed[:, 1]
-        return self.gvd.update(grid.occupied, grid.known, cells)
+        self._frontiers = None
+        if changed is None:
+            return self.gvd.update(grid.occupied, grid.known)
+        cells = changed[:, 0].astype(np.int64) * grid.shape[1] + changed[:, 1]
+        values = grid.data.reshape(-1)[cells]
+        return self.gvd.update_cells(cells, is_occupied(values), is_known(values))
+
+    def frontiers(self, grid: GridMap, free: np.ndarray | None = None) -> list[Frontier]:
+        """The map's frontiers (:func:`find_frontiers` with the configured sizes).
+
+        Found once per map state: kept until the next :meth:`observe`, so the explorer's
+        view and the TER of one decision share them.
+        """
+        if self._frontiers is None:
+            cfg = self.config
+            self._frontiers = find_frontiers(grid, cfg.frontier_min_size,
+                                             cfg.frontier_max_length, free)
+        return self._frontiers
 
     def graph(self, grid: GridMap, free: np.ndarray | None = None) -> GvdGraph:
         """The GVD graph; ``free`` is ``grid.free`` if already computed."""
@@ -100,12 +115,12 @@ class TopologyTracker:
             gain (as configured).
         """
         cfg = self.config
-        frontiers = find_frontiers(grid, cfg.frontier_min_size, cfg.frontier_max_length)
+        free = grid.free
+        frontiers = self.frontiers(grid, free)
         if cfg.gain == "ground_truth":
             gains = information_gain(grid, self.ground_truth, frontiers)
         else:
             gains = estimated_information_gain(grid, frontiers, cfg.gain_radius)
-        free = grid.free
         ter = build_ter(self.graph(grid, free), grid, frontiers, gains, robot_pose, cfg.ter,
                         free)
         return ter, frontiers, gains

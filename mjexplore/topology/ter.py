@@ -30,13 +30,14 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numba
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from mjexplore.maps import GridMap
 from mjexplore.topology.frontiers import Frontier
-from mjexplore.topology.graph import GvdGraph, segment_is_free
+from mjexplore.topology.graph import GvdGraph, segment_free_cells
 
 ROBOT_FLAG, FRONTIER_FLAG, OTHER_FLAG = 0.0, 1.0, -1.0
 NUM_FEATURES = 6
@@ -145,18 +146,36 @@ class Ter:
                          action_mask, positions)
 
 
-def _link(free: np.ndarray, grid: GridMap, point: np.ndarray, targets: np.ndarray,
-          k: int) -> int:
-    """Index of the nearest target (map-frame points) joined to ``point`` by a free segment."""
+@numba.njit(cache=True)
+def _link_many(free, points, targets, origin_x, origin_y, resolution, k):
+    out = np.full(len(points), -1, np.int64)
     if len(targets) == 0:
-        return -1
-    d = np.linalg.norm(targets - point, axis=1)
-    a = (point - grid.origin[:2]) / grid.resolution - 0.5
-    for i in np.argsort(d, kind="stable")[:k]:
-        b = (targets[i] - grid.origin[:2]) / grid.resolution - 0.5
-        if segment_is_free(free, a[::-1], b[::-1]):
-            return int(i)
-    return -1
+        return out
+    for m in range(len(points)):
+        dx = targets[:, 0] - points[m, 0]
+        dy = targets[:, 1] - points[m, 1]
+        order = np.argsort(np.sqrt(dx * dx + dy * dy), kind="mergesort")
+        r0 = (points[m, 1] - origin_y) / resolution - 0.5
+        c0 = (points[m, 0] - origin_x) / resolution - 0.5
+        for j in range(min(k, len(targets))):
+            i = order[j]
+            r1 = (targets[i, 1] - origin_y) / resolution - 0.5
+            c1 = (targets[i, 0] - origin_x) / resolution - 0.5
+            if segment_free_cells(free, r0, c0, r1, c1):
+                out[m] = i
+                break
+    return out
+
+
+def _link(free: np.ndarray, grid: GridMap, points: np.ndarray, targets: np.ndarray,
+          k: int) -> np.ndarray:
+    """For each of ``points`` (m, 2), the index of the nearest of ``targets`` (map-frame
+    points, metres) among the ``k`` nearest that a free straight segment joins it to; -1
+    if none. Ties in distance go to the lower index."""
+    points = np.ascontiguousarray(points, np.float64).reshape(-1, 2)
+    targets = np.ascontiguousarray(targets, np.float64).reshape(-1, 2)
+    return _link_many(free, points, targets, float(grid.origin[0]), float(grid.origin[1]),
+                      float(grid.resolution), int(k))
 
 
 def build_ter(graph: GvdGraph, grid: GridMap, frontiers: list[Frontier], gains: np.ndarray,
@@ -178,7 +197,7 @@ def build_ter(graph: GvdGraph, grid: GridMap, frontiers: list[Frontier], gains: 
     robot_xy = np.asarray(robot_pose[:2], float)
     gvd_xy = grid.cell_to_world(graph.positions) if len(graph.positions) else np.zeros((0, 2))
     # Keep the GVD component the robot joins; other pieces are out of the robot's reach.
-    anchor = _link(free, grid, robot_xy, gvd_xy, config.max_link_candidates)
+    anchor = int(_link(free, grid, robot_xy, gvd_xy, config.max_link_candidates)[0])
     keep = np.zeros(len(gvd_xy), bool)
     if anchor >= 0:
         n = len(gvd_xy)
@@ -195,15 +214,12 @@ def build_ter(graph: GvdGraph, grid: GridMap, frontiers: list[Frontier], gains: 
     flags = [np.full(n_gvd, OTHER_FLAG), np.array([ROBOT_FLAG])]
     new_edges = [(int(index[anchor]), robot)] if anchor >= 0 else []
     frontier_index = [np.full(n_gvd + 1, -1)]
-    kept = []
-    for i, f in enumerate(frontiers):
-        j = _link(free, grid, f.goal, gvd_xy, config.max_link_candidates)
-        if j < 0 and _link(free, grid, f.goal, robot_xy[None], 1) == 0:
-            j = robot
-        if j < 0:
-            continue
-        new_edges.append((j, n_gvd + 1 + len(kept)))
-        kept.append(i)
+    goals = np.array([f.goal for f in frontiers], float).reshape(-1, 2)
+    link = _link(free, grid, goals, gvd_xy, config.max_link_candidates)
+    sees_robot = _link(free, grid, goals[link < 0], robot_xy[None], 1) == 0
+    link[np.flatnonzero(link < 0)[sees_robot]] = robot
+    kept = np.flatnonzero(link >= 0).tolist()
+    new_edges += [(int(link[i]), n_gvd + 1 + n) for n, i in enumerate(kept)]
     if kept:
         positions.append(np.array([frontiers[i].goal for i in kept]))
         flags.append(np.full(len(kept), FRONTIER_FLAG))

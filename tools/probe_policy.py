@@ -1,0 +1,94 @@
+"""How much a trained policy has learned: it against chance and a greedy rule, same layouts.
+
+Runs whole episodes of the training env of a config (its decision space, reward, procedural
+layouts and training-mode dynamics) on held-out seeds with three ways to choose each action:
+
+* ``policy``: the trained policy, its most probable valid action (as the explorers use it);
+* ``random``: a valid action drawn uniformly (what an untrained policy amounts to);
+* ``greedy``: the valid action placed nearest the robot (for the grid decisions, the cell
+  nearest the robot, i.e. roughly the nearest frontier; for TER nodes, the nearest node).
+
+Every mode sees the same layouts and start poses (episode seed ``--seed-base + i``; training
+draws its layouts from the config's seed, so these are unseen layouts of the same
+distribution). Prints one JSON line: per mode the mean return, simulated exploration time
+(s), path length (m) and how many episodes were explored, and ``learned_fraction``, where
+the policy's mean return lies between random (0) and greedy (1).
+
+Usage: python tools/probe_policy.py --config training/cnn.yaml \
+    --weights training/cnn_policy.safetensors [--episodes 10] [--workers 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+
+MODES = ("policy", "random", "greedy")
+
+
+def _episode(job: tuple[str, str, str, int]) -> dict:
+    import numpy as np
+    import torch
+
+    from mjexplore.envs import ExplorationEnv
+    from mjexplore.policies.weights import load_policy
+    from mjexplore.training import load_train_config
+
+    config_path, weights, mode, seed = job
+    torch.set_num_threads(1)
+    config = load_train_config(config_path)
+    env = ExplorationEnv(config.env)
+    policy = load_policy(weights, expected_kind=config.kind)[0] if mode == "policy" else None
+    rng = np.random.default_rng(seed)
+    obs, info = env.reset(seed=seed)
+    total = 0.0
+    done = info["end_reason"] is not None
+    while not done:
+        mask = env.action_masks()
+        if mode == "policy":
+            action, _ = policy.predict(obs, deterministic=True, action_masks=mask)
+        elif mode == "random":
+            action = rng.choice(np.flatnonzero(mask))
+        else:
+            distance = np.linalg.norm(env.decisions.action_positions()
+                                      - env.episode.sim.pose[:2], axis=1)
+            action = np.argmin(np.where(mask, distance, np.inf))
+        obs, reward, terminated, truncated, info = env.step(int(action))
+        total += reward
+        done = terminated or truncated
+    metrics = env.episode.result().metrics
+    return {"mode": mode, "seed": seed, "return": total,
+            "exploration_time_s": metrics["exploration_time_s"],
+            "path_length_m": metrics["path_length_m"],
+            "explored": metrics["end_reason"] == "explored"}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--config", required=True, help="training YAML (its env is used)")
+    parser.add_argument("--weights", required=True, help="exported policy (.safetensors)")
+    parser.add_argument("--episodes", type=int, default=10)
+    parser.add_argument("--seed-base", type=int, default=10_000)
+    parser.add_argument("--workers", type=int, default=2)
+    args = parser.parse_args()
+
+    jobs = [(args.config, args.weights, mode, args.seed_base + i)
+            for i in range(args.episodes) for mode in MODES]
+    with mp.get_context("spawn").Pool(args.workers) as pool:
+        rows = pool.map(_episode, jobs, chunksize=1)
+    figures: dict = {"config": args.config, "weights": args.weights,
+                     "episodes": args.episodes, "seed_base": args.seed_base}
+    for mode in MODES:
+        mine = [r for r in rows if r["mode"] == mode]
+        for key in ("return", "exploration_time_s", "path_length_m"):
+            figures[f"{mode}_{key}"] = round(sum(r[key] for r in mine) / len(mine), 3)
+        figures[f"{mode}_explored"] = sum(r["explored"] for r in mine)
+    span = figures["greedy_return"] - figures["random_return"]
+    figures["learned_fraction"] = (round((figures["policy_return"] - figures["random_return"])
+                                         / span, 3) if span else None)
+    print(json.dumps(figures))
+
+
+if __name__ == "__main__":
+    main()
