@@ -18,7 +18,7 @@ import numpy as np
 from mjexplore.heap import pop as _heap_pop
 from mjexplore.heap import push as _heap_push
 
-from mjexplore.maps import GridMap
+from mjexplore.maps import GridMap, is_free
 
 _DR = np.array([-1, -1, -1, 0, 0, 1, 1, 1], np.int64)
 _DC = np.array([-1, 0, 1, -1, 1, -1, 0, 1], np.int64)
@@ -104,10 +104,29 @@ def _search(cost, start, goal, rows, cols, heuristic_weight, dist, parent, stamp
 
 
 @numba.njit(cache=True)
+def _trace_back(parent, start, goal):
+    """Cells from ``start`` to ``goal`` following ``parent`` links back from the goal."""
+    n = 1
+    c = goal
+    while c != start:
+        c = parent[c]
+        n += 1
+    out = np.empty(n, np.int64)
+    c = goal
+    for i in range(n - 1, -1, -1):
+        out[i] = c
+        if i > 0:
+            c = parent[c]
+    return out
+
+
+@numba.njit(cache=True)
 def _update_cost(cost, cells, free, dist2, resolution, lethal, soft, penalty):
-    for c in cells:
+    """Costs of ``cells``; ``free[i]`` says whether ``cells[i]`` is known free."""
+    for i in range(len(cells)):
+        c = cells[i]
         d = math.sqrt(dist2[c]) * resolution
-        if not free[c] or d < lethal:
+        if not free[i] or d < lethal:
             cost[c] = -1.0
         else:
             x = (soft - d) / (soft - lethal)
@@ -147,8 +166,8 @@ class Costmap:
     def update(self, cells: np.ndarray | None) -> None:
         """Recomputes the cost of ``cells`` (flat indices); None: every cell."""
         cfg = self.config
-        free = (self.grid.data.reshape(-1) >= 0) & (self.grid.data.reshape(-1) < 50)
         cells = np.arange(self.cost.size) if cells is None else np.asarray(cells, np.int64)
+        free = is_free(self.grid.data.reshape(-1)[cells])
         _update_cost(self.cost, cells, free, self._dist2, self.grid.resolution,
                      cfg.lethal_radius, cfg.soft_radius, cfg.wall_penalty)
 
@@ -220,10 +239,8 @@ class Costmap:
         self._run(start, goal)
         if self._stamp[goal] != -self._search_id:
             return None
-        cells = [goal]
-        while cells[-1] != start:
-            cells.append(int(self._parent[cells[-1]]))
-        rc = np.column_stack(np.divmod(np.array(cells[::-1]), self.grid.shape[1]))
+        cells = _trace_back(self._parent, start, goal)
+        rc = np.column_stack(np.divmod(cells, self.grid.shape[1]))
         return self.grid.cell_to_world(rc)
 
 
