@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import cv2
 import numpy as np
 
 UNKNOWN = -1
@@ -30,6 +31,19 @@ def is_occupied(values: np.ndarray) -> np.ndarray:
 def is_known(values: np.ndarray) -> np.ndarray:
     """Cell values that are not unknown."""
     return values >= 0
+
+
+def window_counts(mask: np.ndarray, cells: np.ndarray, half: int) -> np.ndarray:
+    """True cells of ``mask`` in the (2 half + 1)-cell square around each (row, col) of
+    ``cells`` (k, 2), the square clipped to the grid; one integral image for all."""
+    integral = cv2.integral(mask.astype(np.uint8), sdepth=cv2.CV_32S)  # (rows + 1, cols + 1)
+    rows, cols = mask.shape
+    cells = np.asarray(cells).reshape(-1, 2)
+    r0 = np.clip(cells[:, 0] - half, 0, rows)
+    r1 = np.clip(cells[:, 0] + half + 1, 0, rows)
+    c0 = np.clip(cells[:, 1] - half, 0, cols)
+    c1 = np.clip(cells[:, 1] + half + 1, 0, cols)
+    return integral[r1, c1] - integral[r0, c1] - integral[r1, c0] + integral[r0, c0]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -83,3 +83,16 @@ def test_estimated_gain_is_unknown_share_of_window():
     gain = estimated_information_gain(g, fronts, radius=0.5)
     # The 11 x 11 window spans columns 6..16, of which 11..16 (6 columns) are unknown.
     assert gain[0] == pytest.approx(6 * 11 / 121)
+
+
+def test_window_counts_match_the_clipped_windows():
+    from mjexplore.maps import window_counts
+
+    rng = np.random.default_rng(0)
+    mask = rng.random((23, 31)) < 0.3
+    cells = np.column_stack([rng.integers(0, 23, 200), rng.integers(0, 31, 200)])
+    cells[:4] = [(0, 0), (22, 30), (0, 30), (22, 0)]  # Windows cut by every border.
+    for half in (1, 3, 40):
+        expected = [mask[max(r - half, 0):r + half + 1, max(c - half, 0):c + half + 1].sum()
+                    for r, c in cells]
+        assert window_counts(mask, cells, half).tolist() == expected

@@ -20,6 +20,7 @@ import numba
 import numpy as np
 
 from mjexplore.explorers.base import ExplorationState, register
+from mjexplore.maps import window_counts
 
 FREE_RUN, HIT_OBSTACLE, HIT_UNKNOWN = 0, 1, 2
 
@@ -163,8 +164,7 @@ class RRTExplorer:
         if len(self.points):
             cells = grid.world_to_cell(self.points)
             k = max(1, int(round(0.2 / grid.resolution)))
-            keep = np.array([(grid.data[max(r - k, 0):r + k + 1, max(c - k, 0):c + k + 1] < 0).any()
-                             for r, c in cells])
+            keep = window_counts(grid.data < 0, cells, k) > 0
             self.points = self.points[keep]
         detected = mean_shift(self.points, self.bandwidth) if len(self.points) else np.zeros((0, 2))
         frontier_goals = np.array([f.goal for f in state.frontiers]).reshape(-1, 2)

@@ -25,7 +25,7 @@ import dataclasses
 import cv2
 import numpy as np
 
-from mjexplore.maps import GridMap
+from mjexplore.maps import GridMap, window_counts
 
 FOUR_NEIGHBOURS = np.array([[0, 1, 0], [1, 0, 1], [0, 1, 0]], np.uint8)
 EIGHT_NEIGHBOURS = np.ones((3, 3), np.uint8)
@@ -171,14 +171,7 @@ def estimated_information_gain(grid: GridMap, frontiers: list[Frontier],
     """
     if not frontiers:
         return np.zeros(0)
-    unknown = (grid.data < 0).astype(np.uint8)
-    integral = cv2.integral(unknown, sdepth=cv2.CV_32S)  # (rows + 1, cols + 1)
     k = max(1, int(round(radius / grid.resolution)))
-    rows, cols = unknown.shape
     centres = grid.world_to_cell(np.array([f.centre for f in frontiers]))
-    r0 = np.clip(centres[:, 0] - k, 0, rows)
-    r1 = np.clip(centres[:, 0] + k + 1, 0, rows)
-    c0 = np.clip(centres[:, 1] - k, 0, cols)
-    c1 = np.clip(centres[:, 1] + k + 1, 0, cols)
-    counts = integral[r1, c1] - integral[r0, c1] - integral[r1, c0] + integral[r0, c0]
+    counts = window_counts(grid.data < 0, centres, k)
     return counts / float((2 * k + 1) ** 2)
