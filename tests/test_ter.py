@@ -170,3 +170,7 @@ def test_frontiers_are_found_once_per_map_state(explored_office):
     assert again is not first
     assert [f.goal.tolist() for f in again] == [f.goal.tolist() for f in find_frontiers(
         mapper.grid)]
+    assert tracker.frontiers(mapper.grid) is again
+    copy = mapper.grid.data.copy()
+    copy[copy < 0] = 0  # Another map: everything known, no frontier left.
+    assert tracker.frontiers(type(mapper.grid)(copy, mapper.grid.resolution)) == []

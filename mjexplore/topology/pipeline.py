@@ -69,7 +69,8 @@ class TopologyTracker:
             raise ValueError("ground-truth information gain needs the ground truth map")
         self.ground_truth = ground_truth
         self.gvd = DynamicGVD(shape)
-        self._frontiers: list[Frontier] | None = None  # Of the map as last observed.
+        self._frontiers: list[Frontier] | None = None  # Of the map as last observed...
+        self._frontiers_of: np.ndarray | None = None  # ...whose cell array is this one.
 
     def observe(self, grid: GridMap, changed: np.ndarray | None = None) -> int:
         """Updates the GVD after the map changed.
@@ -92,13 +93,14 @@ class TopologyTracker:
     def frontiers(self, grid: GridMap, free: np.ndarray | None = None) -> list[Frontier]:
         """The map's frontiers (:func:`find_frontiers` with the configured sizes).
 
-        Found once per map state: kept until the next :meth:`observe`, so the explorer's
-        view and the TER of one decision share them.
+        Found once per map state: kept until the next :meth:`observe` (or a call with
+        another map), so the explorer's view and the TER of one decision share them.
         """
-        if self._frontiers is None:
+        if self._frontiers is None or grid.data is not self._frontiers_of:
             cfg = self.config
             self._frontiers = find_frontiers(grid, cfg.frontier_min_size,
                                              cfg.frontier_max_length, free)
+            self._frontiers_of = grid.data
         return self._frontiers
 
     def graph(self, grid: GridMap, free: np.ndarray | None = None) -> GvdGraph:
