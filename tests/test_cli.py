@@ -88,6 +88,11 @@ BAD = {
         p / "c.yaml", "policy: {masking: maybe}\n")), "--out", str(p / "o")],
     "train bad env": lambda p: ["train", "--config", str(_write(
         p / "c.yaml", "env: {scenes: [], valid_actions: all_nodes}\n")), "--out", str(p / "o")],
+    "train bad episode rate": lambda p: ["train", "--config", str(_write(
+        p / "c.yaml", "env: {episode: {control_rate_hz: -10.0}}\n")), "--out", str(p / "o")],
+    "train bad replan rate": lambda p: ["train", "--config", str(_write(
+        p / "c.yaml", "env: {episode: {navigator: {replan_rate_hz: 0.0}}}\n")), "--out",
+        str(p / "o")],
     "train yaml syntax": lambda p: ["train", "--config", str(_write(p / "c.yaml", "ppo: [1,\n")),
                                     "--out", str(p / "o")],
     "train resume nothing": lambda p: ["train", "--config", str(_write(p / "c.yaml", "seed: 1\n")),

@@ -14,6 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from mjexplore.errors import UserInputError
 from mjexplore.eval.episode import Episode, EpisodeConfig
 from mjexplore.explorers import make_explorer
 from mjexplore.maps import FREE, OCCUPIED, GridMap
@@ -85,6 +86,7 @@ def test_sigint_during_explore_leaves_a_complete_readable_run(tmp_path):
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["end_reason"] == "interrupted"
     assert 0 < metrics["exploration_time_s"] < 900
+    assert (out / "ter.png").stat().st_size > 0  # The stills of the run so far too.
     with open(out / "episode.mcap", "rb") as f:
         messages = sum(1 for _ in make_reader(f).iter_messages())
     assert messages > 10
@@ -136,6 +138,36 @@ def test_a_failing_episode_does_not_end_the_sweep(tmp_path, monkeypatch):
     failure = json.loads((tmp_path / "runs" / "train_loop" / "nearest" /
                           "seed1.failed.json").read_text())
     assert "solver diverged" in failure["error"]
+
+
+def test_a_resumed_sweep_reruns_interrupted_episodes_and_refuses_other_settings(tmp_path):
+    from mjexplore.eval import sweep
+
+    config = EpisodeConfig(max_time=5.0)
+    sweep.run_sweep(["train_loop"], ["nearest"], [0, 1], tmp_path, config, workers=1,
+                    progress=False)
+    cut = tmp_path / "runs" / "train_loop" / "nearest" / "seed1" / "metrics.json"
+    whole = json.loads(cut.read_text())
+    cut.write_text(json.dumps({**whole, "end_reason": "interrupted",
+                               "exploration_time_s": 1.0}))  # As Ctrl-C leaves it.
+    results = sweep.run_sweep(["train_loop"], ["nearest"], [0, 1], tmp_path, config,
+                              workers=1, progress=False)
+    assert json.loads(cut.read_text()) == whole  # Run again, to its end.
+    assert "interrupted" not in {r["end_reason"] for r in results}
+    with pytest.raises(UserInputError, match="other episode settings"):
+        sweep.run_sweep(["train_loop"], ["nearest"], [0], tmp_path,
+                        EpisodeConfig(max_time=4.0), workers=1, progress=False)
+
+
+def test_scenes_that_would_share_run_folders_are_refused(tmp_path):
+    from mjexplore.eval.sweep import run_sweep, scene_label
+
+    xml = str(resolve_scene("train_loop").xml)
+    assert scene_label(xml) == "train_loop" and scene_label("maze") == "maze"
+    with pytest.raises(UserInputError, match="share the run folders"):
+        run_sweep([xml, "train_loop"], ["nearest"], [0], tmp_path / "o",
+                  EpisodeConfig(max_time=1.0), workers=1, progress=False)
+    assert not (tmp_path / "o").exists()
 
 
 @settings(max_examples=15, deadline=None)

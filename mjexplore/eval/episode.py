@@ -76,6 +76,14 @@ class EpisodeConfig:
     def __post_init__(self) -> None:
         if self.mapping_pose not in ("ground_truth", "odometry"):
             raise ValueError("mapping_pose must be 'ground_truth' or 'odometry'")
+        if not (self.max_time > 0 and self.control_rate_hz > 0):
+            raise ValueError("max_time and control_rate_hz must be > 0")
+        if not 0 < self.target_ratio <= 1:
+            raise ValueError("target_ratio must be in (0, 1]")
+        if self.unreachable_radius < 0 or self.progress_timeout <= 0 or min(
+                self.start_jitter) < 0:
+            raise ValueError("unreachable_radius and start_jitter must be >= 0, "
+                             "progress_timeout > 0")
 
 
 @dataclasses.dataclass
@@ -103,6 +111,10 @@ def first_time_at(curve: np.ndarray, level: float) -> float | None:
     return round(float(curve[hit[0], 0]), 3) if len(hit) else None
 
 
+# Exploration ratios whose first times are metrics (the paper's Fig. 5), and their keys.
+MILESTONES = ((0.80, "t80_s"), (0.985, "t985_s"))
+
+
 def episode_metrics(curve: np.ndarray, log: KinematicsLog, final_iou: float,
                     collisions: int, end_reason: str) -> dict[str, Any]:
     """The paper's metrics from an episode's records (all times simulated).
@@ -121,8 +133,7 @@ def episode_metrics(curve: np.ndarray, log: KinematicsLog, final_iou: float,
         "exploration_time_s": round(t_end, 3),
         "path_length_m": round(path, 3),
         "odometry_path_length_m": round(float(np.linalg.norm(np.diff(odom, axis=0), axis=1).sum()), 3),
-        "t80_s": first_time_at(curve, 0.80),
-        "t985_s": first_time_at(curve, 0.985),
+        **{key: first_time_at(curve, level) for level, key in MILESTONES},
         "collisions": int(collisions),
         "end_reason": end_reason,
         "mean_speed_mps": round(path / t_end, 4) if t_end > 0 else 0.0,

@@ -32,9 +32,16 @@ def resample(curve: np.ndarray, times: np.ndarray) -> np.ndarray:
 
 
 def ratio_figure(curves: dict[str, list[np.ndarray]], path: str | os.PathLike,
-                 title: str = "", marks: tuple[float, ...] = (0.80, 0.985)) -> None:
+                 title: str = "", marks: tuple[float, ...] = (0.80, 0.985),
+                 mark_times: dict[str, dict[float, list[float]]] | None = None) -> None:
     """Mean (line) and spread (min-max band) of the exploration ratio over time per method,
-    with the mean times to each of ``marks`` shown as dotted lines."""
+    with the mean times to each of ``marks`` shown as dotted lines.
+
+    Args:
+        mark_times: Per method and mark, the runs' times to reach it (the runs that did),
+            when the curves are too coarse to read them off (resampled summaries); by
+            default they are read off the curves.
+    """
     fig, ax = plt.subplots(figsize=(7, 4))
     t_end = max(c[-1, 0] for runs in curves.values() for c in runs)
     times = np.linspace(0, t_end, 400)
@@ -44,7 +51,8 @@ def ratio_figure(curves: dict[str, list[np.ndarray]], path: str | os.PathLike,
         ax.plot(times, values.mean(axis=0), label=method, color=colour)
         ax.fill_between(times, values.min(axis=0), values.max(axis=0), alpha=0.15, color=colour)
         for level in marks:
-            hits = [c[np.argmax(c[:, 1] >= level), 0] for c in runs if (c[:, 1] >= level).any()]
+            hits = (mark_times[method][level] if mark_times is not None else
+                    [c[np.argmax(c[:, 1] >= level), 0] for c in runs if (c[:, 1] >= level).any()])
             if hits:
                 ax.axvline(float(np.mean(hits)), color=colour, ls=":", lw=0.8)
     for level in marks:

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from mjexplore.errors import UserInputError
+from mjexplore.eval.episode import MILESTONES
 from mjexplore.eval.plots import kinematics_figure, ratio_figure
 from mjexplore.eval.summaries import KINEMATIC_FIELDS, KINEMATICS_DT, ratio_curve, read_summary
 from mjexplore.eval.sweep import MEAN_STD_NOTE, format_mean_std, markdown_table, summary_table
@@ -248,7 +249,7 @@ def relative_table(groups, baseline: str = "nearest") -> str:
                 pl.append(_ratio_of_means(ms[m], ms[baseline], "path_length_m"))
                 n += sum(r["metrics"]["end_reason"] == "explored" for r in ms[m])
         if et:
-            runs = sum(len(ms.get(m, [])) for ms in groups.values())
+            runs = sum(len(ms[m]) for ms in groups.values() if m in ms and baseline in ms)
             rows.append([m, len(et), f"{n}/{runs}", f"{np.mean(et):.3f}", f"{np.mean(pl):.3f}"])
     return markdown_table(["method", "maps", "explored", f"ET / {baseline} ET",
                            f"PL / {baseline} PL"], rows)
@@ -369,8 +370,13 @@ def _section(name: str, summary, groups, figures: Path, rel: str) -> list[str]:
     if name in ("table1", "lobby_real"):
         for scene, methods in groups.items():
             fig = f"{name}_ratio_{scene}.png"
+            reached = {m: {level: [r["metrics"][key] for r in runs
+                                   if r["metrics"][key] is not None]
+                           for level, key in MILESTONES}
+                       for m, runs in methods.items()}
             ratio_figure({m: [ratio_curve(r) for r in runs] for m, runs in methods.items()},
-                         figures / fig, f"{scene}: exploration ratio over time")
+                         figures / fig, f"{scene}: exploration ratio over time",
+                         mark_times=reached)
             lines += [f"![{scene}: exploration ratio]({rel}/{fig})", ""]
     if name == "lobby_real":
         for scene, methods in groups.items():

@@ -70,14 +70,19 @@ def run_episode(scene: SceneFiles, explorer: str, seed: int, config: EpisodeConf
     observers = Observers(McapEpisodeLog(mcap_path) if mcap_path is not None else None, film)
     episode = Episode(scene, make_explorer(explorer, **(explorer_kwargs or {})), seed, config,
                       observer=observers)
+    interrupted = None
     try:
         result = episode.run()
+    except Interrupted as exc:  # Stills of the run so far, then on up.
+        interrupted, result = exc, exc.result
     finally:
         observers.close()  # Also on Ctrl-C: the MCAP and video are finished, readable files.
     if stills_dir is not None:
         from mjexplore.render.recorder import write_stills
 
         write_stills(episode, stills_dir, title, render_3d=video_path is not None)
+    if interrupted is not None:
+        raise interrupted
     return result
 
 

@@ -1,6 +1,6 @@
 """Compact, committable summaries of benchmark sweeps, the input of the results report.
 
-A sweep's run folders hold megabytes per episode (10 Hz kinematics, 0.1 s ratio curves,
+A sweep's run folders hold megabytes per episode (20 Hz kinematics, 0.1 s ratio curves,
 figures). ``collect_sweep`` keeps what the report needs from each episode: its metrics, the
 exploration ratio resampled every ``RATIO_DT`` simulated seconds, kinematic smoothness
 statistics and, on request, the velocity and acceleration as ``KINEMATICS_DT``-second bin
@@ -233,9 +233,14 @@ def read_summary(path: str | os.PathLike) -> dict[str, Any]:
 
 
 def ratio_curve(run: dict[str, Any]) -> np.ndarray:
-    """A stored run's exploration ratio as (N, 2) rows of (t s, ratio)."""
+    """A stored run's exploration ratio as (N, 2) rows of (t s, ratio), ending with the
+    episode's final ratio at its end time (between two stored samples)."""
     values = np.asarray(run["ratio"]["values"], dtype=float)
-    return np.column_stack([np.arange(len(values)) * run["ratio"]["dt"], values])
+    curve = np.column_stack([np.arange(len(values)) * run["ratio"]["dt"], values])
+    t_end = float(run["ratio"]["t_end"])
+    if len(curve) == 0 or t_end > curve[-1, 0] + 1e-9:
+        curve = np.vstack([curve, [t_end, run["metrics"]["exploration_ratio"]]])
+    return curve
 
 
 __all__ = ["collect_sweep", "ratio_curve", "read_summary", "write_summary"]

@@ -1,8 +1,9 @@
 """Benchmark sweeps: scenes x explorers x seeds in worker processes, then tables and plots.
 
 Every episode writes its own run folder under ``OUT/runs/SCENE/EXPLORER/seedN`` (atomic);
-a sweep started again skips the episodes whose folder is complete, so an interrupted sweep
-resumes where it stopped. The summary is a Table-1-like table (mean +- std of IoU, ER, ET,
+a sweep started again skips the episodes whose folder is complete (not ended by Ctrl-C), so
+an interrupted sweep resumes where it stopped. Finished runs made with other episode
+settings are refused rather than mixed in or overwritten. The summary is a Table-1-like table (mean +- std of IoU, ER, ET,
 PL, T80, T98.5 per scene and method) in ``results.md`` and ``results.csv``, a Fig-5-like
 plot per scene (``ratio_SCENE.png``) and a Fig-9-like kinematics plot per scene
 (``kinematics_SCENE.png``).
@@ -23,6 +24,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from mjexplore.errors import UserInputError
 from mjexplore.eval.episode import EpisodeConfig
 from mjexplore.eval.plots import kinematics_figure, ratio_figure
 from mjexplore.eval.run import write_run
@@ -38,33 +40,77 @@ METRICS = (("iou", "IoU"), ("exploration_ratio", "ER"), ("exploration_time_s", "
 log = logging.getLogger(__name__)
 
 
+def scene_label(scene: str) -> str:
+    """The name a scene's runs are filed under: a scene folder's name (also for its
+    ``scene.xml``), else the file's stem."""
+    path = Path(scene)
+    return path.parent.name if path.name == "scene.xml" and path.parent.name else path.stem
+
+
 @dataclasses.dataclass(frozen=True)
 class Job:
     scene: str
     explorer: str
     seed: int
 
+    @property
+    def label(self) -> str:
+        return scene_label(self.scene)
+
     def folder(self, out: Path) -> Path:
-        return out / "runs" / Path(self.scene).stem / self.explorer / f"seed{self.seed}"
+        return out / "runs" / self.label / self.explorer / f"seed{self.seed}"
+
+
+def _finished(folder: Path) -> dict[str, Any] | None:
+    """A run folder's metrics if the episode ran to its end (not cut off by Ctrl-C)."""
+    try:
+        metrics = json.loads((folder / "metrics.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return None if metrics.get("end_reason") == "interrupted" else metrics
+
+
+def _episode_settings(config: EpisodeConfig) -> Any:
+    """The episode settings as a run folder's config.json stores them."""
+    return json.loads(json.dumps(dataclasses.asdict(config), default=str))
+
+
+def _check_settings(jobs: list[Job], out: Path, config: EpisodeConfig) -> None:
+    """Refuses to resume into finished runs made with other episode settings."""
+    wanted = _episode_settings(config)
+    for job in jobs:
+        folder = job.folder(out)
+        if _finished(folder) is None:
+            continue
+        try:
+            stored = json.loads((folder / "config.json").read_text())["episode"]
+        except (OSError, ValueError, KeyError):
+            stored = None
+        if stored != wanted:
+            raise UserInputError(
+                f"{str(folder)!r} holds a finished run made with other episode settings "
+                "(time limit, profile, lidar, ...); resuming would mix the two in one table. "
+                "Use another --out, or delete that sweep's runs/ to start it afresh.")
 
 
 def _run_job(args: tuple[Job, Path, EpisodeConfig, bool]) -> dict[str, Any]:
     job, out, config, mcap = args
     folder = job.folder(out)
-    if (folder / "metrics.json").is_file():
-        return json.loads((folder / "metrics.json").read_text())
+    done = _finished(folder)
+    if done is not None:
+        return done
     try:
         metrics = write_run(folder, resolve_scene(job.scene), job.explorer, job.seed, config,
                             mcap)
     except Exception as exc:  # noqa: BLE001 - one broken episode must not end the sweep
         log.exception("episode %s failed", job)
-        failure = {"scene": Path(job.scene).stem, "explorer": job.explorer, "seed": job.seed,
+        failure = {"scene": job.label, "explorer": job.explorer, "seed": job.seed,
                    "end_reason": "error", "error": f"{type(exc).__name__}: {exc}"}
         folder.parent.mkdir(parents=True, exist_ok=True)
         write_text_atomic(folder.parent / f"{folder.name}.failed.json",
                           json.dumps(failure, indent=2) + "\n")
         return failure
-    metrics["scene"] = Path(job.scene).stem
+    metrics["scene"] = job.label
     return metrics
 
 
@@ -78,11 +124,19 @@ def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Pa
     """
     for scene in scenes:
         resolve_scene(scene)  # Fail early, in the parent, on a bad scene.
+    labels: dict[str, str] = {}
+    for scene in scenes:
+        other = labels.setdefault(scene_label(scene), scene)
+        if other != scene:
+            raise UserInputError(
+                f"scenes {other!r} and {scene!r} would share the run folders "
+                f"runs/{scene_label(scene)}/: give scene folders or files with distinct names.")
+    jobs = [Job(s, e, seed) for s in scenes for e in explorers for seed in seeds]
+    _check_settings(jobs, out, config)
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "sweep.json", json.dumps(
         {"command": command, "git_revision": git_revision(), "scenes": scenes,
          "explorers": explorers, "seeds": seeds}, indent=2) + "\n")
-    jobs = [Job(s, e, seed) for s in scenes for e in explorers for seed in seeds]
     args = [(job, out, config, mcap) for job in jobs]
     results = []
     bar = tqdm(total=len(jobs), desc="episodes", disable=not progress, unit="ep")
@@ -138,17 +192,17 @@ def write_summary(out: Path, jobs: list[Job]) -> None:
     by_scene: dict[str, dict[str, list[Path]]] = {}
     for job in jobs:
         folder = job.folder(out)
-        if (folder / "metrics.json").is_file():
-            by_scene.setdefault(Path(job.scene).stem, {}).setdefault(job.explorer, []).append(folder)
+        if _finished(folder) is not None:
+            by_scene.setdefault(job.label, {}).setdefault(job.explorer, []).append(folder)
     header, rows = summary_table(
-        {(scene, method): [json.loads((f / "metrics.json").read_text()) for f in folders]
+        {(scene, method): [_finished(f) for f in folders]
          for scene, methods in by_scene.items() for method, folders in methods.items()})
     for scene, methods in by_scene.items():
         ratio_figure({m: [read_ratio_curve(f) for f in fs] for m, fs in methods.items()},
                      out / f"ratio_{scene}.png", f"{scene}: exploration ratio over time")
         kinematics_figure({m: [read_kinematics(f) for f in fs] for m, fs in methods.items()},
                           out / f"kinematics_{scene}.png", f"{scene}: kinematics")
-    failed = [job for job in jobs if not (job.folder(out) / "metrics.json").is_file() and
+    failed = [job for job in jobs if _finished(job.folder(out)) is None and
               job.folder(out).with_name(job.folder(out).name + ".failed.json").is_file()]
     buf = io.StringIO()
     csv.writer(buf).writerows([header] + rows)
@@ -156,7 +210,7 @@ def write_summary(out: Path, jobs: list[Job]) -> None:
     notes = "\n\n" + MEAN_STD_NOTE + "\n"
     if failed:
         notes += "\nFailed episodes (see runs/.../seedN.failed.json; a re-run retries them): " + \
-            ", ".join(f"{Path(j.scene).stem}/{j.explorer}/seed{j.seed}" for j in failed) + "\n"
+            ", ".join(f"{j.label}/{j.explorer}/seed{j.seed}" for j in failed) + "\n"
     write_text_atomic(out / "results.md", markdown_table(header, rows) + notes)
 
 

@@ -46,6 +46,12 @@ class NavigatorConfig:
     linger_time: float = 60.0
     replan_when_blocked: bool = False
 
+    def __post_init__(self) -> None:
+        if min(self.goal_tolerance, self.replan_rate_hz, self.lookahead, self.linger_radius,
+               self.linger_time) <= 0 or self.turn_in_place_angle < 0:
+            raise ValueError("goal_tolerance, replan_rate_hz, lookahead, linger_radius and "
+                             "linger_time must be > 0, turn_in_place_angle >= 0")
+
 
 class NavStatus(enum.Enum):
     IDLE = "idle"
