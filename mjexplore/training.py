@@ -8,7 +8,9 @@ A run folder holds ``config.yaml`` (the resolved config and git revision), ``che
 
 Checkpoints are written between PPO updates, atomically, so a run killed at any moment
 (``kill -9`` included) resumes with ``--resume`` from its last checkpoint and loses only
-the steps collected since.
+the steps collected since. A resume is repeatable but not bit-identical to the run it
+continues: episodes in progress start afresh and every random stream is re-seeded from
+``seed + steps done``.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ from mjexplore.eval.episode import EpisodeConfig
 from mjexplore.io.atomic import write_bytes_atomic, write_text_atomic
 from mjexplore.io.provenance import git_revision
 from mjexplore.policies.registry import layout_of
-from mjexplore.policies.weights import save_policy_weights
+from mjexplore.policies.weights import read_policy_weights, save_policy_weights
 
 log = logging.getLogger(__name__)
 
@@ -141,6 +143,9 @@ class TrainConfig:
             raise ValueError(f"kind {self.kind!r} needs env.decisions: {wanted}")
         if self.kind == "cnn" and self.policy.masking != "iam":
             raise ValueError("the cnn kind supports policy.masking: iam only")
+        if (self.policy.masking == "none") != (self.env.valid_actions == "all_nodes"):
+            raise ValueError("policy.masking: none (training without a mask) goes with "
+                             "env.valid_actions: all_nodes, and all_nodes only with none")
         if self.total_steps < 1 or self.n_envs < 1 or self.checkpoint_every < 1:
             raise ValueError("total_steps, n_envs and checkpoint_every must be >= 1")
 
@@ -242,6 +247,22 @@ def evaluate_policy_episodes(policy, config: TrainConfig) -> list[dict[str, Any]
     return results
 
 
+def _eval_score(results: list[dict[str, Any]]) -> float:
+    """How good a held-out evaluation is: mean coverage first, then mean speed."""
+    return (float(np.mean([r["exploration_ratio"] for r in results])) * 1e4
+            - float(np.mean([r["exploration_time_s"] for r in results])))
+
+
+def _best_score(path: Path) -> float | None:
+    """The evaluation score of the weights kept as best so far (None if there are none)."""
+    if not path.is_file():
+        return None
+    try:
+        return _eval_score(read_policy_weights(path)[1]["provenance"]["eval"])
+    except (UserInputError, KeyError, TypeError):
+        return None  # Unreadable: the next evaluation replaces it.
+
+
 def train(config: TrainConfig, out: str | Path, resume: bool = False,
           progress: bool = True) -> dict[str, Any]:
     """Trains a policy into the run folder ``out`` (see the module docstring).
@@ -305,7 +326,7 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
     layout = layout_of(config.kind, config.env)
     provenance = {"git_revision": ckpt.revision, "config": to_dict(config)}
     written: list[str] = []
-    best = {"score": None}
+    best = {"score": _best_score(out / "best.safetensors") if state is not None else None}
 
     def export(name: str, steps: int, extra: dict | None = None) -> Path:
         path = out / name
@@ -336,10 +357,10 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
 
         def _evaluate(self, n: int) -> None:
             results = evaluate_policy_episodes(self.model.policy, config)
-            et = float(np.mean([r["exploration_time_s"] for r in results]))
-            ratio = float(np.mean([r["exploration_ratio"] for r in results]))
-            self.logger.record("eval/exploration_time_s", et)
-            self.logger.record("eval/exploration_ratio", ratio)
+            self.logger.record("eval/exploration_time_s",
+                               float(np.mean([r["exploration_time_s"] for r in results])))
+            self.logger.record("eval/exploration_ratio",
+                               float(np.mean([r["exploration_ratio"] for r in results])))
             self.logger.record("eval/path_length_m",
                                float(np.mean([r["path_length_m"] for r in results])))
             header = not (out / "eval.csv").exists()
@@ -350,7 +371,7 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
                 for r in results:
                     f.write(f"{n},{r['scene']},{r['exploration_time_s']},{r['path_length_m']},"
                             f"{r['exploration_ratio']},{r['end_reason']}\n")
-            score = ratio * 1e4 - et  # Coverage first, then speed.
+            score = _eval_score(results)
             if best["score"] is None or score > best["score"]:
                 best["score"] = score
                 export("best.safetensors", n, {"eval": results})

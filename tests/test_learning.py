@@ -264,6 +264,36 @@ def test_env_is_deterministic_and_reports_reward_terms():
     assert len(ra) == 6 or ia[-1]["end_reason"] != "decision_limit"
 
 
+def test_an_episode_cut_short_returns_the_state_it_ended_in():
+    import dataclasses
+
+    env = ExplorationEnv(EnvConfig(scenes=("train_loop",),
+                                   episode=dataclasses.replace(FAST, max_time=8.0)))
+    obs, _ = env.reset(seed=0)
+    before = obs
+    terminated = truncated = False
+    while not (terminated or truncated):
+        before = obs
+        obs, _, terminated, truncated, info = env.step(int(np.flatnonzero(env.action_masks())[0]))
+    assert truncated and info["end_reason"] == "time_limit"
+    env.decisions.prepare(env.episode.decision_state())  # The state the episode ended in.
+    fresh = env.decisions.observation()
+    for key in ("node_features", "node_mask", "neighbours"):
+        np.testing.assert_array_equal(obs[key], fresh[key])
+    assert not np.array_equal(obs["node_features"], before["node_features"])
+
+
+def test_the_last_allowed_decision_is_driven_before_the_limit_ends_the_episode():
+    env = ExplorationEnv(EnvConfig(scenes=("train_loop",), episode=FAST, max_decisions=2))
+    env.reset(seed=0)
+    for _ in range(2):
+        t0 = env.episode.sim.time
+        _, _, terminated, truncated, info = env.step(int(np.flatnonzero(env.action_masks())[0]))
+        assert info["sim_time"] > t0 and info["path_m"] > 0
+    assert truncated and not terminated and info["end_reason"] == "decision_limit"
+    assert info["episode_metrics"]["decisions"] == 2
+
+
 def test_invalid_action_is_a_no_op_with_the_step_cost():
     env = ExplorationEnv(EnvConfig(scenes=("train_loop",), episode=FAST))
     obs, info = env.reset(seed=0)
@@ -302,6 +332,9 @@ def test_train_config_round_trip_and_errors(tmp_path):
         from_dict(TrainConfig, {"ppo": {"gamma": 1.5}})
     with pytest.raises(UserInputError, match="masking"):
         from_dict(TrainConfig, {"policy": {"masking": "sometimes"}})
+    for policy, env in (({"masking": "none"}, {}), ({}, {"valid_actions": "all_nodes"})):
+        with pytest.raises(UserInputError, match="all_nodes"):
+            from_dict(TrainConfig, {"policy": policy, "env": {"scenes": ["train_loop"], **env}})
     path = tmp_path / "broken.yaml"
     path.write_text("ppo: [unclosed\n")
     with pytest.raises(UserInputError, match="not valid YAML"):
@@ -373,6 +406,29 @@ def test_training_saves_resumes_and_loads(tmp_path):
     assert meta["layout"]["max_nodes"] == 64
     assert meta["provenance"]["num_timesteps"] == 32
     assert (out / "tb").is_dir() and (out / "config.yaml").is_file()
+
+
+@pytest.mark.slow
+def test_resumed_training_keeps_the_best_weights_of_the_first_part(tmp_path, monkeypatch):
+    import mjexplore.training as training
+    from mjexplore.policies.weights import read_policy_weights
+
+    ratios = iter([0.95, 0.90])  # Evaluations at 8 steps, then at 24 after the resume.
+
+    def fake_eval(policy, config):
+        return [{"scene": "train_loop", "exploration_time_s": 100.0, "path_length_m": 50.0,
+                 "exploration_ratio": next(ratios), "end_reason": "explored"}]
+
+    monkeypatch.setattr(training, "evaluate_policy_episodes", fake_eval)
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text(TINY.format(total=16, n_envs=1).replace("every: 0", "every: 8"))
+    out = tmp_path / "run"
+    training.train(training.load_train_config(cfg), out, progress=False)
+    cfg.write_text(TINY.format(total=32, n_envs=1).replace("every: 0", "every: 8"))
+    training.train(training.load_train_config(cfg), out, resume=True, progress=False)
+    best = read_policy_weights(out / "best.safetensors")[1]["provenance"]
+    assert best["eval"][0]["exploration_ratio"] == 0.95 and best["num_timesteps"] == 8
+    assert len((out / "eval.csv").read_text().splitlines()) == 1 + 2
 
 
 @pytest.mark.slow

@@ -68,18 +68,18 @@ class TerDecisions:
         self.mask = np.zeros(self.config.max_nodes, bool)
 
     def prepare(self, state: ExplorationState) -> bool:
-        """Builds the observation and mask; False when no valid frontier is left."""
+        """Builds the observation and mask; False when no valid frontier is left (the
+        observation is still that of ``state``, the mask then empty)."""
         ter, _, _ = state.extras["tracker"].ter(state.grid, state.pose)
         state.extras["ter"] = ter
         padded = ter.padded(self.ter_config)
         mask = ter_action_mask(padded, state, "frontiers")
-        if not mask.any():
-            return False
-        if self.valid_actions == "all_nodes":
+        valid = bool(mask.any())
+        if valid and self.valid_actions == "all_nodes":
             mask = ter_action_mask(padded, state, "all_nodes")
         self.padded, self.mask = padded, mask
         self.current = ter_arrays(padded)
-        return True
+        return valid
 
     def observation(self) -> dict[str, np.ndarray]:
         if self.current is None:  # Over before any decision: an empty TER.
@@ -160,14 +160,11 @@ class GridDecisions:
         return np.column_stack([g.origin[0] + xx.ravel(), g.origin[1] + yy.ravel()])
 
     def prepare(self, state: ExplorationState) -> bool:
-        """Builds the image and mask; False when no reachable frontier is left."""
+        """Builds the image and mask; False when no reachable frontier is left (the image
+        is still that of ``state``, the mask then empty)."""
         g = state.grid
-        if not state.frontiers:
-            return False
-        dist = state.frontier_distances()
-        reachable = np.isfinite(dist)
-        if not reachable.any():
-            return False
+        reachable = (np.isfinite(state.frontier_distances()) if state.frontiers else
+                     np.zeros(0, bool))
         self._targets = [f.goal for f, ok in zip(state.frontiers, reachable) if ok]
         self._state = state
         s, k = self.config.image_size, self.config.action_cells
@@ -200,8 +197,8 @@ class GridDecisions:
         edges = np.linspace(0, side, k + 1).round().astype(int)
         rows_any = np.maximum.reduceat(sq, edges[:-1], axis=0)
         cells = np.maximum.reduceat(rows_any, edges[:-1], axis=1)
-        self.mask = cells.reshape(-1) > 0
-        return True
+        self.mask = (cells.reshape(-1) > 0) & bool(self._targets)
+        return bool(self._targets)
 
     def observation(self) -> dict[str, np.ndarray]:
         return {"image": self._image.reshape(-1).copy()}

@@ -242,6 +242,9 @@ class ExplorationEnv(gym.Env):
         """Builds the observation at a due decision; False if the episode is over."""
         ep = self.episode
         if not ep.run_to_decision():
+            if ep.end_reason not in TERMINAL_REASONS and np.isfinite(ep.sim.pose).all():
+                # Cut short: PPO bootstraps from this state's value, so observe it.
+                self.decisions.prepare(ep.decision_state())
             return False
         if not self.decisions.prepare(ep.decision_state()):
             ep.end_reason = "no_frontiers"
@@ -294,10 +297,8 @@ class ExplorationEnv(gym.Env):
             goal, self.goals.waypoint = choice
             ep.adopt_goal(goal)
             self._decisions += 1
-            if self._decisions >= self.config.max_decisions:
+            if self._prepare_decision() and self._decisions >= self.config.max_decisions:
                 ep.end_reason = "decision_limit"
-            else:
-                self._prepare_decision()
         known0, acc0, row0 = self._before
         known1, acc1, row1 = self._before = self._progress()
         cell_area = ep.mapper.grid.resolution ** 2
