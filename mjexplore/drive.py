@@ -125,7 +125,7 @@ def run_drive(scene: SceneFiles, config: DriveConfig, out_dir: str | os.PathLike
     resolved = {"drive": dataclasses.asdict(config), "scene": str(scene.xml),
                 "scene_metadata": scene.metadata}
     odom_path = odom_in_map(sim.odom_origin, log.odom_pose)
-    with atomic_directory(out_dir) as tmp:
+    with atomic_directory(out_dir, "summary.json") as tmp:
         write_text_atomic(tmp / "kinematics.csv", kinematics_csv(log))
         write_text_atomic(tmp / "summary.json", json.dumps(summary, indent=2) + "\n")
         write_text_atomic(tmp / "config.json", json.dumps(resolved, indent=2, default=str) + "\n")

@@ -1,4 +1,5 @@
 import json
+import os
 import subprocess
 import sys
 
@@ -168,6 +169,35 @@ def test_corrupt_map_image(tmp_path, capsys):
     assert main(["scene-gen", "--from-map", str(yaml_path), "--out", str(tmp_path / "o")]) == 2
     assert "could not be decoded" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("command", [
+    ["scene-gen", "maze", "--size", "6x6"],
+    ["explore", "--scene", "train_loop", "--max-time", "2", "--no-mcap"],
+    ["drive", "--scene", "lobby", "--duration", "1"]])
+def test_an_output_folder_of_other_files_is_refused_and_kept(tmp_path, command, capsys):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("precious")
+    assert main([*command, "--out", str(mine)]) == 2
+    assert "choose a new folder" in capsys.readouterr().err
+    assert [p.name for p in mine.iterdir()] == ["notes.txt"]
+    assert [p.name for p in tmp_path.iterdir()] == ["mine"]
+    assert main([*command, "--out", "/"]) == 2
+
+
+def test_an_earlier_output_is_replaced_with_the_usual_permissions(tmp_path):
+    out = tmp_path / "scene"
+    old = os.umask(0o022)
+    try:
+        for seed in ("1", "2"):
+            assert main(["scene-gen", "maze", "--size", "6x6", "--seed", seed,
+                         "--out", str(out)]) == 0
+    finally:
+        os.umask(old)
+    assert json.loads((out / "scene.json").read_text())["seed"] == 2
+    assert oct(out.stat().st_mode & 0o777) == oct(0o755)
+    assert oct((out / "scene.xml").stat().st_mode & 0o777) == oct(0o644)
 
 
 def test_drive_writes_run_folder(tmp_path):

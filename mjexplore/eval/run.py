@@ -103,7 +103,7 @@ def write_run(out_dir: str | os.PathLike, scene: SceneFiles, explorer: str, seed
     is always written.
     """
     interrupted = None
-    with atomic_directory(out_dir) as tmp:
+    with atomic_directory(out_dir, "metrics.json") as tmp:
         try:
             result = run_episode(scene, explorer, seed, config,
                                  tmp / "episode.mcap" if mcap else None, explorer_kwargs,

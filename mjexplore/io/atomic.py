@@ -1,6 +1,7 @@
 """Atomic file and directory output: write to a temporary name, then rename.
 
-A reader never sees a half-written file: either the old content or the new one.
+A reader never sees a half-written file: either the old content or the new one. Outputs get
+the usual permissions for the process's umask (not the temporary files' private ones).
 """
 
 from __future__ import annotations
@@ -12,6 +13,11 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
+from mjexplore.errors import UserInputError
+
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)
+
 
 def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> None:
     """Writes ``data`` to ``path`` through a temporary file in the same folder."""
@@ -19,6 +25,7 @@ def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        os.fchmod(fd, 0o666 & ~_UMASK)
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()
@@ -36,16 +43,32 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> None:
 
 
 @contextlib.contextmanager
-def atomic_directory(path: str | os.PathLike) -> Iterator[Path]:
+def atomic_directory(path: str | os.PathLike, marker: str) -> Iterator[Path]:
     """Yields a temporary folder that replaces ``path`` as a whole when the block succeeds.
 
     If the block raises, the temporary folder is removed and ``path`` is left untouched.
-    An existing ``path`` is replaced only after the new content is complete.
+    An existing ``path`` is replaced only after the new content is complete, and only if
+    it is empty or an earlier output of the same kind (it holds ``marker``, a file every
+    such output has): a folder of other files is refused before the block runs.
+
+    Raises:
+        UserInputError: ``path`` is a file, a filesystem root, or a folder of other files.
     """
-    path = Path(path)
+    path = Path(path).resolve()
+    if path.parent == path:
+        raise UserInputError(f"{str(path)!r} cannot be an output folder: choose a new folder.")
+    if path.exists() and not path.is_dir():
+        raise UserInputError(f"{str(path)!r} is a file, not an output folder: choose a new "
+                             "folder name.")
+    if path.is_dir() and any(path.iterdir()) and not (path / marker).is_file():
+        raise UserInputError(
+            f"{str(path)!r} already holds other files (no {marker}, so it is not an earlier "
+            "output of this command, which would be replaced): choose a new folder, or "
+            "empty that one.")
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
     try:
+        tmp.chmod(0o777 & ~_UMASK)
         yield tmp
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -250,7 +250,7 @@ def write_scene(scene: Scene, out_dir: str | os.PathLike) -> Path:
                 resolution=scene.ground_truth.resolution, wall_boxes=len(boxes),
                 wall_height=scene.wall_height)
     out_dir = Path(out_dir)
-    with atomic_directory(out_dir) as tmp:
+    with atomic_directory(out_dir, "scene.json") as tmp:
         write_text_atomic(tmp / "scene.xml", xml)
         write_map(tmp / "map.yaml", scene.ground_truth)
         write_bytes_atomic(tmp / "preview.png",
