@@ -6,6 +6,7 @@ Every command answers bad input with a one-paragraph message on stderr and exit 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import shlex
@@ -75,24 +76,32 @@ def cmd_scene_gen(args: argparse.Namespace) -> int:
     if args.from_map is not None:
         if args.family is not None:
             raise UserInputError("give either a FAMILY or --from-map, not both.")
+        if args.size is not None or args.wall_thickness is not None:
+            raise UserInputError("--size and --wall-thickness apply to generated scenes; an "
+                                 "imported map has its own size and walls.")
         from mjexplore.scenes.importer import scene_from_image, scene_from_map_yaml
 
         path = Path(args.from_map)
         if path.suffix.lower() in (".yaml", ".yml"):
+            if args.resolution is not None:
+                raise UserInputError("--resolution applies to an image; a map_server YAML "
+                                     "gives its own resolution.")
             scene = scene_from_map_yaml(path, start=args.start, seed=args.seed)
         else:
             if args.resolution is None:
                 raise UserInputError(f"{str(path)!r} is an image, not a map_server YAML: give its "
                                      "scale with --resolution METRES_PER_PIXEL (e.g. 0.1).")
             scene = scene_from_image(path, args.resolution, start=args.start, seed=args.seed)
+        if args.name is not None:
+            scene = dataclasses.replace(scene, name=args.name)
     else:
         if args.family is None:
             raise UserInputError("scene-gen needs a FAMILY (e.g. office) or --from-map MAP.yaml; "
                                  "see 'mjexplore scene-gen --list'.")
         from mjexplore.scenes.generate import generate_scene
 
-        cfg = GeneratorConfig(wall_thickness=args.wall_thickness)
-        scene = generate_scene(args.family, *args.size, seed=args.seed,
+        cfg = GeneratorConfig(wall_thickness=args.wall_thickness or 0.15)
+        scene = generate_scene(args.family, *(args.size or (40.0, 25.0)), seed=args.seed,
                                resolution=args.resolution or 0.05, config=cfg, name=args.name)
         if args.start is not None:
             raise UserInputError("--start applies to --from-map; generated scenes pick their "
@@ -143,9 +152,9 @@ def cmd_explore(args: argparse.Namespace) -> int:
 
     kwargs = {}
     if args.policy is not None:
-        if not args.explorer.startswith("gvn"):
-            raise UserInputError("--policy applies to --explorer gvn, gvn_unmasked, gvn_naive "
-                                 "or gvn_none only.")
+        if not args.explorer.startswith(("gvn", "cnn")):
+            raise UserInputError("--policy applies to the learned explorers only: gvn, "
+                                 "gvn_unmasked, gvn_naive, gvn_none or cnn.")
         kwargs["policy"] = str(args.policy)
     make_explorer(args.explorer, **kwargs)  # Fails early on a bad name or weights file.
     video = _video_config(args) if args.video is not None else None
@@ -276,9 +285,9 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("family", nargs="?", help="office, maze, loop, corridor, rooms, hall, or "
                      "several joined by '+' (e.g. loop+rooms)")
     gen.add_argument("--seed", type=_seed, default=0, help="generator seed (default 0)")
-    gen.add_argument("--size", type=_size, default=(40.0, 25.0),
+    gen.add_argument("--size", type=_size, default=None,
                      help="WIDTHxHEIGHT in metres, outer walls included (default 40x25)")
-    gen.add_argument("--wall-thickness", type=_positive, default=0.15, help="metres (0.15)")
+    gen.add_argument("--wall-thickness", type=_positive, default=None, help="metres (0.15)")
     gen.add_argument("--resolution", type=_positive, default=None,
                      help="ground-truth cell size in metres (0.05); for --from-map IMAGE, "
                      "the image's metres per pixel")
@@ -319,8 +328,8 @@ def build_parser() -> argparse.ArgumentParser:
                          help="nearest, rrt, potential, oracle, cnn or gvn; the masking "
                          "ablation's gvn_unmasked, gvn_naive, gvn_none")
     explore.add_argument("--policy", type=Path, default=None,
-                         help="weights for a gvn explorer (default: the shipped "
-                         "training/gvn*_policy.safetensors it names)")
+                         help="weights for a learned explorer, gvn* or cnn (default: the "
+                         "shipped training/*_policy.safetensors it names)")
     explore.add_argument("--seed", type=_seed, default=0)
     explore.add_argument("--out", type=Path, required=True, help="run folder")
     explore.add_argument("--no-mcap", action="store_true", help="do not write episode.mcap")

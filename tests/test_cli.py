@@ -106,6 +106,15 @@ BAD = {
     "policy for classic explorer": lambda p: ["explore", "--explorer", "nearest", "--policy",
                                               str(_write(p / "w.safetensors", "x")), "--out",
                                               str(p / "o")],
+    "from-map with size": lambda p: ["scene-gen", "--from-map", str(wall_map(p)), "--size",
+                                     "10x10", "--out", str(p / "o")],
+    "from-map yaml with resolution": lambda p: ["scene-gen", "--from-map", str(wall_map(p)),
+                                                "--resolution", "0.05", "--out", str(p / "o")],
+    "damaged scene.json": lambda p: ["explore", "--scene", str(_scene_with_json(p, "{bad")),
+                                     "--out", str(p / "o")],
+    "scene.json not an object": lambda p: ["explore", "--scene",
+                                           str(_scene_with_json(p, "[1, 2]")), "--out",
+                                           str(p / "o")],
     # Rendering.
     "render not a run": lambda p: ["render", str(p), "--out", str(p / "o")],
     "video odd size": lambda p: ["explore", "--video", str(p / "v.mp4"), "--video-size",
@@ -131,6 +140,17 @@ BAD = {
 def _write(path, text):
     path.write_text(text)
     return path
+
+
+def _scene_with_json(tmp_path, text):
+    import shutil
+
+    from mjexplore.scenes.canonical import resolve_scene
+
+    folder = tmp_path / "scene"
+    shutil.copytree(resolve_scene("train_loop").xml.parent, folder)
+    (folder / "scene.json").write_text(text)
+    return folder
 
 
 def solid_map(tmp_path):
@@ -198,6 +218,23 @@ def test_an_earlier_output_is_replaced_with_the_usual_permissions(tmp_path):
     assert json.loads((out / "scene.json").read_text())["seed"] == 2
     assert oct(out.stat().st_mode & 0o777) == oct(0o755)
     assert oct((out / "scene.xml").stat().st_mode & 0o777) == oct(0o644)
+
+
+def test_from_map_takes_the_name_given(tmp_path):
+    assert main(["scene-gen", "--from-map", str(wall_map(tmp_path)), "--name", "my_room",
+                 "--out", str(tmp_path / "o")]) == 0
+    assert json.loads((tmp_path / "o" / "scene.json").read_text())["name"] == "my_room"
+    assert 'model="my_room"' in (tmp_path / "o" / "scene.xml").read_text()
+
+
+def test_cnn_explorer_takes_a_policy_file(tmp_path):
+    from mjexplore.explorers.cnn import DEFAULT_WEIGHTS
+
+    assert main(["explore", "--scene", "train_loop", "--explorer", "cnn", "--policy",
+                 str(DEFAULT_WEIGHTS), "--max-time", "3", "--no-mcap",
+                 "--out", str(tmp_path / "o")]) == 0
+    config = json.loads((tmp_path / "o" / "config.json").read_text())
+    assert config["explorer_kwargs"]["policy"] == str(DEFAULT_WEIGHTS)
 
 
 def test_drive_writes_run_folder(tmp_path):

@@ -61,6 +61,28 @@ def test_from_map_reproduces_occupancy(tmp_path):
     assert meta["start"] == [0.5, 1.5, 0.3]
 
 
+def test_imported_maps_with_the_same_yaml_but_other_images_are_other_scenes(tmp_path,
+                                                                           monkeypatch):
+    import tempfile
+
+    from mjexplore.scenes.canonical import resolve_scene
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "cache"))
+    (tmp_path / "cache").mkdir()
+    grid = diagonal_map()
+    other = grid.data.copy()
+    other[100:140, 20:60] = OCCUPIED  # A block the first map lacks.
+    for name, data in (("a", grid.data), ("b", other)):
+        (tmp_path / name).mkdir()
+        write_map(tmp_path / name / "map.yaml", GridMap(data, grid.resolution, grid.origin))
+    assert (tmp_path / "a" / "map.yaml").read_bytes() == (tmp_path / "b" / "map.yaml").read_bytes()
+    a = resolve_scene(str(tmp_path / "a" / "map.yaml"))
+    b = resolve_scene(str(tmp_path / "b" / "map.yaml"))
+    assert a.xml != b.xml
+    assert a.ground_truth.equals(read_map(tmp_path / "a" / "map.yaml"))
+    assert b.ground_truth.equals(read_map(tmp_path / "b" / "map.yaml"))
+
+
 @pytest.mark.parametrize("name", ["corner", "corridor", "loop", "loop_with_corridor", "room",
                                   "room_with_corner"])
 def test_explore_bench_maps_import(tmp_path, name):

@@ -11,6 +11,8 @@ import os
 import tempfile
 from pathlib import Path
 
+import yaml
+
 from mjexplore.errors import UserInputError
 from mjexplore.scenes.scene import SceneFiles, load_scene_files
 
@@ -71,6 +73,18 @@ def canonical_names(role: str | None = None) -> list[str]:
     return [n for n, c in CANONICAL_SCENES.items() if role is None or c.role == role]
 
 
+def _import_digest(path: Path, start) -> str:
+    """Cache key of an imported map: its YAML, its image and the start pose rule."""
+    digest = hashlib.sha256(path.read_bytes())
+    try:
+        image = yaml.safe_load(path.read_text()).get("image")
+        digest.update((path.parent / image).read_bytes())
+    except (OSError, ValueError, AttributeError, TypeError, yaml.YAMLError):
+        pass  # The import itself says what is wrong with the map.
+    digest.update(repr(start).encode())
+    return digest.hexdigest()[:16]
+
+
 def resolve_scene(scene: str | os.PathLike) -> SceneFiles:
     """Finds a scene by canonical name, scene folder, MJCF path or map_server YAML path.
 
@@ -94,11 +108,11 @@ def resolve_scene(scene: str | os.PathLike) -> SceneFiles:
         from mjexplore.scenes.importer import scene_from_map_yaml
         from mjexplore.scenes.scene import write_scene
 
-        digest = hashlib.sha256(path.read_bytes()).hexdigest()[:16]
-        folder = Path(tempfile.gettempdir()) / "mjexplore-scenes" / f"{path.stem}-{digest}"
         start = None
         if path.resolve().parent.name == "explore_bench" and path.stem in EXPLORE_BENCH_MAPS:
             start = EXPLORE_BENCH_STARTS.get(path.stem, EXPLORE_BENCH_DEFAULT_START)
+        digest = _import_digest(path, start)
+        folder = Path(tempfile.gettempdir()) / "mjexplore-scenes" / f"{path.stem}-{digest}"
         if not (folder / "scene.xml").is_file():
             write_scene(scene_from_map_yaml(path, start=start), folder)
         return load_scene_files(folder)

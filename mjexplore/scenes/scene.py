@@ -291,7 +291,14 @@ def load_scene_files(path: str | os.PathLike) -> SceneFiles:
     folder = path.parent
     meta: dict[str, Any] = {}
     if (folder / "scene.json").is_file():
-        meta = json.loads((folder / "scene.json").read_text())
+        try:
+            meta = json.loads((folder / "scene.json").read_text())
+        except ValueError as exc:
+            meta = f"not valid JSON ({exc})"
+        if not isinstance(meta, dict):
+            raise UserInputError(f"{str(folder / 'scene.json')!r} is damaged "
+                                 f"({meta if isinstance(meta, str) else 'not a JSON object'}): "
+                                 "regenerate the scene with 'mjexplore scene-gen'.")
     grid = read_map(folder / "map.yaml") if (folder / "map.yaml").is_file() else None
     if "start" in meta:
         start = tuple(float(v) for v in meta["start"])
