@@ -39,6 +39,34 @@ def test_negate_and_thresholds(tmp_path):
     assert read_map(tmp_path / "m.yaml").data.tolist() == [[FREE, UNKNOWN, OCCUPIED]]
 
 
+def _map_with(tmp_path, pixels, **meta):
+    import cv2
+
+    cv2.imwrite(str(tmp_path / "m.png"), pixels)
+    (tmp_path / "m.yaml").write_text(yaml.safe_dump(
+        {"image": "m.png", "resolution": 0.1, "origin": [0, 0, 0], "negate": 0,
+         "occupied_thresh": 0.65, "free_thresh": 0.196, **meta}))
+    return read_map(tmp_path / "m.yaml").data.tolist()
+
+
+def test_map_modes_follow_map_server(tmp_path):
+    grey = np.array([[0, 60, 150, 205, 254]], np.uint8)  # p = 1, .76, .41, .196, .004
+    assert _map_with(tmp_path, grey) == [[OCCUPIED, OCCUPIED, UNKNOWN, UNKNOWN, FREE]]
+    assert _map_with(tmp_path, grey, mode="scale") == [[OCCUPIED, OCCUPIED, 47, 0, FREE]]
+    raw = np.array([[0, 37, 100, 255]], np.uint8)
+    assert _map_with(tmp_path, raw, mode="raw") == [[0, 37, 100, UNKNOWN]]
+    assert _map_with(tmp_path, 255 - raw, mode="raw", negate=1) == [[0, 37, 100, UNKNOWN]]
+    with pytest.raises(UserInputError, match="raw mode"):
+        _map_with(tmp_path, grey, mode="raw")
+    with pytest.raises(UserInputError, match="mode 'bananas'"):
+        _map_with(tmp_path, grey, mode="bananas")
+    # Channels are averaged as real numbers: 205.67 gives p 0.1935 < 0.196, free.
+    assert _map_with(tmp_path, np.array([[[205, 206, 206]]], np.uint8)) == [[FREE]]
+    # In scale mode a fully transparent pixel in between is unknown; alpha is not averaged.
+    rgba = np.array([[[150, 150, 150, 0], [150, 150, 150, 255], [254, 254, 254, 0]]], np.uint8)
+    assert _map_with(tmp_path, rgba, mode="scale") == [[UNKNOWN, 47, FREE]]
+
+
 @pytest.mark.parametrize("case", ["missing_yaml", "not_yaml", "no_image_key", "missing_image",
                                   "corrupt_image", "bad_resolution", "rotated_origin"])
 def test_bad_maps_raise_clear_errors(tmp_path, case):

@@ -1,12 +1,20 @@
 """Reading and writing ROS ``map_server`` maps (a YAML file and an image).
 
-Format (ROS wiki ``map_server``): the YAML holds ``image`` (path relative to the YAML),
-``resolution`` (metres per pixel), ``origin`` ([x, y, yaw] of the lower-left pixel),
-``negate``, ``occupied_thresh`` and ``free_thresh``. In ``trinary`` mode a pixel of value
-``v`` has occupancy ``p = (255 - v) / 255`` (``v / 255`` when ``negate``); ``p >
-occupied_thresh`` is occupied, ``p < free_thresh`` is free, anything else unknown. Image
-rows run top (highest y) to bottom. Written maps use ``map_saver``'s values: 254 free,
-0 occupied, 205 unknown.
+Format (ROS wiki ``map_server``, as ROS 1's ``image_loader`` reads it): the YAML holds
+``image`` (path relative to the YAML), ``resolution`` (metres per pixel), ``origin``
+([x, y, yaw] of the lower-left pixel), ``negate``, ``occupied_thresh``, ``free_thresh`` and
+``mode``. A pixel's value ``v`` is the mean of its channels (as a real number; in
+``trinary`` mode an alpha channel is averaged in, in the others it is left out), ``255 - v``
+when ``negate``. Its occupancy is ``p = (255 - v) / 255``:
+
+* ``trinary`` (default): ``p > occupied_thresh`` occupied (100), ``p < free_thresh`` free
+  (0), anything else unknown (-1);
+* ``scale``: the same, except that values in between are ``int(99 (p - free_thresh) /
+  (occupied_thresh - free_thresh))`` unless the pixel is fully transparent (unknown);
+* ``raw``: ``int(v)`` is the cell value itself (0-100, 255 for unknown).
+
+Image rows run top (highest y) to bottom. Written maps use ``map_saver``'s values: 254
+free, 0 occupied, 205 unknown.
 """
 
 from __future__ import annotations
@@ -29,13 +37,11 @@ OCCUPIED_THRESH = 0.65
 FREE_THRESH = 0.196
 
 
-def read_image_gray(path: str | os.PathLike) -> np.ndarray:
-    """Reads an 8-bit image as greyscale (mean of the colour channels, alpha ignored).
+MODES = ("trinary", "scale", "raw")
 
-    Raises:
-        UserInputError: the file is missing or is not an 8-bit image OpenCV can decode.
-    """
-    path = Path(path)
+
+def _read_image(path: Path) -> np.ndarray:
+    """An 8-bit image as OpenCV decodes it: (rows, cols) or (rows, cols, channels)."""
     if not path.is_file():
         raise UserInputError(f"map image {str(path)!r} does not exist: check the path (a map "
                              "YAML's 'image' is relative to the YAML file's folder).")
@@ -46,11 +52,31 @@ def read_image_gray(path: str | os.PathLike) -> np.ndarray:
     if img.dtype != np.uint8:
         raise UserInputError(f"map image {str(path)!r} has {img.dtype} pixels: convert it to "
                              "8 bits per channel.")
+    return img
+
+
+def read_image_gray(path: str | os.PathLike) -> np.ndarray:
+    """Reads an 8-bit image as greyscale: the integer mean of its colour channels, alpha
+    ignored (plain images; map_server maps go through :func:`read_map`).
+
+    Raises:
+        UserInputError: the file is missing or is not an 8-bit image OpenCV can decode.
+    """
+    img = _read_image(Path(path))
     if img.ndim == 3:
         channels = img[..., :3] if img.shape[2] >= 3 else img[..., :1]
-        # Mean over channels, rounded like map_server's integer average.
         img = (channels.astype(np.uint16).sum(axis=2) // channels.shape[2]).astype(np.uint8)
     return img
+
+
+def _pixel_values(img: np.ndarray, mode: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """(mean channel value as float, alpha or None) per pixel, as map_server averages."""
+    if img.ndim == 2:
+        return img.astype(np.float64), None
+    has_alpha = img.shape[2] in (2, 4)
+    alpha = img[..., -1] if has_alpha else None
+    averaged = img if mode == "trinary" or not has_alpha else img[..., :-1]
+    return averaged.astype(np.float64).mean(axis=2), alpha
 
 
 def _require(meta: dict, key: str, path: Path):
@@ -82,6 +108,7 @@ def read_map(yaml_path: str | os.PathLike) -> GridMap:
         resolution = float(_require(meta, "resolution", yaml_path))
         origin = [float(v) for v in _require(meta, "origin", yaml_path)]
         negate = int(meta.get("negate", 0))
+        mode = str(meta.get("mode", "trinary"))
         occ_th = float(meta.get("occupied_thresh", OCCUPIED_THRESH))
         free_th = float(meta.get("free_thresh", FREE_THRESH))
     except (TypeError, ValueError) as exc:
@@ -96,11 +123,30 @@ def read_map(yaml_path: str | os.PathLike) -> GridMap:
     if not 0.0 <= free_th < occ_th <= 1.0:
         raise UserInputError(f"map YAML {str(yaml_path)!r}: need 0 <= free_thresh < "
                              "occupied_thresh <= 1.")
-    gray = read_image_gray(yaml_path.parent / str(image))
-    occupancy = gray.astype(np.float64) / 255.0 if negate else (255.0 - gray) / 255.0
-    data = np.full(gray.shape, UNKNOWN, dtype=np.int8)
-    data[occupancy > occ_th] = OCCUPIED
-    data[occupancy < free_th] = FREE
+    if mode not in MODES:
+        raise UserInputError(f"map YAML {str(yaml_path)!r}: mode {mode!r} is not one of "
+                             f"{', '.join(MODES)}.")
+    value, alpha = _pixel_values(_read_image(yaml_path.parent / str(image)), mode)
+    if negate:
+        value = 255.0 - value
+    if mode == "raw":
+        raw = value.astype(np.int64)  # map_server truncates to an unsigned char.
+        if not ((raw <= OCCUPIED) | (raw == 255)).all():
+            raise UserInputError(f"map YAML {str(yaml_path)!r} is in raw mode but its image "
+                                 "has values other than 0-100 and 255 (unknown): use mode "
+                                 "trinary or scale for a greyscale picture.")
+        data = np.where(raw == 255, UNKNOWN, raw).astype(np.int8)
+    else:
+        occupancy = (255.0 - value) / 255.0
+        data = np.full(value.shape, UNKNOWN, dtype=np.int8)
+        if mode == "scale":
+            between = (occupancy >= free_th) & (occupancy <= occ_th)
+            if alpha is not None:
+                between &= alpha > 0
+            data[between] = (99.0 * (occupancy[between] - free_th)
+                             / (occ_th - free_th)).astype(np.int8)
+        data[occupancy > occ_th] = OCCUPIED
+        data[occupancy < free_th] = FREE
     return GridMap(np.ascontiguousarray(data[::-1]), resolution, (origin[0], origin[1], 0.0))
 
 
