@@ -113,13 +113,29 @@ def test_bad_generator_input(args, match):
 @example(family="rooms+loop", width=14.0, height=12.0, seed=98356578, thickness=0.1)
 def test_any_valid_parameters_give_a_connected_compilable_scene(family, width, height, seed,
                                                                 thickness):
+    from mjexplore.scenes.generators import GeneratorConfig
+
+    _assert_connected_and_compilable(generate_scene(
+        family, width, height, seed=seed, config=GeneratorConfig(wall_thickness=thickness)))
+
+
+@pytest.mark.parametrize("family, width, height, seed, thickness", [
+    ("office", 24.2, 8.2, 228, 0.15),  # Round-off left a sampling range below its start.
+    ("rooms+loop+corridor", 30.0, 10.2, 330, 0.15),  # A join reached a pocket of a part.
+    ("hall", 17.5, 4.0, 0, 0.8),  # Thick walls left no room for blocks 1 m clear.
+])
+def test_layouts_that_once_failed_generate(family, width, height, seed, thickness):
+    from mjexplore.scenes.generators import GeneratorConfig
+
+    _assert_connected_and_compilable(generate_scene(
+        family, width, height, seed=seed, config=GeneratorConfig(wall_thickness=thickness)))
+
+
+def _assert_connected_and_compilable(scene):
     import mujoco
 
-    from mjexplore.scenes.generators import GeneratorConfig
     from mjexplore.scenes.scene import build_spec
 
-    scene = generate_scene(family, width, height, seed=seed,
-                           config=GeneratorConfig(wall_thickness=thickness))
     free = scene.ground_truth.free
     assert ndimage.label(free)[1] == 1
     start_cell = tuple(scene.ground_truth.world_to_cell(np.array(scene.start[:2])))

@@ -25,8 +25,11 @@ import dataclasses
 from collections.abc import Callable
 
 import numpy as np
+from scipy import ndimage
 
 from mjexplore.errors import UserInputError
+from mjexplore.robot import TURTLEBOT3_WAFFLE
+from mjexplore.scenes.scene import MAX_UNREACHABLE_SHARE, clearance, unreachable_share
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -120,6 +123,15 @@ class _Region:
     corridor: bool = False
 
 
+def _uniform(rng: np.random.Generator, low: float, high: float, size: int | None = None):
+    """``rng.uniform(low, high)``, taking a range that round-off left a hair below ``low``
+    as empty (``low``); a range shorter than that is a region too small for its layout."""
+    if high < low - 1e-6:
+        raise UserInputError("the scene is too small for this layout at this seed: make it "
+                             "larger, the walls thinner, or try another --seed.")
+    return rng.uniform(low, max(low, high), size)
+
+
 def _bsp(rect: Rect, rng: np.random.Generator, lo: float, hi: float) -> list[Rect]:
     """Splits ``rect`` recursively until every side is at most ``hi`` (and at least ``lo``)."""
     out: list[Rect] = []
@@ -133,10 +145,10 @@ def _bsp(rect: Rect, rng: np.random.Generator, lo: float, hi: float) -> list[Rec
             continue
         split_x = can_x and (not can_y or r.w > r.h or (r.w == r.h and rng.random() < 0.5))
         if split_x:
-            x = rng.uniform(r.x0 + lo, r.x1 - lo)
+            x = _uniform(rng, r.x0 + lo, r.x1 - lo)
             stack += [Rect(r.x0, r.y0, x, r.y1), Rect(x, r.y0, r.x1, r.y1)]
         else:
-            y = rng.uniform(r.y0 + lo, r.y1 - lo)
+            y = _uniform(rng, r.y0 + lo, r.y1 - lo)
             stack += [Rect(r.x0, r.y0, r.x1, y), Rect(r.x0, y, r.x1, r.y1)]
     return out
 
@@ -257,11 +269,11 @@ def carve_office(canvas: Canvas, region: Rect, rng: np.random.Generator,
         raise UserInputError(f"office needs at least "
                              f"{2 * lo + cfg.office_corridor_width[0] + cfg.wall_thickness:.1f} m "
                              "on its short side: make the scene larger.")
-    yc0 = rng.uniform(r.y0 + lo, r.y1 - lo - cw)
+    yc0 = _uniform(rng, r.y0 + lo, r.y1 - lo - cw)
     yc1 = yc0 + cw
     regions = [_Region(Rect(r.x0, yc0, r.x1, yc1), corridor=True)]
     n_cross = max(0, round(r.w / 16.0))
-    xs = np.sort(rng.uniform(r.x0 + lo, r.x1 - lo - cw, size=n_cross)) if n_cross else []
+    xs = np.sort(_uniform(rng, r.x0 + lo, r.x1 - lo - cw, size=n_cross)) if n_cross else []
     for y0, y1 in ((r.y0, yc0), (yc1, r.y1)):
         cuts = [x for x in xs if rng.random() < 0.75]
         edges = [r.x0]
@@ -374,7 +386,7 @@ def carve_loop(canvas: Canvas, region: Rect, rng: np.random.Generator,
                              "scene larger.")
     margin = half
     if side >= 14.0:
-        margin = rng.uniform(2.0, min(4.5, side / 2 - w - 2.5))
+        margin = _uniform(rng, 2.0, min(4.5, side / 2 - w - 2.5))
     ring = region.inset(margin)
     for strip in (Rect(ring.x0, ring.y0, ring.x1, ring.y0 + w),
                   Rect(ring.x0, ring.y1 - w, ring.x1, ring.y1),
@@ -384,10 +396,10 @@ def carve_loop(canvas: Canvas, region: Rect, rng: np.random.Generator,
     core = ring.inset(w)
     if rng.random() < 0.6 and min(core.w, core.h) > 2 * w + 2.0:
         if rng.random() < 0.5:
-            x = rng.uniform(core.x0 + 1.0, core.x1 - 1.0 - w)
+            x = _uniform(rng, core.x0 + 1.0, core.x1 - 1.0 - w)
             canvas.carve(Rect(x, core.y0 - 0.01, x + w, core.y1 + 0.01))
         else:
-            y = rng.uniform(core.y0 + 1.0, core.y1 - 1.0 - w)
+            y = _uniform(rng, core.y0 + 1.0, core.y1 - 1.0 - w)
             canvas.carve(Rect(core.x0 - 0.01, y, core.x1 + 0.01, y + w))
     outward = margin - half - cfg.wall_thickness
     for _ in range(int(rng.integers(1, 4))):
@@ -426,6 +438,8 @@ def carve_hall(canvas: Canvas, region: Rect, rng: np.random.Generator,
             break
         sx, sy = (rng.uniform(0.3, 0.6),) * 2 if rng.random() < 0.5 else (
             rng.uniform(0.4, 1.6), rng.uniform(0.4, 0.8))
+        if inner.x1 - 1.0 - sx < inner.x0 + 1.0 or inner.y1 - 1.0 - sy < inner.y0 + 1.0:
+            continue  # No room for this block 1 m clear of the walls.
         x = rng.uniform(inner.x0 + 1.0, inner.x1 - 1.0 - sx)
         y = rng.uniform(inner.y0 + 1.0, inner.y1 - 1.0 - sy)
         r = Rect(x, y, x + sx, y + sy)
@@ -461,29 +475,32 @@ def parse_family(family: str) -> list[str]:
 
 
 def _join_parts(canvas: Canvas, x_split: float, y0: float, y1: float,
-                rng: np.random.Generator, cfg: GeneratorConfig) -> None:
+                rng: np.random.Generator, cfg: GeneratorConfig,
+                targets: tuple[np.ndarray, np.ndarray] | None = None) -> None:
     """Cuts a passage across the vertical wall at ``x_split`` between two parts.
 
     Picks a band of rows (one door width) where free space lies within a reach on both
     sides of the wall and carves straight through to it; the reach grows (4, 8, 16, 32 m)
-    until such a band exists.
+    until such a band exists. ``targets``: (left, right) masks of the only cells that count
+    as free on each side.
     """
     for reach in (4.0, 8.0, 16.0, 32.0):
-        if _join_parts_within(canvas, x_split, y0, y1, rng, cfg, reach):
+        if _join_parts_within(canvas, x_split, y0, y1, rng, cfg, reach, targets):
             return
 
 
 def _join_parts_within(canvas: Canvas, x_split: float, y0: float, y1: float,
-                       rng: np.random.Generator, cfg: GeneratorConfig, reach: float) -> bool:
+                       rng: np.random.Generator, cfg: GeneratorConfig, reach: float,
+                       targets: tuple[np.ndarray, np.ndarray] | None) -> bool:
     res = canvas.resolution
-    free = ~canvas.solid
+    free_l, free_r = (~canvas.solid,) * 2 if targets is None else targets
     xs = round(x_split / res)
     k = round(reach / res)
     r0, r1 = round((y0 + 1.0) / res), round((y1 - 1.0) / res)
     if r1 <= r0:
         return False
-    left = free[r0:r1, max(xs - k, 0):xs][:, ::-1]
-    right = free[r0:r1, xs:xs + k]
+    left = free_l[r0:r1, max(xs - k, 0):xs][:, ::-1]
+    right = free_r[r0:r1, xs:xs + k]
     has_l, has_r = left.any(axis=1), right.any(axis=1)
     dist_l = np.where(has_l, left.argmax(axis=1), k)
     dist_r = np.where(has_r, right.argmax(axis=1), k)
@@ -497,6 +514,37 @@ def _join_parts_within(canvas: Canvas, x_split: float, y0: float, y1: float,
     dl, dr = int(dist_l[s:s + band].max()), int(dist_r[s:s + band].max())
     canvas.solid[r0 + s:r0 + s + band, xs - dl:xs + dr] = False
     return True
+
+
+def _footprint_regions(canvas: Canvas) -> np.ndarray:
+    """Labels of the connected regions the robot's footprint centre can move through."""
+    fits = clearance(~canvas.solid, canvas.resolution) > TURTLEBOT3_WAFFLE.footprint_radius
+    return ndimage.label(fits, structure=np.ones((3, 3)))[0]
+
+
+def _main_regions(labels: np.ndarray, cols: np.ndarray) -> list[np.ndarray]:
+    """Per part (columns ``cols[i]:cols[i + 1]``), its largest footprint region's cells."""
+    masks = []
+    for c0, c1 in zip(cols[:-1], cols[1:]):
+        counts = np.bincount(labels[:, c0:c1].ravel())
+        counts[0] = 0
+        mask = np.zeros(labels.shape, bool)
+        mask[:, c0:c1] = labels[:, c0:c1] == np.argmax(counts) if counts.any() else False
+        masks.append(mask)
+    return masks
+
+
+def _reconnect_parts(canvas: Canvas, bounds: np.ndarray, mains: list[np.ndarray],
+                     area: Rect, rng: np.random.Generator, cfg: GeneratorConfig) -> None:
+    """Joins neighbouring parts whose main regions (``mains``, as carved, before the
+    joins) the joins left apart: a join can reach a pocket of the next part, or a stub
+    of the previous one reaching into it, instead of its main region."""
+    for i, x in enumerate(bounds[1:-1]):
+        labels = _footprint_regions(canvas)
+        ids = [np.bincount(labels[m]).argmax() if m.any() else 0 for m in mains[i:i + 2]]
+        if ids[0] != ids[1] and min(ids) > 0:
+            _join_parts(canvas, float(x), area.y0, area.y1, rng, cfg,
+                        targets=(labels == ids[0], labels == ids[1]))
 
 
 def generate_solid(family: str, width: float, height: float, resolution: float,
@@ -530,12 +578,20 @@ def generate_solid(family: str, width: float, height: float, resolution: float,
         bounds = np.round(bounds / resolution) * resolution
         for name, x0, x1 in zip(parts, bounds[:-1], bounds[1:]):
             FAMILIES[name](canvas, Rect(float(x0), area.y0, float(x1), area.y1), rng, cfg)
+        mains = _main_regions(_footprint_regions(canvas),
+                              np.round(bounds / resolution).astype(int))
         for x in bounds[1:-1]:
             _join_parts(canvas, float(x), area.y0, area.y1, rng, cfg)
             if rng.random() < 0.5:
                 _join_parts(canvas, float(x), area.y0, area.y1, rng, cfg)
-    solid = canvas.solid.T.copy() if transpose else canvas.solid
-    # The outer wall stays closed whatever a generator carved.
+        if unreachable_share(_closed(canvas.solid.copy(), cfg, resolution), resolution) > \
+                MAX_UNREACHABLE_SHARE:
+            _reconnect_parts(canvas, bounds, mains, area, rng, cfg)
+    return _closed(canvas.solid.T.copy() if transpose else canvas.solid, cfg, resolution)
+
+
+def _closed(solid: np.ndarray, cfg: GeneratorConfig, resolution: float) -> np.ndarray:
+    """``solid`` with its outer wall closed, whatever a generator carved (in place)."""
     t = max(1, round(cfg.wall_thickness / resolution))
     solid[:t // 2 or 1, :] = solid[-(t // 2 or 1):, :] = True
     solid[:, :t // 2 or 1] = solid[:, -(t // 2 or 1):] = True

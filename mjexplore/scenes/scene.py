@@ -108,18 +108,28 @@ def reachable_region(free: np.ndarray, resolution: float, seed_cell: tuple[int, 
     return cspace, reach
 
 
-def fill_unreachable(solid: np.ndarray, resolution: float, max_fraction: float = 0.1,
-                     ) -> np.ndarray:
+# Largest share of a generated layout's free area that may be unreachable pockets.
+MAX_UNREACHABLE_SHARE = 0.1
+
+
+def unreachable_share(solid: np.ndarray, resolution: float) -> float:
+    """Share of the free area the robot's footprint cannot reach from the largest region."""
+    free = ~solid
+    _, reach = reachable_region(free, resolution, None)
+    return 1.0 - reach.sum() / max(int(free.sum()), 1) if reach.any() else 1.0
+
+
+def fill_unreachable(solid: np.ndarray, resolution: float) -> np.ndarray:
     """Fills free pockets the robot's footprint cannot reach, so free space is one region.
 
     Raises:
-        RuntimeError: more than ``max_fraction`` of the free area would be filled (a
-            generator bug, not a user error).
+        RuntimeError: more than ``MAX_UNREACHABLE_SHARE`` of the free area would be filled
+            (a generator bug, not a user error).
     """
     free = ~solid
     _, reach = reachable_region(free, resolution, None)
     lost = int(free.sum() - reach.sum())
-    if not reach.any() or lost > max_fraction * free.sum():
+    if not reach.any() or lost > MAX_UNREACHABLE_SHARE * free.sum():
         raise RuntimeError(f"generated layout leaves {lost} of {int(free.sum())} free cells "
                            "unreachable")
     return ~reach
