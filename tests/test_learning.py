@@ -553,7 +553,7 @@ def test_cli_refuses_bad_policy_weights(tmp_path):
     r = subprocess.run([sys.executable, "-m", "mjexplore.cli", "explore", "--scene", "train_loop",
                         "--explorer", "nearest", "--policy", str(bad), "--out", str(out)],
                        capture_output=True, text=True)
-    assert r.returncode == 2 and "--explorer gvn" in r.stderr
+    assert r.returncode == 2 and "learned explorers" in r.stderr
 
 
 def test_ablation_explorers_say_how_to_make_their_missing_policy(tmp_path, monkeypatch):
