@@ -9,6 +9,7 @@ import argparse
 import dataclasses
 import json
 import logging
+import os
 import shlex
 import sys
 from collections.abc import Sequence
@@ -411,6 +412,19 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# The MUJOCO_GL values MuJoCo accepts on Linux (it refuses others when it is imported).
+MUJOCO_GL_VALUES = ("egl", "osmesa", "glx", "glfw", "", "disable", "disabled", "off", "false",
+                    "0", "enable", "enabled", "on", "true", "1")
+
+
+def _check_gl_setting() -> None:
+    value = os.environ.get("MUJOCO_GL")
+    if (sys.platform.startswith("linux") and value is not None
+            and value.lower().strip() not in MUJOCO_GL_VALUES):
+        raise UserInputError(f"MUJOCO_GL={value!r} is not a GL backend MuJoCo knows: set it "
+                             "to egl or osmesa, or unset it to let mjexplore choose.")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -422,6 +436,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     bound_heap_growth()  # Long runs on large maps: see mjexplore/memory.py.
     try:
+        _check_gl_setting()
         return args.func(args)
     except UserInputError as exc:
         print(f"mjexplore {args.command}: error: {exc}", file=sys.stderr)

@@ -237,6 +237,13 @@ def test_cnn_explorer_takes_a_policy_file(tmp_path):
     assert config["explorer_kwargs"]["policy"] == str(DEFAULT_WEIGHTS)
 
 
+def test_an_unknown_gl_backend_is_a_clear_error(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("MUJOCO_GL", "bogus")
+    assert main(["explore", "--scene", "train_loop", "--out", str(tmp_path / "o")]) == 2
+    assert "MUJOCO_GL='bogus'" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
 def test_drive_writes_run_folder(tmp_path):
     assert main(["drive", "--scene", "lobby", "--duration", "5", "--out", str(tmp_path / "r")]) == 0
     summary = json.loads((tmp_path / "r" / "summary.json").read_text())

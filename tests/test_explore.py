@@ -131,6 +131,41 @@ def test_mcap_log_reads_back(tmp_path):
     assert max(last.values()) <= 8.0e9 + 1
 
 
+def test_mcap_tf_puts_the_robot_where_the_map_was_built_and_ends_with_the_final_map(
+        tmp_path):
+    from mcap.reader import make_reader
+
+    from mjexplore.eval.run import run_episode
+    from mjexplore.render.replay import _decoders, _yaw
+
+    path = tmp_path / "ep.mcap"
+    result = run_episode(resolve_scene(SMALL_LOOP), "nearest", 0, EpisodeConfig(max_time=7.3),
+                         mcap_path=path)
+    tf, pose, maps = {}, {}, []
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        classes = _decoders(reader.get_summary())
+        for schema, channel, message in reader.iter_messages(topics=["/tf", "/pose", "/map"]):
+            msg = classes[schema.id].FromString(message.data)
+            if channel.topic == "/tf":
+                tf[message.log_time] = {(t.parent_frame_id, t.child_frame_id): (
+                    t.translation.x, t.translation.y, _yaw(t.rotation)) for t in msg.transforms}
+            elif channel.topic == "/pose":
+                p = msg.pose
+                pose[message.log_time] = (p.position.x, p.position.y, _yaw(p.orientation))
+            else:
+                maps.append((message.log_time, np.frombuffer(msg.data, np.int8)))
+    for stamp, frames in tf.items():
+        (mx, my, myaw), (ox, oy, oyaw) = frames["map", "odom"], frames["odom", "base_link"]
+        c, s = math.cos(myaw), math.sin(myaw)
+        chained = (mx + c * ox - s * oy, my + s * ox + c * oy, myaw + oyaw)
+        assert np.allclose(chained[:2], pose[stamp][:2], atol=1e-6)
+        assert math.isclose(math.remainder(chained[2] - pose[stamp][2], math.tau), 0.0,
+                            abs_tol=1e-6)
+    assert maps[-1][0] == round(7.3e9)  # Between the 1 s ticks: logged at the end.
+    assert np.array_equal(maps[-1][1], result.grid.data.reshape(-1))
+
+
 def test_rrt_mean_shift_finds_one_mode_per_cluster():
     from mjexplore.explorers.rrt import mean_shift
 

@@ -107,6 +107,14 @@ def test_video_file_is_closed_on_an_exception(tmp_path):
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
+def test_a_video_path_that_is_a_folder_is_refused_up_front(tmp_path):
+    from mjexplore.io.video import VideoWriter
+
+    with pytest.raises(UserInputError, match="is a folder"):
+        VideoWriter(tmp_path, 5.0)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_explore_video_stills_and_replay(tmp_path):
     _gl_or_skip()
     from mjexplore.render.replay import render_run
@@ -127,6 +135,25 @@ def test_explore_video_stills_and_replay(tmp_path):
     assert replay[0].shape == (120, 320, 3)
     with pytest.raises(UserInputError, match="not a run folder"):
         render_run(tmp_path, None, config)
+
+
+@pytest.mark.parametrize("period, max_time", [(0.05, 2.0), (1.0, 7.3)])
+def test_live_and_replayed_videos_have_one_frame_per_period_and_the_final_state(
+        tmp_path, period, max_time):
+    _gl_or_skip()
+    from mjexplore.render.replay import render_run
+
+    config = VideoConfig(width=64, height=48, fps=10.0, sim_seconds_per_frame=period)
+    out = tmp_path / "run"
+    write_run(out, resolve_scene("train_loop"), "nearest", 0, EpisodeConfig(max_time=max_time),
+              video=config)
+    expected = int(round(max_time // period)) + 1 + (max_time % period > 1e-6)
+    live, meta = _read_video(out / "video.mp4")
+    assert len(live) == expected
+    assert meta["duration"] == pytest.approx(expected / 10.0, abs=0.11)  # Time scale kept.
+    assert render_run(out, tmp_path / "replay.mp4", config)["frames"] == expected
+    mode = lambda name: oct((out / name).stat().st_mode & 0o777)  # noqa: E731
+    assert mode("video.mp4") == mode("metrics.json")  # The umask's, not a temp file's 0600.
 
 
 def test_rendering_failure_names_the_packages(monkeypatch):

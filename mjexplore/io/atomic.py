@@ -19,6 +19,11 @@ _UMASK = os.umask(0o022)
 os.umask(_UMASK)
 
 
+def give_usual_permissions(path: str | os.PathLike) -> None:
+    """Sets a (temporary) file's or folder's mode to what the umask gives new ones."""
+    os.chmod(path, (0o777 if Path(path).is_dir() else 0o666) & ~_UMASK)
+
+
 def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> None:
     """Writes ``data`` to ``path`` through a temporary file in the same folder."""
     path = Path(path)
@@ -68,7 +73,7 @@ def atomic_directory(path: str | os.PathLike, marker: str) -> Iterator[Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
     try:
-        tmp.chmod(0o777 & ~_UMASK)
+        give_usual_permissions(tmp)
         yield tmp
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)

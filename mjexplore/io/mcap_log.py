@@ -81,6 +81,8 @@ class McapEpisodeLog:
         self._tmp = self.path.with_name(f".{self.path.name}.tmp")
         self.map_period = map_period
         self._next_map = 0.0
+        self._map_logged = -math.inf  # Time of the last /map message...
+        self._last_scan = None  # ...and (time, live map) at the last scan.
         self._last_kin = 0
         self.context = foxglove.Context()
         self.writer = foxglove.open_mcap(self._tmp, allow_overwrite=True, context=self.context)
@@ -109,8 +111,15 @@ class McapEpisodeLog:
             ranges=[float(r) if math.isfinite(r) else float("inf") for r in scan.ranges],
             intensities=[]), log_time=ns)
         x, y, yaw = sim.pose
-        ox, oy, oyaw = sim.odom_origin
         dx, dy, dyaw = sim.odom_pose
+        if episode.config.mapping_pose == "ground_truth":
+            # REP-105: map -> odom absorbs the drift, as a perfect localiser would, so
+            # that base_link through /tf sits where the map was built from.
+            oyaw = yaw - dyaw
+            c, s_ = math.cos(oyaw), math.sin(oyaw)
+            ox, oy = x - (c * dx - s_ * dy), y - (s_ * dx + c * dy)
+        else:  # The map is built from odometry: it is the robot's whole estimate.
+            ox, oy, oyaw = sim.odom_origin
         sx, sy, sz = TURTLEBOT3_WAFFLE.scan_offset
         self.tf.log(FrameTransforms(transforms=[
             _transform(t, "map", "odom", ox, oy, oyaw),
@@ -123,6 +132,8 @@ class McapEpisodeLog:
         if t >= self._next_map - 1e-9:
             self._next_map = t + self.map_period
             self.log_map(t, episode.mapper.grid)
+            self._map_logged = t
+        self._last_scan = (t, episode.mapper.grid)
         self._log_kinematics(sim)
 
     def on_decision(self, episode, state) -> None:
@@ -178,6 +189,9 @@ class McapEpisodeLog:
             log_time=_ns(t))
 
     def close(self) -> None:
-        """Finishes the file and moves it into place."""
+        """Logs the final map (if newer than the last one logged), finishes the file and
+        moves it into place."""
+        if self._last_scan is not None and self._last_scan[0] > self._map_logged:
+            self.log_map(*self._last_scan)
         self.writer.close()
         os.replace(self._tmp, self.path)

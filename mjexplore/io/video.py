@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from mjexplore.errors import UserInputError
+from mjexplore.io.atomic import give_usual_permissions
 
 
 class VideoWriter:
@@ -31,11 +32,15 @@ class VideoWriter:
         if fps <= 0:
             raise UserInputError(f"video fps {fps} must be positive.")
         self.path = Path(path)
+        if self.path.is_dir():
+            raise UserInputError(f"{str(self.path)!r} is a folder: give the video a file name "
+                                 "(e.g. video.mp4).")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(suffix=".mp4", prefix=f".{self.path.name}.",
                                    dir=self.path.parent)
         os.close(fd)
         self._tmp = Path(tmp)
+        give_usual_permissions(self._tmp)
         self.fps = fps
         self.frames = 0
         self._writer = imageio.get_writer(self._tmp, format="FFMPEG", mode="I", fps=fps,
@@ -54,11 +59,12 @@ class VideoWriter:
         if self._closed:
             return
         self._closed = True
-        self._writer.close()
-        if self.frames:
-            os.replace(self._tmp, self.path)
-        else:
-            self._tmp.unlink(missing_ok=True)
+        try:
+            self._writer.close()
+            if self.frames:
+                os.replace(self._tmp, self.path)
+        finally:
+            self._tmp.unlink(missing_ok=True)  # Gone already if it was moved into place.
 
     def __enter__(self) -> "VideoWriter":
         return self

@@ -114,9 +114,11 @@ class EpisodeVideo:
     def on_scan(self, episode, scan) -> None:
         self._episode = episode
         if scan.stamp + 1e-9 >= self._next:
-            self._next += self.config.sim_seconds_per_frame
+            frame = self.frame(episode)
             self._last_frame_time = scan.stamp
-            self.writer.append(self.frame(episode))
+            while scan.stamp + 1e-9 >= self._next:  # Periods shorter than a scan repeat it.
+                self.writer.append(frame)
+                self._next += self.config.sim_seconds_per_frame
 
     def on_decision(self, episode, state) -> None:
         ter = state.extras.get("ter")

@@ -146,7 +146,10 @@ def render_run(run_dir: str | os.PathLike, out: str | os.PathLike | None = None,
     tracker, gvd_map, segments = None, None, None
     frames = 0
     with VideoWriter(out, config.fps) as writer:
-        for t in np.arange(0.0, poses[-1, 0] + 1e-9, config.sim_seconds_per_frame):
+        times = np.arange(0.0, poses[-1, 0] + 1e-9, config.sim_seconds_per_frame)
+        if poses[-1, 0] > times[-1] + 1e-9:
+            times = np.append(times, poses[-1, 0])  # The final state, as the live video.
+        for t in times:
             k = max(int(np.searchsorted(poses[:, 0], t + 1e-9)) - 1, 0)
             _, x, y, yaw = poses[k]
             data.qpos[qadr:qadr + 7] = (x, y, z0, math.cos(yaw / 2), 0, 0, math.sin(yaw / 2))
