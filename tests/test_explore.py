@@ -166,6 +166,21 @@ def test_mcap_tf_puts_the_robot_where_the_map_was_built_and_ends_with_the_final_
     assert np.array_equal(maps[-1][1], result.grid.data.reshape(-1))
 
 
+@pytest.mark.parametrize("explorer", ["nearest", "potential"])
+def test_explorers_choose_a_goal_on_a_map_smaller_than_their_coarse_cells(explorer):
+    from mjexplore.maps import FREE, UNKNOWN, GridMap
+    from mjexplore.navigation.planner import Costmap, PlannerConfig
+    from mjexplore.topology.frontiers import find_frontiers
+
+    grid = GridMap(np.array([[FREE, FREE, UNKNOWN]] * 3, np.int8), 0.05)
+    costmap = Costmap(grid, np.full(grid.shape, 10**6, np.int64), PlannerConfig(
+        lethal_radius=0.0, soft_radius=0.01))
+    state = ExplorationState(grid, np.array([0.025, 0.075, 0.0]), 0.0,
+                             find_frontiers(grid, min_size=1), costmap, np.zeros((0, 2)))
+    goal = make_explorer(explorer).select_goal(state)
+    assert goal is not None and np.allclose(goal, state.frontiers[0].goal)
+
+
 def test_rrt_mean_shift_finds_one_mode_per_cluster():
     from mjexplore.explorers.rrt import mean_shift
 

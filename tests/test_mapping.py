@@ -58,6 +58,27 @@ def test_beam_without_return_clears_to_range_max():
     assert not (mapper.state == OCCUPIED).any()
 
 
+def test_a_return_closer_than_range_min_clears_nothing():
+    mapper = OccupancyMapper((10, 60), (0.0, 0.0), MapperConfig(resolution=0.1))
+    scan = LaserScan(0.0, np.array([-np.inf, np.nan], np.float32), np.array([0.0, 0.5]), 2.0,
+                     np.array([0.55, 0.55, 0.0]))
+    assert len(mapper.integrate(scan)) == 0
+    assert (mapper.state == UNKNOWN).all()
+
+
+def test_lidar_reports_too_close_returns_as_minus_inf(box_room):
+    folder, (x0, _, _, _) = box_room
+    lidar = LidarConfig(range_min=0.6, noise_std=0.0)
+    sim = Simulator(folder, SimConfig(lidar=lidar))
+    scan = sim.reset((x0 + 0.5, 2.2, 0.0))  # The wall behind is ~0.44 m from the lidar.
+    behind = np.abs(np.abs(scan.angles) - math.pi) < 0.3
+    assert np.isneginf(scan.ranges[behind]).all()
+    ahead = np.abs(scan.angles) < 0.5
+    assert (np.isfinite(scan.ranges[ahead]) & (scan.ranges[ahead] > 4.0)).all()
+    valid = np.isfinite(scan.ranges)
+    assert (scan.ranges[valid] >= lidar.range_min).all()
+
+
 def test_metrics_on_hand_built_maps():
     truth = grid([[O, O, O, O, O],
                   [O, F, F, F, O],

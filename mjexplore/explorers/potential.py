@@ -84,7 +84,7 @@ class PotentialField:
         if not state.frontiers:
             return None
         grid = state.grid
-        f = max(1, int(round(self.coarse_cell / grid.resolution)))
+        f = max(1, min(int(round(self.coarse_cell / grid.resolution)), *grid.shape))
         rows, cols = grid.shape[0] // f, grid.shape[1] // f
         fine = state.costmap.traversable[: rows * f, : cols * f]
         traversable = fine.reshape(rows, f, cols, f).any(axis=(1, 3)).reshape(-1)

@@ -108,7 +108,7 @@ class McapEpisodeLog:
         self.scan.log(FoxgloveLaserScan(
             timestamp=_stamp(t), frame_id="base_scan", pose=_pose(0.0, 0.0, 0.0),
             start_angle=float(scan.angles[0]), end_angle=float(scan.angles[-1]),
-            ranges=[float(r) if math.isfinite(r) else float("inf") for r in scan.ranges],
+            ranges=[float(r) for r in scan.ranges],  # +-inf as REP-117 has them.
             intensities=[]), log_time=ns)
         x, y, yaw = sim.pose
         dx, dy, dyaw = sim.odom_pose

@@ -103,6 +103,8 @@ def _integrate_scan(logodds, state, stamp, old_state, touched, scan_id, x0, y0, 
             stamp[k] = -scan_id  # Negative stamp: a return cell in this scan.
     # Pass 2: misses along each beam (Amanatides-Woo), skipping return cells.
     for i in range(len(ranges)):
+        if np.isnan(ranges[i]) or ranges[i] < 0:
+            continue  # Too close (-inf) or invalid: says nothing about the space beyond.
         dx = math.cos(angles[i])
         dy = math.sin(angles[i])
         cx = int(math.floor(x0))

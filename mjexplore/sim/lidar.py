@@ -78,7 +78,8 @@ class LaserScan:
 
     Attributes:
         stamp: Simulated time of the scan in seconds.
-        ranges: float32 ranges in metres; ``inf`` where there is no valid return.
+        ranges: float32 ranges in metres (REP-117): ``inf`` where there is no return within
+            ``range_max``, ``-inf`` where the return is closer than ``range_min``.
         angles: Beam angles in the ``base_scan`` frame in radians.
         range_max: Maximum range in metres.
         pose: (x, y, yaw) of ``base_scan`` in the world (``map``) frame at scan time.
@@ -220,7 +221,10 @@ class Lidar:
         ranges = dist.astype(np.float32)
         if cfg.noise_std > 0:
             ranges += self.rng.normal(0.0, cfg.noise_std, size=ranges.shape).astype(np.float32)
-        ranges[(dist < 0) | (ranges > cfg.range_max) | (ranges < cfg.range_min)] = np.inf
+        # REP-117: -inf for a return closer than range_min (invalid: nothing may be
+        # cleared along it), +inf for none within range_max (free out to range_max).
+        ranges[(dist >= 0) & (ranges < cfg.range_min)] = -np.inf
+        ranges[(dist < 0) | (ranges > cfg.range_max)] = np.inf
         rot = data.site_xmat[self.site_id]
         origin = data.site_xpos[self.site_id]
         yaw = math.atan2(rot[3], rot[0])
