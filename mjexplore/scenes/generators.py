@@ -516,9 +516,9 @@ def _join_parts_within(canvas: Canvas, x_split: float, y0: float, y1: float,
     return True
 
 
-def _footprint_regions(canvas: Canvas) -> np.ndarray:
+def _footprint_regions(solid: np.ndarray, resolution: float) -> np.ndarray:
     """Labels of the connected regions the robot's footprint centre can move through."""
-    fits = clearance(~canvas.solid, canvas.resolution) > TURTLEBOT3_WAFFLE.footprint_radius
+    fits = clearance(~solid, resolution) > TURTLEBOT3_WAFFLE.footprint_radius
     return ndimage.label(fits, structure=np.ones((3, 3)))[0]
 
 
@@ -540,7 +540,7 @@ def _reconnect_parts(canvas: Canvas, bounds: np.ndarray, mains: list[np.ndarray]
     joins) the joins left apart: a join can reach a pocket of the next part, or a stub
     of the previous one reaching into it, instead of its main region."""
     for i, x in enumerate(bounds[1:-1]):
-        labels = _footprint_regions(canvas)
+        labels = _footprint_regions(canvas.solid, canvas.resolution)
         ids = [np.bincount(labels[m]).argmax() if m.any() else 0 for m in mains[i:i + 2]]
         if ids[0] != ids[1] and min(ids) > 0:
             _join_parts(canvas, float(x), area.y0, area.y1, rng, cfg,
@@ -578,14 +578,15 @@ def generate_solid(family: str, width: float, height: float, resolution: float,
         bounds = np.round(bounds / resolution) * resolution
         for name, x0, x1 in zip(parts, bounds[:-1], bounds[1:]):
             FAMILIES[name](canvas, Rect(float(x0), area.y0, float(x1), area.y1), rng, cfg)
-        mains = _main_regions(_footprint_regions(canvas),
-                              np.round(bounds / resolution).astype(int))
+        carved = canvas.solid.copy()  # The parts before they are joined.
         for x in bounds[1:-1]:
             _join_parts(canvas, float(x), area.y0, area.y1, rng, cfg)
             if rng.random() < 0.5:
                 _join_parts(canvas, float(x), area.y0, area.y1, rng, cfg)
         if unreachable_share(_closed(canvas.solid.copy(), cfg, resolution), resolution) > \
                 MAX_UNREACHABLE_SHARE:
+            mains = _main_regions(_footprint_regions(carved, resolution),
+                                  np.round(bounds / resolution).astype(int))
             _reconnect_parts(canvas, bounds, mains, area, rng, cfg)
     return _closed(canvas.solid.T.copy() if transpose else canvas.solid, cfg, resolution)
 
