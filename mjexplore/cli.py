@@ -19,6 +19,8 @@ from mjexplore.errors import UserInputError
 
 log = logging.getLogger("mjexplore")
 
+DEFAULT_SCENE_SIZE = (40.0, 25.0)  # Generated scenes, metres (the paper's office).
+
 
 def _size(text: str) -> tuple[float, float]:
     try:
@@ -101,8 +103,9 @@ def cmd_scene_gen(args: argparse.Namespace) -> int:
                                  "see 'mjexplore scene-gen --list'.")
         from mjexplore.scenes.generate import generate_scene
 
-        cfg = GeneratorConfig(wall_thickness=args.wall_thickness or 0.15)
-        scene = generate_scene(args.family, *(args.size or (40.0, 25.0)), seed=args.seed,
+        cfg = (GeneratorConfig() if args.wall_thickness is None else
+               GeneratorConfig(wall_thickness=args.wall_thickness))
+        scene = generate_scene(args.family, *(args.size or DEFAULT_SCENE_SIZE), seed=args.seed,
                                resolution=args.resolution or 0.05, config=cfg, name=args.name)
         if args.start is not None:
             raise UserInputError("--start applies to --from-map; generated scenes pick their "
@@ -287,8 +290,10 @@ def build_parser() -> argparse.ArgumentParser:
                      "several joined by '+' (e.g. loop+rooms)")
     gen.add_argument("--seed", type=_seed, default=0, help="generator seed (default 0)")
     gen.add_argument("--size", type=_size, default=None,
-                     help="WIDTHxHEIGHT in metres, outer walls included (default 40x25)")
-    gen.add_argument("--wall-thickness", type=_positive, default=None, help="metres (0.15)")
+                     help="WIDTHxHEIGHT in metres, outer walls included (default "
+                     f"{DEFAULT_SCENE_SIZE[0]:g}x{DEFAULT_SCENE_SIZE[1]:g})")
+    gen.add_argument("--wall-thickness", type=_positive, default=None,
+                     help="metres (default 0.15)")
     gen.add_argument("--resolution", type=_positive, default=None,
                      help="ground-truth cell size in metres (0.05); for --from-map IMAGE, "
                      "the image's metres per pixel")

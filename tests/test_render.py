@@ -137,9 +137,12 @@ def test_explore_video_stills_and_replay(tmp_path):
         render_run(tmp_path, None, config)
 
 
-@pytest.mark.parametrize("period, max_time", [(0.05, 2.0), (1.0, 7.3)])
+@pytest.mark.parametrize("period, max_time, expected", [
+    (0.05, 2.0, 41),  # t = 0, 0.05, ..., 2.0: finer than the 0.1 s scans.
+    (1.0, 7.3, 9),  # t = 0, 1, ..., 7 and the final state at 7.3 s.
+])
 def test_live_and_replayed_videos_have_one_frame_per_period_and_the_final_state(
-        tmp_path, period, max_time):
+        tmp_path, period, max_time, expected):
     _gl_or_skip()
     from mjexplore.render.replay import render_run
 
@@ -147,7 +150,6 @@ def test_live_and_replayed_videos_have_one_frame_per_period_and_the_final_state(
     out = tmp_path / "run"
     write_run(out, resolve_scene("train_loop"), "nearest", 0, EpisodeConfig(max_time=max_time),
               video=config)
-    expected = int(round(max_time // period)) + 1 + (max_time % period > 1e-6)
     live, meta = _read_video(out / "video.mp4")
     assert len(live) == expected
     assert meta["duration"] == pytest.approx(expected / 10.0, abs=0.11)  # Time scale kept.

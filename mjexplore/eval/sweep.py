@@ -3,10 +3,10 @@
 Every episode writes its own run folder under ``OUT/runs/SCENE/EXPLORER/seedN`` (atomic);
 a sweep started again skips the episodes whose folder is complete (not ended by Ctrl-C), so
 an interrupted sweep resumes where it stopped. Finished runs made with other episode
-settings are refused rather than mixed in or overwritten. The summary is a Table-1-like table (mean +- std of IoU, ER, ET,
-PL, T80, T98.5 per scene and method) in ``results.md`` and ``results.csv``, a Fig-5-like
-plot per scene (``ratio_SCENE.png``) and a Fig-9-like kinematics plot per scene
-(``kinematics_SCENE.png``).
+settings are refused rather than mixed in or overwritten. The summary is a Table-1-like
+table (mean +- std of IoU, ER, ET, PL, T80, T98.5 per scene and method) in ``results.md``
+and ``results.csv``, a Fig-5-like plot per scene (``ratio_SCENE.png``) and a Fig-9-like
+kinematics plot per scene (``kinematics_SCENE.png``).
 """
 
 from __future__ import annotations
@@ -190,20 +190,24 @@ def format_mean_std(values: list) -> str:
 def write_summary(out: Path, jobs: list[Job]) -> None:
     """Writes the tables and figures of the finished runs among ``jobs``."""
     by_scene: dict[str, dict[str, list[Path]]] = {}
+    finished: dict[Path, dict[str, Any]] = {}
+    failed = []
     for job in jobs:
         folder = job.folder(out)
-        if _finished(folder) is not None:
+        metrics = _finished(folder)
+        if metrics is not None:
+            finished[folder] = metrics
             by_scene.setdefault(job.label, {}).setdefault(job.explorer, []).append(folder)
+        elif folder.with_name(folder.name + ".failed.json").is_file():
+            failed.append(job)
     header, rows = summary_table(
-        {(scene, method): [_finished(f) for f in folders]
+        {(scene, method): [finished[f] for f in folders]
          for scene, methods in by_scene.items() for method, folders in methods.items()})
     for scene, methods in by_scene.items():
         ratio_figure({m: [read_ratio_curve(f) for f in fs] for m, fs in methods.items()},
                      out / f"ratio_{scene}.png", f"{scene}: exploration ratio over time")
         kinematics_figure({m: [read_kinematics(f) for f in fs] for m, fs in methods.items()},
                           out / f"kinematics_{scene}.png", f"{scene}: kinematics")
-    failed = [job for job in jobs if _finished(job.folder(out)) is None and
-              job.folder(out).with_name(job.folder(out).name + ".failed.json").is_file()]
     buf = io.StringIO()
     csv.writer(buf).writerows([header] + rows)
     write_text_atomic(out / "results.csv", buf.getvalue())

@@ -94,8 +94,7 @@ class WanderController:
             self._centre = np.array([x, y])
         here = self._cells(np.array([x, y]))
         self._visits[here[1], here[0]] += 1
-        ranges = np.where(np.isfinite(scan.ranges), scan.ranges,
-                          np.where(scan.ranges < 0, 0.0, scan.range_max))  # -inf: too close.
+        ranges = np.nan_to_num(scan.ranges, posinf=scan.range_max, neginf=0.0)  # -inf: close.
         rel = (scan.angles + math.pi) % (2 * math.pi) - math.pi
         front = np.abs(rel) <= cfg.front_half_angle
         clearance = float(ranges[front].min()) if front.any() else scan.range_max

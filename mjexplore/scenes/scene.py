@@ -112,11 +112,17 @@ def reachable_region(free: np.ndarray, resolution: float, seed_cell: tuple[int, 
 MAX_UNREACHABLE_SHARE = 0.1
 
 
-def unreachable_share(solid: np.ndarray, resolution: float) -> float:
-    """Share of the free area the robot's footprint cannot reach from the largest region."""
+def _unreachable(solid: np.ndarray, resolution: float) -> tuple[np.ndarray, int, int]:
+    """(reach, free cells, free cells not reached) from the largest footprint region."""
     free = ~solid
     _, reach = reachable_region(free, resolution, None)
-    return 1.0 - reach.sum() / max(int(free.sum()), 1) if reach.any() else 1.0
+    return reach, int(free.sum()), int(free.sum() - reach.sum())
+
+
+def unreachable_share(solid: np.ndarray, resolution: float) -> float:
+    """Share of the free area the robot's footprint cannot reach from the largest region."""
+    reach, free, lost = _unreachable(solid, resolution)
+    return lost / max(free, 1) if reach.any() else 1.0
 
 
 def fill_unreachable(solid: np.ndarray, resolution: float) -> np.ndarray:
@@ -126,11 +132,9 @@ def fill_unreachable(solid: np.ndarray, resolution: float) -> np.ndarray:
         RuntimeError: more than ``MAX_UNREACHABLE_SHARE`` of the free area would be filled
             (a generator bug, not a user error).
     """
-    free = ~solid
-    _, reach = reachable_region(free, resolution, None)
-    lost = int(free.sum() - reach.sum())
-    if not reach.any() or lost > MAX_UNREACHABLE_SHARE * free.sum():
-        raise RuntimeError(f"generated layout leaves {lost} of {int(free.sum())} free cells "
+    reach, free, lost = _unreachable(solid, resolution)
+    if not reach.any() or lost > MAX_UNREACHABLE_SHARE * free:
+        raise RuntimeError(f"generated layout leaves {lost} of {free} free cells "
                            "unreachable")
     return ~reach
 

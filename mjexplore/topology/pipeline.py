@@ -69,8 +69,8 @@ class TopologyTracker:
             raise ValueError("ground-truth information gain needs the ground truth map")
         self.ground_truth = ground_truth
         self.gvd = DynamicGVD(shape)
-        self._frontiers: list[Frontier] | None = None  # Of the map as last observed...
-        self._frontiers_of: np.ndarray | None = None  # ...whose cell array is this one.
+        # (map cell array, its frontiers) as last observed.
+        self._frontiers: tuple[np.ndarray, list[Frontier]] | None = None
 
     def observe(self, grid: GridMap, changed: np.ndarray | None = None) -> int:
         """Updates the GVD after the map changed.
@@ -96,12 +96,11 @@ class TopologyTracker:
         Found once per map state: kept until the next :meth:`observe` (or a call with
         another map), so the explorer's view and the TER of one decision share them.
         """
-        if self._frontiers is None or grid.data is not self._frontiers_of:
+        if self._frontiers is None or self._frontiers[0] is not grid.data:
             cfg = self.config
-            self._frontiers = find_frontiers(grid, cfg.frontier_min_size,
-                                             cfg.frontier_max_length, free)
-            self._frontiers_of = grid.data
-        return self._frontiers
+            self._frontiers = grid.data, find_frontiers(grid, cfg.frontier_min_size,
+                                                        cfg.frontier_max_length, free)
+        return self._frontiers[1]
 
     def graph(self, grid: GridMap, free: np.ndarray | None = None) -> GvdGraph:
         """The GVD graph; ``free`` is ``grid.free`` if already computed."""
