@@ -23,6 +23,7 @@ import numpy as np
 
 from mjexplore.drive import odom_in_map
 from mjexplore.explorers.base import ExplorationState, Explorer
+from mjexplore.explorers.nearest import NearestFrontier
 from mjexplore.mapping.metrics import exploration_ratio, iou, observable_ground_truth
 from mjexplore.mapping.occupancy import MapperConfig, OccupancyMapper
 from mjexplore.maps import GridMap
@@ -231,6 +232,9 @@ class Episode:
         self._decision_due = False
         self._best_distance = math.inf
         self._best_time = 0.0
+        self._decided_at = 0.0
+        self._fallback = NearestFrontier()
+        self.fallbacks = 0
         self.blacklist: list[np.ndarray] = []
         self.curve: list[tuple[float, float]] = []
         self.goals: list[tuple[float, float, float]] = []
@@ -303,6 +307,7 @@ class Episode:
                                  ground_truth=self.scene.ground_truth,
                                  blacklist_radius=cfg.unreachable_radius,
                                  sensor_range=self.sim.lidar.config.range_max,
+                                 target_ratio=cfg.target_ratio,
                                  extras={"tracker": self.tracker})
         frontiers = self.tracker.frontiers(grid)
         if frontiers:
@@ -317,7 +322,14 @@ class Episode:
             False if the goal was refused and blacklisted: it cannot be reached, or it lies
             within reach yet its frontier is still open (the lidar cannot see it from here).
         """
-        self.goal = np.asarray(goal, float)
+        goal = np.asarray(goal, float)
+        if (self.goal is not None and np.array_equal(goal, self.goal) and
+                self.navigator.status == NavStatus.ACTIVE):
+            # A periodic re-plan that keeps the goal: carry on, progress clock running.
+            self._decision_due = False
+            self._decided_at = self.sim.time
+            return True
+        self.goal = goal
         self.goals.append((self.sim.time, *self.goal))
         if self.observer is not None:
             self.observer.on_decision(self, state if state is not None else self.decision_state())
@@ -328,18 +340,28 @@ class Episode:
                 self.navigator.set_goal(self.goal, self.costmap(), pose, self.sim.time):
             self._best_distance = float(np.hypot(*(self.goal - pose[:2])))
             self._best_time = self.sim.time
+            self._decided_at = self.sim.time
             self._decision_due = False
             return True
         self.blacklist.append(self.goal)
         return False
 
     def _decide(self) -> bool:
-        """Asks the explorer for a goal; False when it has none left."""
+        """Asks the explorer for a goal; False when exploration is over.
+
+        An explorer's "nothing left" is checked against the map: while a frontier that is
+        not blacklisted can be reached, the robot goes to the nearest one instead (counted
+        in ``fallbacks``), so an explorer that misses small or distant frontiers (one that
+        drops frontiers under a size, a coarse view) does not end the episode early.
+        """
         for _ in range(8):
             state = self.decision_state()
             goal = self.explorer.select_goal(state)
             if goal is None:
-                return False
+                goal = self._fallback.select_goal(state)
+                if goal is None:
+                    return False
+                self.fallbacks += 1
             if self.adopt_goal(goal, state):
                 return True
         return True  # Keep going; the next tick decides again.
@@ -367,12 +389,17 @@ class Episode:
 
     def decision_due(self) -> bool:
         """Whether the explorer must choose a goal before the next control period (the
-        goal was reached, vanished, failed or made no progress). Evaluated once per
-        control period; stays True until a goal is adopted."""
+        goal was reached, vanished, failed or made no progress, or the explorer re-plans
+        every ``replan_period`` seconds). Evaluated once per control period; stays True
+        until a goal is adopted."""
         if self._decision_due:
             return True
         cfg = self.config
         pose, t = self.sim.pose, self.sim.time
+        period = getattr(self.explorer, "replan_period", None)
+        if period is not None and self.goal is not None and t - self._decided_at >= period:
+            self._decision_due = True
+            return True
         if self.goal is not None and self.navigator.status == NavStatus.ACTIVE:
             d = float(np.hypot(*(self.goal - pose[:2])))
             if d < self._best_distance - 0.25:
@@ -447,6 +474,7 @@ class Episode:
                                   self.sim.collisions, self.end_reason or "running")
         metrics["exploration_ratio_check"] = round(exploration_ratio(grid, self.reference), 5)
         metrics["decisions"] = len(self.goals)
+        metrics["fallbacks"] = self.fallbacks
         return EpisodeResult(metrics, curve, log,
                              GridMap(grid.data.copy(), grid.resolution, grid.origin),
                              np.array(self.goals).reshape(-1, 3))

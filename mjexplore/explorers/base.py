@@ -34,6 +34,7 @@ class ExplorationState:
         blacklist_radius: Goals within this distance of a blacklisted one are out, metres.
         ground_truth: The true map, only for explorers allowed to know it (the oracle).
         sensor_range: The lidar's range, metres.
+        target_ratio: The exploration ratio at which the episode counts as explored.
         extras: Lazily computed helpers shared between explorers (TER, ...).
     """
 
@@ -47,6 +48,7 @@ class ExplorationState:
     blacklist_radius: float = 0.5
     ground_truth: GridMap | None = None
     sensor_range: float = 6.0
+    target_ratio: float = 0.985
     extras: dict = dataclasses.field(default_factory=dict)
 
     def allowed(self, points: np.ndarray) -> np.ndarray:
@@ -118,7 +120,8 @@ def make_explorer(name: str, **kwargs) -> Explorer:
     """
     import importlib
 
-    for module in ("nearest", "potential", "rrt", "oracle", "gvn", "cnn"):  # Each registers itself.
+    for module in ("nearest", "potential", "rrt", "oracle", "explore_lite", "frontier_tsp",
+                   "gvn", "cnn"):  # Each registers itself.
         try:
             importlib.import_module(f"mjexplore.explorers.{module}")
         except ModuleNotFoundError:

@@ -1,184 +1,357 @@
-"""The oracle: a planner that knows the ground truth, as a practical lower bound.
+"""The oracle: a ground-truth coverage planner, the bound every explorer is read against.
 
-It plans a tour of viewpoints that together see (nearly) all observable free space and
-wall surfaces: candidates on a ``spacing`` lattice in the robot's configuration space,
-their views by ray casting on the ground truth at the lidar's range, chosen one after
-another by new cells seen per metre of path from the previous one (a greedy covering
-tour, with path distances on the ground truth), then reordered by 2-opt so that the tour
-does not cross back and forth. It drives the tour on a costmap of the ground truth; viewpoints whose view is already mostly
-known are skipped. Cells the ray casting counted as seen but the lidar missed are picked up
-at the end by the nearest frontier. No explorer without the ground truth can expect to do better by much.
+It knows the map it explores. Candidate viewpoints lie on a ``spacing`` lattice of the
+cells the robot's centre may occupy (on the ground truth, with ``clearance`` to walls);
+what each one sees is ray cast on the ground truth with the episode's lidar range and
+occlusion (``rays`` rays, the cells each ray crosses up to and including the first wall,
+as the mapper marks them). At every decision it:
+
+1. counts the observable cells still unknown in the map and how many of them must still be
+   seen to reach the target ratio plus ``margin``;
+2. keeps the viewpoints of its previous plan that still see at least ``min_gain`` of those
+   cells, adds viewpoints greedily by new cells seen (lazy greedy set cover) until the
+   plan sees enough, and drops the ones the rest make redundant;
+3. orders them as an open tour from the robot over path distances on the ground truth
+   (OR-Tools, :func:`mjexplore.navigation.tour.open_tour`, warm-started from the previous
+   order) and drives to the first with the same navigator as every explorer, on a costmap
+   of the ground truth.
+
+Viewpoints whose cells got seen on the way drop out at the next decision, and a viewpoint
+whose view the drive uncovered is given up at once (``goal_open``). The cells the ray
+casting counts as visible but the lidar misses (grazing beams, gaps between beams at long
+range) are planned for again from other viewpoints; when no viewpoint sees any needed cell
+it answers None and the episode finishes with the nearest frontier (its fallback).
+
+:meth:`OracleExplorer.expert_choice` answers, for any exploration state, which of a set of
+candidate goals (e.g. the TER's frontier nodes) it would pick: the one closest by path to
+the first viewpoint of its tour, so that learned explorers can imitate it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numba
 import numpy as np
 
 from mjexplore.explorers.base import ExplorationState, register
-from mjexplore.explorers.nearest import NearestFrontier
 from mjexplore.mapping.metrics import observable_ground_truth
 from mjexplore.navigation.planner import Costmap, PlannerConfig
+from mjexplore.navigation.tour import CoarseGraph, TourConfig, open_tour
 from mjexplore.topology.gvd import DynamicGVD
 
 
 @numba.njit(cache=True)
-def _visible(opaque, r0, c0, reach, n_rays, out, stamp, stamp_id):
-    """Marks (in ``stamp``) the cells seen from (r0, c0); returns how many, listed in out."""
+def _visible_cells(opaque, wanted, r0, c0, reach, n_rays, stamp, stamp_id, out):
+    """Cells seen from the centre of cell (r0, c0), listed in ``out``; returns how many.
+
+    Each ray walks the cells it crosses (Amanatides-Woo) up to ``reach`` cells, stopping
+    after the first opaque cell; only cells flagged in ``wanted`` are listed, each once
+    (``stamp`` holds ``stamp_id`` for the cells already listed).
+    """
     rows, cols = opaque.shape
     n = 0
+    x0 = c0 + 0.5
+    y0 = r0 + 0.5
     for i in range(n_rays):
-        a = 2.0 * math.pi * i / n_rays
-        dr, dc = math.sin(a), math.cos(a)
-        steps = int(reach * 2)
-        for s in range(steps + 1):
-            t = s * 0.5
-            r = int(math.floor(r0 + 0.5 + dr * t))
-            c = int(math.floor(c0 + 0.5 + dc * t))
-            if r < 0 or r >= rows or c < 0 or c >= cols:
-                break
-            k = r * cols + c
-            if stamp[k] != stamp_id:
+        a = 2.0 * math.pi * (i + 0.5) / n_rays
+        dx = math.cos(a)
+        dy = math.sin(a)
+        cx, cy = c0, r0
+        step_x = 1 if dx > 0 else -1
+        step_y = 1 if dy > 0 else -1
+        t_max_x = ((cx + (step_x > 0)) - x0) / dx if dx != 0 else np.inf
+        t_max_y = ((cy + (step_y > 0)) - y0) / dy if dy != 0 else np.inf
+        t_dx = abs(1.0 / dx) if dx != 0 else np.inf
+        t_dy = abs(1.0 / dy) if dy != 0 else np.inf
+        t = 0.0
+        while t <= reach and 0 <= cy < rows and 0 <= cx < cols:
+            k = cy * cols + cx
+            if wanted[k] and stamp[k] != stamp_id:
                 stamp[k] = stamp_id
                 out[n] = k
                 n += 1
-            if opaque[r, c]:
+            if opaque[cy, cx]:
                 break
+            if t_max_x < t_max_y:
+                t = t_max_x
+                cx += step_x
+                t_max_x += t_dx
+            else:
+                t = t_max_y
+                cy += step_y
+                t_max_y += t_dy
     return n
+
+
+@numba.njit(cache=True)
+def _gains(ptr, idx, need, chosen):
+    """Cells of ``need`` each viewpoint sees (-1 for viewpoints not in ``chosen``)."""
+    n = len(ptr) - 1
+    out = np.full(n, -1, np.int64)
+    for i in range(n):
+        if chosen[i]:
+            g = 0
+            for j in range(ptr[i], ptr[i + 1]):
+                g += need[idx[j]]
+            out[i] = g
+    return out
+
+
+@numba.njit(cache=True)
+def _uncovered(ptr, idx, need, covered, i):
+    """Cells of ``need`` viewpoint ``i`` sees that ``covered`` lacks."""
+    g = 0
+    for j in range(ptr[i], ptr[i + 1]):
+        if need[idx[j]] and not covered[idx[j]]:
+            g += 1
+    return g
+
+
+@numba.njit(cache=True)
+def _greedy_cover(ptr, idx, need, allowed, selected, required, min_gain):
+    """Lazy greedy set cover: viewpoints (flagged in ``allowed``) are added to ``selected``
+    in order of the most cells of ``need`` not yet covered, until ``required`` cells are
+    covered or no viewpoint adds ``min_gain``. ``selected`` viewpoints count as chosen
+    already. Returns the added viewpoints in order and the number of cells covered."""
+    covered = np.zeros(len(need), np.bool_)
+    total = 0
+    for i in range(len(ptr) - 1):
+        if selected[i]:
+            for j in range(ptr[i], ptr[i + 1]):
+                k = idx[j]
+                if need[k] and not covered[k]:
+                    covered[k] = True
+                    total += 1
+    bound = np.full(len(ptr) - 1, -1, np.int64)
+    for i in range(len(ptr) - 1):
+        if allowed[i] and not selected[i]:
+            bound[i] = _uncovered(ptr, idx, need, covered, i)
+    added = []
+    while total < required:
+        i = np.argmax(bound)
+        if bound[i] < min_gain:
+            break
+        g = _uncovered(ptr, idx, need, covered, i)
+        if g < bound[i]:
+            bound[i] = g  # Stale: gains only shrink, so re-queue with the true value.
+            continue
+        for j in range(ptr[i], ptr[i + 1]):
+            if need[idx[j]]:
+                covered[idx[j]] = True
+        total += g
+        bound[i] = -1
+        added.append(i)
+    return added, total
+
+
+@numba.njit(cache=True)
+def _unique_counts(ptr, idx, need, plan):
+    """For each viewpoint of ``plan``, the cells of ``need`` no other one in it sees; and
+    the cells the whole plan sees."""
+    count = np.zeros(len(need), np.int32)
+    for i in plan:
+        for j in range(ptr[i], ptr[i + 1]):
+            if need[idx[j]]:
+                count[idx[j]] += 1
+    unique = np.zeros(len(plan), np.int64)
+    for p in range(len(plan)):
+        i = plan[p]
+        for j in range(ptr[i], ptr[i + 1]):
+            if need[idx[j]] and count[idx[j]] == 1:
+                unique[p] += 1
+    return unique, int((count > 0).sum())
+
+
+@dataclasses.dataclass
+class _Views:
+    """Candidate viewpoints and what each sees (CSR lists of flat cell indices)."""
+
+    points: np.ndarray  # (n, 2) positions in the map frame, metres.
+    ptr: np.ndarray  # (n + 1,) int64.
+    idx: np.ndarray  # (nnz,) int64.
+    observable: np.ndarray  # (cells,) bool: the reference's known cells.
 
 
 @register("oracle")
 class OracleExplorer:
-    """Args:
+    """Ground-truth coverage planner (the bound).
+
+    Args:
         spacing: Lattice spacing of candidate viewpoints, metres.
-        coverage: Share of all observable cells that must be seen once the tour is done
-            (a little above the episode's 98.5 % target).
         clearance: Least distance from a viewpoint to a wall, metres.
+        rays: Rays cast per viewpoint (the lidar sweeps new angles as the robot moves, so
+            more than one scan's beams).
+        margin: Planned coverage above ``target_ratio``, for the cells the lidar misses.
+        min_gain: Least number of needed cells a viewpoint must see to stay in the plan.
+        tour: Tour solver settings.
     """
 
     plans_on_ground_truth = True
 
-    def __init__(self, spacing: float = 0.5, coverage: float = 0.988,
-                 clearance: float = 0.35, min_new: float = 0.05, detour: float = 2.0) -> None:
+    def __init__(self, spacing: float = 0.5, clearance: float = 0.35, rays: int = 720,
+                 margin: float = 0.004, min_gain: int = 12,
+                 tour: TourConfig | None = None) -> None:
         self.spacing = spacing
-        self.coverage = coverage
         self.clearance = clearance
-        self.min_new = min_new
-        self.detour = detour
+        self.rays = rays
+        self.margin = margin
+        self.min_gain = min_gain
+        self.tour_config = tour or TourConfig(time_limit=1.0)
 
     def reset(self, rng: np.random.Generator) -> None:
         del rng
-        self.tour: list[np.ndarray] | None = None
-        self.views: list[np.ndarray] = []
-        self.current: np.ndarray | None = None
-        self._fallback = NearestFrontier()
+        self.views: _Views | None = None
+        self.graph: CoarseGraph | None = None
+        self.plan: list[int] = []  # Viewpoint indices in tour order.
+        self.current: int | None = None
 
     @staticmethod
     def ground_truth_costmap(state: ExplorationState) -> Costmap:
+        """The planner's costmap of the ground truth (unknown ground-truth cells block)."""
         gt = state.ground_truth
         gvd = DynamicGVD(gt.shape)
         gvd.update(gt.occupied | (gt.data < 0))
         return Costmap(gt, gvd.distance2, PlannerConfig())
 
-    def _candidates(self, state: ExplorationState) -> None:
-        """Candidate viewpoints and the observable cells each one sees (once per episode)."""
+    # ------------------------------------------------------------------ planning
+
+    def prepare(self, state: ExplorationState) -> None:
+        """Candidate viewpoints, their views and the path graph (once per episode)."""
+        if state.ground_truth is None:
+            raise ValueError("the oracle needs the ground truth (ExplorationState.ground_truth)")
         gt = state.ground_truth
         res = gt.resolution
-        self.costmap = self.ground_truth_costmap(state)
-        self.observable = observable_ground_truth(gt).known.reshape(-1)
-        opaque = ~gt.free
+        costmap = self.ground_truth_costmap(state)
+        traversable = costmap.traversable
+        self.graph = CoarseGraph(gt, traversable)
+        reachable = costmap.distances_from(state.pose[:2]) < np.inf
+        clear = np.sqrt(costmap._dist2.reshape(gt.shape)) * res
         step = max(1, int(round(self.spacing / res)))
-        clear = np.sqrt(self.costmap._dist2.reshape(gt.shape)) * res
-        reachable = self.costmap.distances_from(state.pose[:2]) < np.inf
-        cand = np.argwhere(reachable & (clear >= self.clearance))
-        cand = cand[(cand[:, 0] % step == 0) & (cand[:, 1] % step == 0)]
+        lattice = np.zeros(gt.shape, bool)
+        lattice[::step, ::step] = True
+        cand = np.argwhere(reachable & (clear >= self.clearance) & lattice)
+        observable = observable_ground_truth(gt).known.reshape(-1)
+        opaque = ~gt.free
         reach = state.sensor_range / res
         stamp = np.zeros(gt.data.size, np.int64)
         buf = np.empty(gt.data.size, np.int64)
-        self.seen = []
+        seen = []
         for i, (r, c) in enumerate(cand):
-            n = _visible(opaque, r, c, reach, 360, buf, stamp, i + 1)
-            cells = buf[:n]
-            self.seen.append(cells[self.observable[cells]])
-        self.points = gt.cell_to_world(cand)
+            n = _visible_cells(opaque, observable, r, c, reach, self.rays, stamp, i + 1, buf)
+            seen.append(buf[:n].copy())
+        ptr = np.zeros(len(seen) + 1, np.int64)
+        ptr[1:] = np.cumsum([len(s) for s in seen])
+        idx = np.concatenate(seen) if seen else np.zeros(0, np.int64)
+        self.views = _Views(gt.cell_to_world(cand).reshape(-1, 2), ptr, idx, observable)
 
-    def _plan(self, state: ExplorationState) -> None:
-        """A covering tour built greedily by new cells seen per metre of path.
+    def _need(self, state: ExplorationState) -> tuple[np.ndarray, int]:
+        """The observable cells still unknown, and how many of them must still be seen."""
+        views = self.views
+        unknown = state.grid.data.reshape(-1) < 0
+        need = views.observable & unknown
+        total = int(views.observable.sum())
+        known = total - int(need.sum())
+        required = math.ceil((state.target_ratio + self.margin) * total) - known
+        return need, max(1, min(required, int(need.sum())))
 
-        From the robot, the next viewpoint is the one with the most observable cells not
-        yet known or covered, divided by (path distance + ``detour``); it repeats until the
-        tour's views cover ``coverage`` of all observable cells.
-        """
-        covered = state.grid.data.reshape(-1) >= 0
-        total = int(self.observable.sum())
-        cells = self.costmap.grid.world_to_cell(self.points)
-        here = np.asarray(state.pose[:2], float)
-        self.tour, self.views = [], []
-        while int((self.observable & covered).sum()) < self.coverage * total:
-            gains = np.array([int((~covered[s]).sum()) for s in self.seen], float)
-            if gains.max() <= 0:
+    def replan(self, state: ExplorationState) -> list[int]:
+        """Re-solves the plan for the state; returns the viewpoints in tour order."""
+        if self.views is None:
+            self.prepare(state)
+        views = self.views
+        need, required = self._need(state)
+        n = len(views.points)
+        allowed = state.allowed(views.points) if n else np.zeros(0, bool)
+        kept = np.zeros(n, bool)
+        if self.plan:
+            prev = np.array(self.plan, np.int64)
+            gains = _gains(views.ptr, views.idx, need, np.isin(np.arange(n), prev))[prev]
+            kept[prev[(gains >= self.min_gain) & allowed[prev]]] = True
+        added, _ = _greedy_cover(views.ptr, views.idx, need, allowed, kept, required,
+                                 self.min_gain)
+        plan = [i for i in self.plan if kept[i]] + list(added)
+        if not plan:
+            self.plan = []
+            return self.plan
+        points = np.vstack([state.pose[:2], self.views.points[plan]])
+        distance = self.graph.distance_matrix(points)
+        order = self._order(plan, distance)
+        order = self._prune(plan, order, distance, need, required)
+        self.plan = [plan[j - 1] for j in order]
+        return self.plan
+
+    def _order(self, plan: list[int], distance: np.ndarray) -> list[int]:
+        """The plan (places 1.. of ``distance``) as an open tour from place 0."""
+        previous = {v: k for k, v in enumerate(self.plan)}
+        warm = sorted(range(1, len(plan) + 1), key=lambda j: previous.get(plan[j - 1], len(plan)))
+        return open_tour(distance, self.tour_config, initial=warm)
+
+    def _prune(self, plan: list[int], order: list[int], distance: np.ndarray,
+               need: np.ndarray, required: int) -> list[int]:
+        """Drops viewpoints the rest make redundant, the one whose removal shortens the
+        tour most first, while the rest still see ``required`` cells."""
+        order = list(order)
+        d = np.where(np.isfinite(distance), distance, 1e5)
+        while len(order) > 1:
+            views = np.array([plan[j - 1] for j in order], np.int64)
+            unique, covered = _unique_counts(self.views.ptr, self.views.idx, need, views)
+            nodes = [0, *order, -1]
+            saving = np.array([d[a, b] + (d[b, c] - d[a, c] if c >= 0 else 0.0)
+                               for a, b, c in zip(nodes, nodes[1:], nodes[2:])])
+            saving = np.where(covered - unique >= required, saving, -np.inf)
+            k = int(np.argmax(saving))
+            if not np.isfinite(saving[k]):
                 break
-            dist = self.costmap.distances_from(here)[cells[:, 0], cells[:, 1]]
-            score = np.where(np.isfinite(dist), gains / (dist + self.detour), -1.0)
-            best = int(np.argmax(score))
-            if score[best] <= 0:
-                break
-            covered[self.seen[best]] = True
-            here = self.points[best]
-            self.tour.append(here)
-            self.views.append(self.seen[best])
-        if len(self.tour) > 2:
-            order = self._order(np.array(self.tour), np.asarray(state.pose[:2], float))
-            self.tour = [self.tour[i] for i in order]
-            self.views = [self.views[i] for i in order]
+            order.pop(k)
+        return order
 
-    def _order(self, points: np.ndarray, start: np.ndarray) -> list[int]:
-        """Shortens the visiting order (open path from ``start``) with 2-opt on path costs."""
-        nodes = np.vstack([start, points])
-        cells = self.costmap.grid.world_to_cell(nodes)
-        d = np.array([self.costmap.distances_from(p)[cells[:, 0], cells[:, 1]] for p in nodes])
-        d = np.where(np.isfinite(d), d, 1e6)
-        order = list(range(len(nodes)))
-        improved = True
-        while improved:
-            improved = False
-            for i in range(1, len(order) - 1):
-                for j in range(i + 1, len(order)):
-                    a, b, c = order[i - 1], order[i], order[j]
-                    e = order[j + 1] if j + 1 < len(order) else None
-                    before = d[a, b] + (d[c, e] if e is not None else 0.0)
-                    after = d[a, c] + (d[b, e] if e is not None else 0.0)
-                    if after < before - 1e-9:
-                        order[i:j + 1] = order[i:j + 1][::-1]
-                        improved = True
-        return [k - 1 for k in order[1:]]
+    # ------------------------------------------------------------------ explorer
 
     def goal_open(self, grid) -> bool | None:
-        """The current viewpoint is still worth reaching while enough of its view is unknown;
-        None for a fallback frontier goal (the runner's frontier test applies)."""
+        """The current viewpoint stays worth reaching while it still sees ``min_gain``
+        observable cells unknown in ``grid``; None for a fallback frontier goal (the
+        runner's frontier test applies)."""
         if self.current is None:
             return None
-        if not len(self.current):
-            return False
-        return bool((grid.data.reshape(-1)[self.current] < 0).mean() >= self.min_new)
+        views = self.views
+        cells = views.idx[views.ptr[self.current]:views.ptr[self.current + 1]]
+        return bool((grid.data.reshape(-1)[cells] < 0).sum() >= self.min_gain)
 
     def select_goal(self, state: ExplorationState) -> np.ndarray | None:
-        if state.ground_truth is None:
-            raise ValueError("the oracle needs the ground truth")
-        if self.tour is None:
-            self._candidates(state)
-            self._plan(state)
-        known = state.grid.data.reshape(-1) >= 0
-        while self.tour:
-            goal = self.tour.pop(0)
-            view = self.views.pop(0)
-            if len(view) and (~known[view]).mean() >= self.min_new and \
-                    state.allowed(goal[None])[0]:
-                self.current = view
-                return goal
-        # What the lidar did not see although the ray casting said it would (grazing
-        # beams, thin gaps) is scattered: finish with the nearest frontier.
+        plan = self.replan(state)
+        if plan:
+            self.current = plan[0]
+            return self.views.points[plan[0]].copy()
+        # Nothing a viewpoint sees is needed, yet the episode goes on: what is left are
+        # cells the ray casting counted as seen that the lidar missed, which the episode's
+        # nearest-frontier fallback picks up.
         self.current = None
-        return self._fallback.select_goal(state)
+        return None
+
+    def expert_choice(self, state: ExplorationState, candidates: np.ndarray,
+                      valid: np.ndarray | None = None) -> int:
+        """Which candidate goal the oracle would pick: the valid one closest by path on the
+        ground truth to the first viewpoint of its tour (nearest to the robot without a
+        tour), e.g. among the TER's frontier nodes.
+
+        Args:
+            state: The exploration state.
+            candidates: (k, 2) candidate goals in the ``map`` frame, metres.
+            valid: (k,) bool, the candidates that may be chosen (default: all).
+
+        Returns:
+            The index of the chosen candidate, or -1 if none is valid.
+        """
+        candidates = np.asarray(candidates, float).reshape(-1, 2)
+        valid = np.ones(len(candidates), bool) if valid is None else np.asarray(valid, bool)
+        if not valid.any():
+            return -1
+        plan = self.replan(state)
+        target = self.views.points[plan[0]] if plan else np.asarray(state.pose[:2], float)
+        d = self.graph.distance_matrix(np.vstack([target, candidates]))[0, 1:]
+        d = np.where(valid, d, np.inf)
+        if not np.isfinite(d).any():  # Off the path graph: fall back to straight lines.
+            d = np.where(valid, np.linalg.norm(candidates - target, axis=1), np.inf)
+        return int(np.argmin(d))
