@@ -236,7 +236,8 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_collect(args: argparse.Namespace) -> int:
-    from mjexplore.eval.summaries import collect_sweep, write_summary
+    from mjexplore.eval.summaries import (collect_sweep, merge_summaries, read_summary,
+                                          write_summary)
 
     if not args.experiment.replace("_", "").isalnum():
         raise UserInputError(f"--experiment {args.experiment!r}: use letters, digits and '_' "
@@ -244,7 +245,10 @@ def cmd_collect(args: argparse.Namespace) -> int:
     summary = collect_sweep(args.sweep, args.experiment, command=args.command,
                             kinematics_series=args.kinematics, reference=args.reference,
                             stills=args.stills, media_dir=args.figures)
-    path = write_summary(summary, args.data / f"{args.experiment}.json")
+    path = args.data / f"{args.experiment}.json"
+    if args.merge and path.is_file():
+        summary = merge_summaries(summary, read_summary(path))
+    path = write_summary(summary, path)
     print(json.dumps({"summary": str(path), "runs": len(summary["runs"]),
                       "methods": sorted({r["method"] for r in summary["runs"]})}))
     return 0
@@ -331,7 +335,8 @@ def build_parser() -> argparse.ArgumentParser:
     explore.add_argument("--scene", default="office",
                          help="canonical scene name, scene folder, MJCF or map_server YAML")
     explore.add_argument("--explorer", default="nearest",
-                         help="nearest, rrt, potential, oracle, cnn or gvn; the masking "
+                         help="nearest, explore_lite, frontier_tsp, rrt, potential, oracle "
+                              "(the ground-truth bound), cnn or gvn; the masking "
                          "ablation's gvn_unmasked, gvn_naive, gvn_none")
     explore.add_argument("--policy", type=Path, default=None,
                          help="weights for a learned explorer, gvn* or cnn (default: the "
@@ -401,6 +406,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="copy METHOD's seed-0 ter.png per scene into --figures")
     co.add_argument("--figures", type=Path, default=Path("docs/results"),
                     help="report figures folder, for --stills (docs/results)")
+    co.add_argument("--merge", action="store_true",
+                    help="keep the existing summary's runs of methods this sweep lacks")
     co.set_defaults(func=cmd_collect)
 
     rep = sub.add_parser(

@@ -18,7 +18,8 @@ def explore(explorer, seed=0, **config):
     return Episode(scene, make_explorer(explorer), seed, EpisodeConfig(**config)).run()
 
 
-@pytest.mark.parametrize("explorer", ["nearest", "rrt", "potential", "oracle"])
+@pytest.mark.parametrize("explorer", ["nearest", "rrt", "potential", "oracle", "explore_lite",
+                                      "frontier_tsp"])
 def test_explorers_fully_explore_the_small_loop(explorer):
     result = explore(explorer)
     m = result.metrics

@@ -16,7 +16,10 @@ from mjexplore.io.atomic import write_bytes_atomic  # noqa: E402
 from mjexplore.maps import GridMap  # noqa: E402
 
 COLOURS = {"gvn": "tab:red", "potential": "tab:blue", "nearest": "tab:green",
-           "rrt": "tab:orange", "cnn": "tab:purple", "oracle": "black"}
+           "rrt": "tab:orange", "cnn": "tab:purple", "explore_lite": "tab:brown",
+           "frontier_tsp": "tab:cyan", "oracle": "black"}
+# How a method is named in tables and plots where its name alone would mislead.
+METHOD_LABELS = {"oracle": "oracle (ground-truth bound)"}
 
 
 def _save(fig, path: str | os.PathLike) -> None:
@@ -48,7 +51,8 @@ def ratio_figure(curves: dict[str, list[np.ndarray]], path: str | os.PathLike,
     for method, runs in curves.items():
         values = np.array([resample(c, times) for c in runs])
         colour = COLOURS.get(method)
-        ax.plot(times, values.mean(axis=0), label=method, color=colour)
+        ax.plot(times, values.mean(axis=0), label=METHOD_LABELS.get(method, method),
+                color=colour)
         ax.fill_between(times, values.min(axis=0), values.max(axis=0), alpha=0.15, color=colour)
         for level in marks:
             hits = (mark_times[method][level] if mark_times is not None else

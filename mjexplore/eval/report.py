@@ -18,13 +18,13 @@ import numpy as np
 
 from mjexplore.errors import UserInputError
 from mjexplore.eval.episode import MILESTONES
-from mjexplore.eval.plots import kinematics_figure, ratio_figure
+from mjexplore.eval.plots import METHOD_LABELS, kinematics_figure, ratio_figure
 from mjexplore.eval.summaries import KINEMATIC_FIELDS, KINEMATICS_DT, ratio_curve, read_summary
 from mjexplore.eval.sweep import MEAN_STD_NOTE, format_mean_std, markdown_table, summary_table
 from mjexplore.io.atomic import write_text_atomic
 
-METHOD_ORDER = ("nearest", "rrt", "potential", "cnn", "gvn_none", "gvn_naive", "gvn_unmasked",
-                "gvn", "oracle")
+METHOD_ORDER = ("nearest", "explore_lite", "frontier_tsp", "rrt", "potential", "cnn", "gvn_none",
+                "gvn_naive", "gvn_unmasked", "gvn", "oracle")
 # The paper's claim (Sec. "Comparison with baselines"): gvn is faster than the potential field
 # by this range of percentages to the given exploration ratio.
 PAPER_SPEEDUP = {"t80_s": (7.0, 11.1), "t985_s": (4.0, 16.2)}
@@ -66,10 +66,14 @@ EXPERIMENTS = (
     Experiment("table1", "Table 1 and Fig. 5: the three evaluation scenes",
                "Every method on the paper's evaluation scenes (sim profile: 0.5 m/s, 6 m lidar, "
                "full MuJoCo physics), 10 runs each; seeds vary the start pose and the sensor "
-               "noise. The oracle plans a covering tour of viewpoints on the ground truth: a "
-               "reference for how fast the map can be seen (it is not optimal in ET or PL: "
-               "its greedy tour can be beaten on small maps).",
-               ("nearest", "rrt", "potential", "cnn", "gvn", "oracle"),
+               "noise. explore_lite is the port of ROS's m-explore, frontier_tsp a global "
+               "tour over the known map's frontiers (TARE/FUEL style). The oracle is the "
+               "ground-truth bound: it plans on the true map a set of viewpoints that see "
+               "the target ratio and an OR-Tools tour through them, re-solved at each "
+               "decision (a strong reference for how fast the map can be seen, not a proven "
+               "optimum).",
+               ("nearest", "explore_lite", "frontier_tsp", "rrt", "potential", "cnn", "gvn",
+                "oracle"),
                f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 10 "
                "--workers 2 --out runs/table1"),
     Experiment("ablation", "Table 2: invalid action masking",
@@ -89,7 +93,8 @@ EXPERIMENTS = (
     Experiment("explore_bench", "Generalisation: the Explore-Bench maps",
                "The six Explore-Bench maps (ROS map_server maps imported as MJCF, 7 m lidar), "
                "which no policy was trained on.",
-               ("nearest", "rrt", "potential", "cnn", "gvn"),
+               ("nearest", "explore_lite", "frontier_tsp", "rrt", "potential", "cnn", "gvn",
+                "oracle"),
                f"mjexplore bench --scenes {EXPLORE_BENCH} --explorers {{explorers}} --seeds 2 "
                "--lidar-range 7 --workers 2 --out runs/explore_bench"),
     Experiment("ariadne", "Generalisation: the ARiADNE test maps",
@@ -99,7 +104,8 @@ EXPERIMENTS = (
                "completion tests differ: ARiADNE's greedy run stops when its graph has no "
                "utility left (99.9 % of the free pixels seen on average), an mjexplore episode "
                "at 98.5 % of the observable free space; the last 1.5 % costs path.",
-               ("nearest", "rrt", "potential", "cnn", "gvn"),
+               ("nearest", "explore_lite", "frontier_tsp", "rrt", "potential", "cnn", "gvn",
+                "oracle"),
                "for f in ../shared/data/ariadne_test/img_*.png; do mjexplore scene-gen "
                "--from-map $f --resolution 0.1 --out runs/ariadne_scenes/$(basename $f .png); "
                "done; mjexplore bench --scenes $(ls -d runs/ariadne_scenes/* | paste -sd,) "
@@ -122,7 +128,7 @@ def _groups(summary: dict[str, Any]) -> dict[str, dict[str, list[dict[str, Any]]
 
 
 def _table(groups, rename=None) -> str:
-    rename = rename or {}
+    rename = rename or METHOD_LABELS
     header, rows = summary_table({(scene, rename.get(m, m)): [r["metrics"] for r in runs]
                                   for scene, methods in groups.items()
                                   for m, runs in methods.items()})
@@ -131,7 +137,7 @@ def _table(groups, rename=None) -> str:
 
 def _other_ends(groups, rename=None) -> str:
     """The runs that ended before the target ratio, by end reason."""
-    rename = rename or {}
+    rename = rename or METHOD_LABELS
     parts = []
     for scene, methods in groups.items():
         for m, runs in methods.items():
@@ -230,7 +236,7 @@ def smoothness_table(groups) -> str:
     names = (("linear_velocity_std", "std v (m/s)"), ("angular_velocity_rms", "rms omega (rad/s)"),
              ("linear_acceleration_rms", "rms a (m/s^2)"),
              ("angular_acceleration_rms", "rms alpha (rad/s^2)"))
-    rows = [[scene, m] + [format_mean_std([r["kinematics"]["stats"][k] for r in runs])
+    rows = [[scene, METHOD_LABELS.get(m, m)] + [format_mean_std([r["kinematics"]["stats"][k] for r in runs])
                           for k, _ in names]
             for scene, methods in groups.items() for m, runs in methods.items()]
     return markdown_table(["scene", "method"] + [label for _, label in names], rows)
@@ -250,7 +256,8 @@ def relative_table(groups, baseline: str = "nearest") -> str:
                 n += sum(r["metrics"]["end_reason"] == "explored" for r in ms[m])
         if et:
             runs = sum(len(ms[m]) for ms in groups.values() if m in ms and baseline in ms)
-            rows.append([m, len(et), f"{n}/{runs}", f"{np.mean(et):.3f}", f"{np.mean(pl):.3f}"])
+            rows.append([METHOD_LABELS.get(m, m), len(et), f"{n}/{runs}", f"{np.mean(et):.3f}",
+                         f"{np.mean(pl):.3f}"])
     return markdown_table(["method", "maps", "explored", f"ET / {baseline} ET",
                            f"PL / {baseline} PL"], rows)
 
@@ -269,7 +276,7 @@ def reference_table(summary: dict[str, Any]) -> str:
         pl = [r["metrics"]["path_length_m"] for r, _ in explored]
         greedy = [g["travel"] * r["resolution"] for r, g in explored]
         ratio = np.asarray(pl) / np.asarray(greedy) if pl else np.array([])
-        rows.append([m, len(pairs), len(explored),
+        rows.append([METHOD_LABELS.get(m, m), len(pairs), len(explored),
                      format_mean_std([r["metrics"]["exploration_time_s"] for r, _ in explored]),
                      format_mean_std(pl), format_mean_std(greedy),
                      f"{np.mean(ratio):.3f} (median {np.median(ratio):.3f})" if len(ratio)

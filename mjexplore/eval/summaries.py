@@ -147,6 +147,38 @@ def collect_sweep(sweep: str | os.PathLike, experiment: str, command: str | None
     return summary
 
 
+def merge_summaries(new: dict[str, Any], old: dict[str, Any]) -> dict[str, Any]:
+    """``new`` with the runs of ``old`` whose methods ``new`` lacks (a sweep that adds or
+    re-runs methods of an experiment whose other runs are kept as they were measured).
+
+    The merged summary lists both sweeps' commands and every run's revision.
+
+    Raises:
+        UserInputError: The two sweeps ran with different episode settings.
+    """
+    clash = _differing_setting(old["episode"], new["episode"])
+    if clash:
+        raise UserInputError(f"the existing summary ran with another {clash} than the sweep: "
+                             "a summary mixes no settings; collect without --merge.")
+    fresh = {r["method"] for r in new["runs"]}
+    kept = [r for r in old["runs"] if r["method"] not in fresh]
+    if not kept:
+        return new
+    kept_methods = {r["method"] for r in kept}
+    commands = [c for c in (old.get("command"), new.get("command")) if c]
+    merged = dict(new)
+    merged["command"] = "\n".join(dict.fromkeys(commands)) or None
+    merged["run_revisions"] = sorted(set(old.get("run_revisions", [])) |
+                                     set(new.get("run_revisions", [])))
+    merged["policies"] = {**{m: rec for m, rec in (old.get("policies") or {}).items()
+                             if m in kept_methods}, **(new.get("policies") or {})}
+    for key in ("stills", "stills_method", "reference"):
+        if not new.get(key) and old.get(key):
+            merged[key] = old[key]
+    merged["runs"] = kept + new["runs"]
+    return merged
+
+
 def _flatten(tree: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     flat = {}
     for key, value in tree.items():

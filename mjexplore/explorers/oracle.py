@@ -226,6 +226,7 @@ class OracleExplorer:
         costmap = self.ground_truth_costmap(state)
         traversable = costmap.traversable
         self.graph = CoarseGraph(gt, traversable)
+        self._rows: dict[int, np.ndarray] = {}  # Path distances from viewpoints' nodes.
         reachable = costmap.distances_from(state.pose[:2]) < np.inf
         clear = np.sqrt(costmap._dist2.reshape(gt.shape)) * res
         step = max(1, int(round(self.spacing / res)))
@@ -276,7 +277,8 @@ class OracleExplorer:
             self.plan = []
             return self.plan
         points = np.vstack([state.pose[:2], self.views.points[plan]])
-        distance = self.graph.distance_matrix(points)
+        distance = self.graph.distance_matrix(points, cache=self._rows)
+        self._rows.pop(int(self.graph.node_of(points[:1])[0]), None)  # The robot moves on.
         order = self._order(plan, distance)
         order = self._prune(plan, order, distance, need, required)
         self.plan = [plan[j - 1] for j in order]

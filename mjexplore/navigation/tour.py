@@ -95,18 +95,28 @@ class CoarseGraph:
         return np.atleast_2d(dijkstra(self.matrix, directed=False,
                                       indices=np.asarray(sources, np.int64)))
 
-    def distance_matrix(self, points: np.ndarray, radius: float = 1.0) -> np.ndarray:
+    def distance_matrix(self, points: np.ndarray, radius: float = 1.0,
+                        cache: dict[int, np.ndarray] | None = None) -> np.ndarray:
         """(n, n) path distances in metres between (n, 2) points; inf where either point
-        has no node or no path joins them."""
+        has no node or no path joins them.
+
+        Args:
+            points: (n, 2) places in the ``map`` frame.
+            radius: How far from a place its node may lie, metres.
+            cache: Rows of :meth:`distances` by source node, reused and filled in (for a
+                graph that does not change between calls).
+        """
         nodes = self.node_of(points, radius)
         n = len(nodes)
         out = np.full((n, n), np.inf)
         ok = np.flatnonzero(nodes >= 0)
         if len(ok):
-            d = self.distances(np.unique(nodes[ok]))
-            row = {node: i for i, node in enumerate(np.unique(nodes[ok]))}
+            rows = {} if cache is None else cache
+            todo = [v for v in np.unique(nodes[ok]) if v not in rows]
+            if todo:
+                rows.update(zip(todo, self.distances(np.array(todo))))
             for i in ok:
-                out[i, ok] = d[row[nodes[i]], nodes[ok]]
+                out[i, ok] = rows[nodes[i]][nodes[ok]]
         np.fill_diagonal(out, 0.0)
         return out
 
@@ -154,12 +164,7 @@ def open_tour(distance: np.ndarray, config: TourConfig | None = None,
     cost[:, 0] = int(UNREACHABLE_M * _SCALE)
     manager = pywrapcp.RoutingIndexManager(n + 1, 1, [0], [n])
     routing = pywrapcp.RoutingModel(manager)
-    table = cost.tolist()
-
-    def arc(i: int, j: int) -> int:
-        return table[manager.IndexToNode(i)][manager.IndexToNode(j)]
-
-    routing.SetArcCostEvaluatorOfAllVehicles(routing.RegisterTransitCallback(arc))
+    routing.SetArcCostEvaluatorOfAllVehicles(routing.RegisterTransitMatrix(cost.tolist()))
     params = pywrapcp.DefaultRoutingSearchParameters()
     params.first_solution_strategy = routing_enums_pb2.FirstSolutionStrategy.PATH_CHEAPEST_ARC
     params.local_search_metaheuristic = (
