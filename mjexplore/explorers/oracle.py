@@ -34,6 +34,7 @@ import math
 
 import numba
 import numpy as np
+from scipy.spatial import cKDTree
 
 from mjexplore.explorers.base import ExplorationState, register
 from mjexplore.mapping.metrics import observable_ground_truth
@@ -147,21 +148,17 @@ def _greedy_cover(ptr, idx, need, allowed, selected, required, min_gain):
 
 
 @numba.njit(cache=True)
-def _unique_counts(ptr, idx, need, plan):
-    """For each viewpoint of ``plan``, the cells of ``need`` no other one in it sees; and
-    the cells the whole plan sees."""
-    count = np.zeros(len(need), np.int32)
-    for i in plan:
+def _covered(ptr, idx, need, views, stamp, stamp_id):
+    """How many cells of ``need`` the ``views`` see together (``stamp``: scratch, one entry
+    per cell, never holding ``stamp_id`` before the call)."""
+    total = 0
+    for i in views:
         for j in range(ptr[i], ptr[i + 1]):
-            if need[idx[j]]:
-                count[idx[j]] += 1
-    unique = np.zeros(len(plan), np.int64)
-    for p in range(len(plan)):
-        i = plan[p]
-        for j in range(ptr[i], ptr[i + 1]):
-            if need[idx[j]] and count[idx[j]] == 1:
-                unique[p] += 1
-    return unique, int((count > 0).sum())
+            k = idx[j]
+            if need[k] and stamp[k] != stamp_id:
+                stamp[k] = stamp_id
+                total += 1
+    return total
 
 
 @dataclasses.dataclass
@@ -185,19 +182,24 @@ class OracleExplorer:
             more than one scan's beams).
         margin: Planned coverage above ``target_ratio``, for the cells the lidar misses.
         min_gain: Least number of needed cells a viewpoint must see to stay in the plan.
+        path_sample: Spacing of the points along the tour's paths whose views count as
+            seen on the way, metres.
+        prune_tries: Viewpoints tried for removal per pruning round (largest saving first).
         tour: Tour solver settings.
     """
 
     plans_on_ground_truth = True
 
     def __init__(self, spacing: float = 0.5, clearance: float = 0.35, rays: int = 720,
-                 margin: float = 0.004, min_gain: int = 12,
-                 tour: TourConfig | None = None) -> None:
+                 margin: float = 0.004, min_gain: int = 12, path_sample: float = 1.0,
+                 prune_tries: int = 4, tour: TourConfig | None = None) -> None:
         self.spacing = spacing
         self.clearance = clearance
         self.rays = rays
         self.margin = margin
         self.min_gain = min_gain
+        self.path_sample = path_sample
+        self.prune_tries = prune_tries
         self.tour_config = tour or TourConfig(time_limit=1.0)
 
     def reset(self, rng: np.random.Generator) -> None:
@@ -226,7 +228,6 @@ class OracleExplorer:
         costmap = self.ground_truth_costmap(state)
         traversable = costmap.traversable
         self.graph = CoarseGraph(gt, traversable)
-        self._rows: dict[int, np.ndarray] = {}  # Path distances from viewpoints' nodes.
         reachable = costmap.distances_from(state.pose[:2]) < np.inf
         clear = np.sqrt(costmap._dist2.reshape(gt.shape)) * res
         step = max(1, int(round(self.spacing / res)))
@@ -246,6 +247,15 @@ class OracleExplorer:
         ptr[1:] = np.cumsum([len(s) for s in seen])
         idx = np.concatenate(seen) if seen else np.zeros(0, np.int64)
         self.views = _Views(gt.cell_to_world(cand).reshape(-1, 2), ptr, idx, observable)
+        self._stamp, self._stamp_id = np.zeros(gt.data.size, np.int64), 0
+        # The viewpoint standing for each node of the path graph (the nearest within one
+        # lattice step; -1 if none): what the robot sees while it drives through the node.
+        if len(cand):
+            near, which = cKDTree(self.views.points).query(self.graph.centres,
+                                                            distance_upper_bound=self.spacing)
+            self._node_view = np.where(np.isfinite(near), which, -1)
+        else:
+            self._node_view = np.full(len(self.graph.centres), -1)
 
     def _need(self, state: ExplorationState) -> tuple[np.ndarray, int]:
         """The observable cells still unknown, and how many of them must still be seen."""
@@ -270,19 +280,32 @@ class OracleExplorer:
             prev = np.array(self.plan, np.int64)
             gains = _gains(views.ptr, views.idx, need, np.isin(np.arange(n), prev))[prev]
             kept[prev[(gains >= self.min_gain) & allowed[prev]]] = True
-        added, _ = _greedy_cover(views.ptr, views.idx, need, allowed, kept, required,
-                                 self.min_gain)
+        added = []
+        if self._count(np.flatnonzero(kept).tolist(), need) < required:
+            added, _ = _greedy_cover(views.ptr, views.idx, need, allowed, kept, required,
+                                     self.min_gain)
         plan = [i for i in self.plan if kept[i]] + list(added)
         if not plan:
             self.plan = []
             return self.plan
         points = np.vstack([state.pose[:2], self.views.points[plan]])
-        distance = self.graph.distance_matrix(points, cache=self._rows)
-        self._rows.pop(int(self.graph.node_of(points[:1])[0]), None)  # The robot moves on.
+        distance = self.graph.distance_matrix(points)
         order = self._order(plan, distance)
-        order = self._prune(plan, order, distance, need, required)
+        order = self._prune(plan, order, distance, need, required,
+                            self.graph.node_of(points))
         self.plan = [plan[j - 1] for j in order]
         return self.plan
+
+    def planned_coverage(self, state: ExplorationState) -> float:
+        """The exploration ratio the current plan would reach: the observable cells known
+        in ``state.grid`` plus those its tour sees (at the viewpoints and on the way), over
+        all observable cells."""
+        need, _ = self._need(state)
+        points = np.vstack([state.pose[:2], self.views.points[self.plan]])
+        order = list(range(1, len(self.plan) + 1))
+        seen = self._tour_sees(self.plan, order, self.graph.node_of(points), need)
+        total = int(self.views.observable.sum())
+        return (total - int(need.sum()) + seen) / total
 
     def _order(self, plan: list[int], distance: np.ndarray) -> list[int]:
         """The plan (places 1.. of ``distance``) as an open tour from place 0."""
@@ -291,23 +314,44 @@ class OracleExplorer:
         return open_tour(distance, self.tour_config, initial=warm)
 
     def _prune(self, plan: list[int], order: list[int], distance: np.ndarray,
-               need: np.ndarray, required: int) -> list[int]:
-        """Drops viewpoints the rest make redundant, the one whose removal shortens the
-        tour most first, while the rest still see ``required`` cells."""
+               need: np.ndarray, required: int, nodes: np.ndarray) -> list[int]:
+        """Drops viewpoints the rest of the tour makes redundant, the one whose removal
+        shortens the tour most first, while the tour still sees ``required`` cells: at its
+        viewpoints, and on the way between them (``nodes``: each place's path-graph node,
+        place 0 the start)."""
         order = list(order)
         d = np.where(np.isfinite(distance), distance, 1e5)
         while len(order) > 1:
-            views = np.array([plan[j - 1] for j in order], np.int64)
-            unique, covered = _unique_counts(self.views.ptr, self.views.idx, need, views)
-            nodes = [0, *order, -1]
+            ends = [0, *order, -1]
             saving = np.array([d[a, b] + (d[b, c] - d[a, c] if c >= 0 else 0.0)
-                               for a, b, c in zip(nodes, nodes[1:], nodes[2:])])
-            saving = np.where(covered - unique >= required, saving, -np.inf)
-            k = int(np.argmax(saving))
-            if not np.isfinite(saving[k]):
+                               for a, b, c in zip(ends, ends[1:], ends[2:])])
+            for k in np.argsort(-saving, kind="stable")[:self.prune_tries]:
+                trial = order[:k] + order[k + 1:]
+                if self._tour_sees(plan, trial, nodes, need) >= required:
+                    order = trial
+                    break
+            else:
                 break
-            order.pop(k)
         return order
+
+    def _tour_sees(self, plan: list[int], order: list[int], nodes: np.ndarray,
+                   need: np.ndarray) -> int:
+        """Cells of ``need`` seen at the tour's viewpoints and from the viewpoints standing
+        for every ``path_sample``-th node of the paths between them."""
+        seen = [plan[j - 1] for j in order]
+        step = max(1, int(round(self.path_sample / (self.graph.block *
+                                                    self.graph.grid.resolution))))
+        for a, b in zip([0, *order], order):
+            if nodes[a] >= 0 and nodes[b] >= 0:
+                along = self._node_view[self.graph.path(int(nodes[a]), int(nodes[b]))[::step]]
+                seen.extend(along[along >= 0].tolist())
+        return self._count(seen, need)
+
+    def _count(self, views: list[int], need: np.ndarray) -> int:
+        """Cells of ``need`` the viewpoints see together."""
+        self._stamp_id += 1
+        return _covered(self.views.ptr, self.views.idx, need,
+                        np.unique(np.array(views, np.int64)), self._stamp, self._stamp_id)
 
     # ------------------------------------------------------------------ explorer
 

@@ -67,6 +67,7 @@ class CoarseGraph:
             dst.append(b[both])
             w.append(np.full(int(both.sum()), step * float(np.hypot(dr, dc))))
         src, dst, w = np.concatenate(src), np.concatenate(dst), np.concatenate(w)
+        self._rows: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         n = len(flat)
         self.matrix = coo_matrix((np.concatenate([w, w]), (np.concatenate([src, dst]),
                                   np.concatenate([dst, src]))), shape=(n, n)).tocsr()
@@ -89,34 +90,49 @@ class CoarseGraph:
                 out[i] = self._index[rr[j] + r0, cc[j] + c0]
         return out
 
+    @property
+    def centres(self) -> np.ndarray:
+        """(nodes, 2) centre of each node's block in the ``map`` frame, metres."""
+        rc = np.column_stack(np.divmod(self._flat, self.shape[1])) * self.block
+        return self.grid.cell_to_world(rc) + 0.5 * (self.block - 1) * self.grid.resolution
+
+    def _search(self, sources: list[int]) -> None:
+        """Dijkstra from the sources not searched yet; rows kept by source node."""
+        todo = [v for v in dict.fromkeys(sources) if v not in self._rows]
+        if todo:
+            dist, pred = dijkstra(self.matrix, directed=False, indices=np.array(todo),
+                                  return_predecessors=True)
+            self._rows.update(zip(todo, zip(np.atleast_2d(dist), np.atleast_2d(pred))))
+
     def distances(self, sources: np.ndarray) -> np.ndarray:
         """(len(sources), nodes) path distances in metres from each source node (inf where
-        unreachable)."""
-        return np.atleast_2d(dijkstra(self.matrix, directed=False,
-                                      indices=np.asarray(sources, np.int64)))
+        unreachable). Searches are kept: the graph does not change."""
+        sources = [int(v) for v in np.atleast_1d(sources)]
+        self._search(sources)
+        return np.array([self._rows[v][0] for v in sources])
 
-    def distance_matrix(self, points: np.ndarray, radius: float = 1.0,
-                        cache: dict[int, np.ndarray] | None = None) -> np.ndarray:
+    def path(self, source: int, target: int) -> np.ndarray:
+        """Nodes of the shortest path from ``source`` to ``target`` (both included; empty
+        if none)."""
+        self._search([source])
+        pred = self._rows[source][1]
+        nodes = [target]
+        while nodes[-1] != source:
+            if pred[nodes[-1]] < 0:
+                return np.zeros(0, np.int64)
+            nodes.append(int(pred[nodes[-1]]))
+        return np.array(nodes[::-1], np.int64)
+
+    def distance_matrix(self, points: np.ndarray, radius: float = 1.0) -> np.ndarray:
         """(n, n) path distances in metres between (n, 2) points; inf where either point
-        has no node or no path joins them.
-
-        Args:
-            points: (n, 2) places in the ``map`` frame.
-            radius: How far from a place its node may lie, metres.
-            cache: Rows of :meth:`distances` by source node, reused and filled in (for a
-                graph that does not change between calls).
-        """
+        has no node or no path joins them."""
         nodes = self.node_of(points, radius)
         n = len(nodes)
         out = np.full((n, n), np.inf)
         ok = np.flatnonzero(nodes >= 0)
         if len(ok):
-            rows = {} if cache is None else cache
-            todo = [v for v in np.unique(nodes[ok]) if v not in rows]
-            if todo:
-                rows.update(zip(todo, self.distances(np.array(todo))))
-            for i in ok:
-                out[i, ok] = rows[nodes[i]][nodes[ok]]
+            rows = self.distances(nodes[ok])
+            out[np.ix_(ok, ok)] = rows[:, nodes[ok]]
         np.fill_diagonal(out, 0.0)
         return out
 
