@@ -3,8 +3,10 @@
 Every 0.1 s of simulated time the navigator commands the robot; every scan is mapped and
 the GVD updated; when a goal is reached (within zeta), vanishes (its frontier got seen)
 or turns out unreachable, the explorer is asked for the next one. The episode ends when
-the exploration ratio reaches the target (98.5 % by default: ``explored``), when the
-explorer sees nothing left (``no_frontiers``), when the robot lingers (``lingering``, the
+the exploration ratio reaches the target (98.5 % by default: ``explored``), when no
+frontier that is not blacklisted can be reached (``no_frontiers``: an explorer that sees
+nothing left while one can is overruled, and the robot goes to the nearest), when the
+robot lingers (``lingering``, the
 paper's "terminated unexpectedly"; a wedged robot ends so too), tips over (``tipped_over``),
 when the physics fails (``physics_fault``: non-finite state or MuJoCo's instability reset;
 the broken scans are not mapped), or at the time cap (``time_limit``). ``run`` turns Ctrl-C
