@@ -249,3 +249,20 @@ def test_merged_summary_keeps_the_other_methods_runs():
     other["episode"] = {"max_time": 900}
     with pytest.raises(Exception, match="max_time"):
         merge_summaries(other, old)
+
+
+def test_explore_lite_pair_of_goals_trading_places_runs_out_of_time():
+    lite = make_explorer("explore_lite")
+    lite.reset(np.random.default_rng(0))
+    a, b = np.array([1.0, 1.0]), np.array([2.2, 1.0])
+    stalled = []
+    for k in range(14):  # Re-planned every 3 s, the two goals alternate, neither gets closer.
+        goal, distance = (a, 5.0) if k % 2 == 0 else (b, 6.0)
+        stalled.append(lite._stalled_for(goal, distance, 3.0 * k, 0.05))
+    assert stalled[:2] == [0.0, 0.0]
+    assert stalled[-2] > lite.progress_timeout  # a, first chosen at 0 s, stalled 36 s.
+    # A goal chosen again after a long pause starts afresh; progress restarts the clock.
+    assert lite._stalled_for(np.array([9.0, 9.0]), 4.0, 100.0, 0.05) == 0.0
+    assert lite._stalled_for(a, 4.0, 110.0, 0.05) == 0.0
+    assert lite._stalled_for(a, 3.0, 120.0, 0.05) == 0.0
+    assert lite._stalled_for(a, 3.0, 125.0, 0.05) == 5.0

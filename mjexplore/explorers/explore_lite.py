@@ -18,6 +18,13 @@ The plan is remade every ``1 / planner_frequency`` seconds; a goal to which
 goal the navigator cannot reach (move_base's abort, here the episode's refusal). With no
 frontier left the explorer stops.
 
+One deviation, for a failure of the package: explore_lite keeps the progress of the latest
+goal only, so two frontiers whose costs trade places at every re-plan (the robot's move
+towards one makes the other cheaper) restart each other's clock and the robot shuttles
+between them for ever. Here every goal chosen within the last ``progress_timeout`` seconds
+keeps its own progress record (goals within explore_lite's 5-cell tolerance are one), so
+such a pair runs out of time like a single goal would.
+
 Not ported: explore_lite hands the centroid to move_base, whose planner may cross unknown
 space; ours plans on the known map, so a centroid is reached within the navigator's
 tolerance from the known side.
@@ -61,9 +68,8 @@ class ExploreLite:
     def reset(self, rng: np.random.Generator) -> None:
         del rng
         self.blacklist: list[np.ndarray] = []
-        self.previous_goal: np.ndarray | None = None
-        self.previous_distance = np.inf
-        self.last_progress = 0.0
+        # Per recent goal: [goal, least min_distance, time it was reached, last chosen].
+        self.progress: list[list] = []
 
     def frontiers(self, state: ExplorationState) -> list[tuple[np.ndarray, int, float]]:
         """explore_lite's frontiers of the map: (centroid (x, y) in metres, size in cells,
@@ -102,10 +108,26 @@ class ExploreLite:
         return [(centroid[k], int(size[k]), float(min_distance[k]))
                 for k in keep[np.argsort(cost, kind="stable")]]
 
+    @staticmethod
+    def _near(a: np.ndarray, b: np.ndarray, resolution: float) -> bool:
+        """explore_lite's goal tolerance: within 5 cells in x and in y."""
+        return abs(a[0] - b[0]) < 5 * resolution and abs(a[1] - b[1]) < 5 * resolution
+
     def _on_blacklist(self, goal: np.ndarray, resolution: float) -> bool:
-        tolerance = 5 * resolution
-        return any(abs(goal[0] - b[0]) < tolerance and abs(goal[1] - b[1]) < tolerance
-                   for b in self.blacklist)
+        return any(self._near(goal, b, resolution) for b in self.blacklist)
+
+    def _stalled_for(self, goal: np.ndarray, distance: float, t: float,
+                     resolution: float) -> float:
+        """Seconds since ``min_distance`` to ``goal`` last shrank (its record is updated)."""
+        self.progress = [r for r in self.progress if t - r[3] <= self.progress_timeout]
+        for record in self.progress:
+            if self._near(record[0], goal, resolution):
+                if distance < record[1]:
+                    record[1], record[2] = distance, t
+                record[3] = t
+                return t - record[2]
+        self.progress.append([goal, distance, t, t])
+        return 0.0
 
     def select_goal(self, state: ExplorationState) -> np.ndarray | None:
         res = state.grid.resolution
@@ -113,19 +135,10 @@ class ExploreLite:
         for goal in state.blacklist:
             if not self._on_blacklist(goal, res):
                 self.blacklist.append(np.asarray(goal, float))
-        for _ in range(2):
-            choice = next(((g, d) for g, _, d in self.frontiers(state)
-                           if not self._on_blacklist(g, res)), None)
-            if choice is None:
-                return None
-            goal, distance = choice
-            same = self.previous_goal is not None and np.array_equal(goal, self.previous_goal)
-            self.previous_goal = goal
-            if not same or distance < self.previous_distance:
-                self.last_progress = state.time
-                self.previous_distance = distance
-            if state.time - self.last_progress <= self.progress_timeout:
+        for goal, _, distance in self.frontiers(state):
+            if self._on_blacklist(goal, res):
+                continue
+            if self._stalled_for(goal, distance, state.time, res) <= self.progress_timeout:
                 return goal.copy()
             self.blacklist.append(goal)  # No progress for too long: give the goal up.
-            self.previous_goal = None
         return None
