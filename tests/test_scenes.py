@@ -14,6 +14,7 @@ from mjexplore.sim.simulator import Simulator
 FAMILY_SIZES = {
     "office": (24, 16), "maze": (14, 12), "loop": (16, 16), "corridor": (16, 12),
     "rooms": (16, 12), "hall": (12, 5), "loop+rooms": (26, 14), "maze+corridor+office": (40, 18),
+    "labmaze": (14, 12),
 }
 
 
@@ -49,10 +50,12 @@ def test_scene_compiles_and_steps_under_random_commands_without_warnings(family,
         assert np.all(np.isfinite(sim.data.qpos))
 
 
-def test_same_seed_same_scene_and_files(tmp_path):
-    a = generate_scene("loop+rooms", 26, 14, seed=5)
-    b = generate_scene("loop+rooms", 26, 14, seed=5)
-    c = generate_scene("loop+rooms", 26, 14, seed=6)
+@pytest.mark.parametrize("family, size, seed", [("loop+rooms", (26, 14), 5),
+                                                ("labmaze", (20, 20), 4)])
+def test_same_seed_same_scene_and_files(tmp_path, family, size, seed):
+    a = generate_scene(family, *size, seed=seed)
+    b = generate_scene(family, *size, seed=seed)
+    c = generate_scene(family, *size, seed=seed + 1)
     assert np.array_equal(a.solid, b.solid) and a.start == b.start
     assert not np.array_equal(a.solid, c.solid)
     write_scene(a, tmp_path / "a")

@@ -28,7 +28,8 @@ class CanonicalScene:
         family: Generator family (or '+'-joined families).
         size: (width, height) in metres.
         seed: Generator seed.
-        role: 'eval', 'train' or 'real' (the real-robot lobby).
+        role: 'eval', 'train', 'real' (the real-robot lobby) or 'extra' (an example of a
+            family beyond the paper's set).
         note: What the scene stands for.
     """
 
@@ -59,6 +60,9 @@ CANONICAL_SCENES: dict[str, CanonicalScene] = {
                                         "large combination"),
     # The paper's real-robot setting: a 17.5 x 4 m lobby.
     "lobby": CanonicalScene("hall", (17.5, 4), 0, "real", "real-robot lobby, 17.5 x 4 m"),
+    # Beyond the paper: DeepMind Lab's maze distribution (labmaze, as dm_control uses it).
+    "labmaze": CanonicalScene("labmaze", (20, 20), 0, "extra",
+                              "DeepMind Lab random maze (labmaze), 20 x 20 m"),
 }
 
 

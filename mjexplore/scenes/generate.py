@@ -21,8 +21,8 @@ def generate_scene(family: str, width: float, height: float, seed: int,
     """Generates a scene whose free space is one region the robot's footprint reaches.
 
     Args:
-        family: 'office', 'maze', 'loop', 'corridor', 'rooms', 'hall', or several joined by
-            '+' (e.g. 'loop+rooms').
+        family: 'office', 'maze', 'loop', 'corridor', 'rooms', 'hall', 'labmaze', or several
+            joined by '+' (e.g. 'loop+rooms').
         width: Size along x in metres, outer walls included.
         height: Size along y in metres.
         seed: Seed of the only random generator used; equal seeds give equal scenes.

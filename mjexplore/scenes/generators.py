@@ -1,4 +1,4 @@
-"""Seeded floor-plan generators: office, maze, loop, corridor, rooms, hall and combinations.
+"""Seeded floor-plan generators: office, maze, loop, corridor, rooms, hall, labmaze, combinations.
 
 Every generator carves free space out of a solid grid (``True`` = wall). A generator owns a
 region (an axis-aligned rectangle in metres) and keeps a solid margin of half the wall
@@ -15,6 +15,8 @@ Families:
         dead-end corridors (some ending in a small room): the paper's "loop with corridor".
     corridor: narrow corridors (0.9-1.2 m) along a random tree on a lattice.
     hall: one open room with pillars and furniture-sized blocks (the real-robot lobby).
+    labmaze: DeepMind Lab's random mazes (the ``labmaze`` package: rooms joined by
+        corridors), see :mod:`mjexplore.scenes.labmaze_family`.
     Combinations, e.g. ``loop+rooms``: the area is split along its long side into one part
     per family, and neighbouring parts are joined by passages.
 """
@@ -29,6 +31,7 @@ from scipy import ndimage
 
 from mjexplore.errors import UserInputError
 from mjexplore.robot import TURTLEBOT3_WAFFLE
+from mjexplore.scenes.labmaze_family import LabmazeConfig, carve_labmaze
 from mjexplore.scenes.scene import MAX_UNREACHABLE_SHARE, clearance, unreachable_share
 
 
@@ -45,6 +48,7 @@ class GeneratorConfig:
         narrow_corridor_width: (min, max) width of ``corridor`` passages.
         maze_cell: Side of a maze cell (passage width plus one wall).
         extra_door_probability: Chance that a pair of neighbouring rooms gets a second door.
+        labmaze: The ``labmaze`` family's knobs (cell pitch, rooms, extra connections).
     """
 
     wall_thickness: float = 0.15
@@ -55,6 +59,7 @@ class GeneratorConfig:
     narrow_corridor_width: tuple[float, float] = (0.9, 1.2)
     maze_cell: float = 2.0
     extra_door_probability: float = 0.15
+    labmaze: LabmazeConfig = dataclasses.field(default_factory=LabmazeConfig)
 
     def __post_init__(self) -> None:
         if not 0.05 <= self.wall_thickness <= 1.0:
@@ -456,6 +461,7 @@ FAMILIES: dict[str, Callable[[Canvas, Rect, np.random.Generator, GeneratorConfig
     "loop": carve_loop,
     "corridor": carve_corridor,
     "hall": carve_hall,
+    "labmaze": carve_labmaze,
 }
 
 
