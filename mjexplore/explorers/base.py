@@ -122,10 +122,7 @@ def make_explorer(name: str, **kwargs) -> Explorer:
 
     for module in ("nearest", "potential", "rrt", "oracle", "explore_lite", "frontier_tsp",
                    "gvn", "cnn"):  # Each registers itself.
-        try:
-            importlib.import_module(f"mjexplore.explorers.{module}")
-        except ModuleNotFoundError:
-            pass
+        importlib.import_module(f"mjexplore.explorers.{module}")
 
     if name not in EXPLORERS:
         raise UserInputError(f"unknown explorer {name!r}: use one of {', '.join(sorted(EXPLORERS))}.")

@@ -38,6 +38,7 @@ from scipy.spatial import cKDTree
 
 from mjexplore.explorers.base import ExplorationState, register
 from mjexplore.mapping.metrics import observable_ground_truth
+from mjexplore.mapping.occupancy import traversal_start
 from mjexplore.navigation.planner import Costmap, PlannerConfig
 from mjexplore.navigation.tour import CoarseGraph, TourConfig, open_tour
 from mjexplore.topology.gvd import DynamicGVD
@@ -57,15 +58,8 @@ def _visible_cells(opaque, wanted, r0, c0, reach, n_rays, stamp, stamp_id, out):
     y0 = r0 + 0.5
     for i in range(n_rays):
         a = 2.0 * math.pi * (i + 0.5) / n_rays
-        dx = math.cos(a)
-        dy = math.sin(a)
-        cx, cy = c0, r0
-        step_x = 1 if dx > 0 else -1
-        step_y = 1 if dy > 0 else -1
-        t_max_x = ((cx + (step_x > 0)) - x0) / dx if dx != 0 else np.inf
-        t_max_y = ((cy + (step_y > 0)) - y0) / dy if dy != 0 else np.inf
-        t_dx = abs(1.0 / dx) if dx != 0 else np.inf
-        t_dy = abs(1.0 / dy) if dy != 0 else np.inf
+        cx, cy, step_x, step_y, t_max_x, t_max_y, t_dx, t_dy = traversal_start(
+            x0, y0, math.cos(a), math.sin(a))
         t = 0.0
         while t <= reach and 0 <= cy < rows and 0 <= cx < cols:
             k = cy * cols + cx

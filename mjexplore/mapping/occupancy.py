@@ -68,6 +68,26 @@ def _state_of(l: float, occ_above: float, free_below: float) -> int:
     return UNKNOWN
 
 
+@numba.njit(cache=True, inline="always")
+def traversal_start(x0, y0, dx, dy):
+    """Set-up of an Amanatides-Woo walk over the cells a ray from (x0, y0) along the unit
+    direction (dx, dy) crosses, all in cell units (x along columns, y along rows).
+
+    Returns:
+        The start cell (cx, cy), the cell step per axis (+-1), the ray parameter at the
+        first cell boundary per axis, and the parameter across one cell per axis.
+    """
+    cx = int(math.floor(x0))
+    cy = int(math.floor(y0))
+    step_x = 1 if dx > 0 else -1
+    step_y = 1 if dy > 0 else -1
+    t_max_x = ((cx + (step_x > 0)) - x0) / dx if dx != 0 else np.inf
+    t_max_y = ((cy + (step_y > 0)) - y0) / dy if dy != 0 else np.inf
+    t_dx = abs(1.0 / dx) if dx != 0 else np.inf
+    t_dy = abs(1.0 / dy) if dy != 0 else np.inf
+    return cx, cy, step_x, step_y, t_max_x, t_max_y, t_dx, t_dy
+
+
 @numba.njit(cache=True)
 def _integrate_scan(logodds, state, stamp, old_state, touched, scan_id, x0, y0, angles,
                     ranges, range_max, l_hit, l_miss, l_min, l_max, occ_above, free_below,
@@ -105,16 +125,8 @@ def _integrate_scan(logodds, state, stamp, old_state, touched, scan_id, x0, y0, 
     for i in range(len(ranges)):
         if np.isnan(ranges[i]) or ranges[i] < 0:
             continue  # Too close (-inf) or invalid: says nothing about the space beyond.
-        dx = math.cos(angles[i])
-        dy = math.sin(angles[i])
-        cx = int(math.floor(x0))
-        cy = int(math.floor(y0))
-        step_x = 1 if dx > 0 else -1
-        step_y = 1 if dy > 0 else -1
-        t_max_x = ((cx + (step_x > 0)) - x0) / dx if dx != 0 else np.inf
-        t_max_y = ((cy + (step_y > 0)) - y0) / dy if dy != 0 else np.inf
-        t_dx = abs(1.0 / dx) if dx != 0 else np.inf
-        t_dy = abs(1.0 / dy) if dy != 0 else np.inf
+        cx, cy, step_x, step_y, t_max_x, t_max_y, t_dx, t_dy = traversal_start(
+            x0, y0, math.cos(angles[i]), math.sin(angles[i]))
         while True:
             if cx == end_c[i] and cy == end_r[i]:
                 break
