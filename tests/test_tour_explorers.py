@@ -159,12 +159,19 @@ def rooms_ground_truth():
     return GridMap(data, 0.1)
 
 
-def test_oracle_covers_the_target_with_a_near_optimal_tour():
+def oracle_in_rooms(start, sensor_range):
+    """The oracle at ``start`` in the three rooms, nothing mapped yet; and its state."""
     gt = rooms_ground_truth()
     unknown = GridMap(np.full(gt.shape, UNKNOWN, np.int8), gt.resolution)
-    state = state_of(unknown, (5.0, 3.5), ground_truth=gt, sensor_range=2.0)
+    state = state_of(unknown, start, ground_truth=gt, sensor_range=sensor_range)
     oracle = make_explorer("oracle")
     oracle.reset(np.random.default_rng(0))
+    return oracle, state
+
+
+def test_oracle_covers_the_target_with_a_near_optimal_tour():
+    oracle, state = oracle_in_rooms((5.0, 3.5), sensor_range=2.0)
+    gt, unknown = state.ground_truth, state.grid
     plan = oracle.replan(state)
     assert 4 <= len(plan) <= 9  # Rooms on both sides, 2 m of lidar: several viewpoints.
     # The tour sees the target ratio of the observable ground truth...
@@ -192,11 +199,8 @@ def test_oracle_covers_the_target_with_a_near_optimal_tour():
 
 
 def test_oracle_drops_viewpoints_whose_cells_were_seen():
-    gt = rooms_ground_truth()
-    grid = GridMap(np.full(gt.shape, UNKNOWN, np.int8), gt.resolution)
-    state = state_of(grid, (2.0, 2.0), ground_truth=gt, sensor_range=3.0)
-    oracle = make_explorer("oracle")
-    oracle.reset(np.random.default_rng(0))
+    oracle, state = oracle_in_rooms((2.0, 2.0), sensor_range=3.0)
+    gt, grid = state.ground_truth, state.grid
     first = oracle.replan(state)
     assert oracle.goal_open(grid) is None  # No viewpoint adopted yet.
     oracle.current = first[0]
