@@ -37,6 +37,7 @@ bench: system-deps $(VENV)/.installed-test
 	$(BIN)/python tools/bench_topology.py
 	$(BIN)/python tools/bench_train.py
 	$(BIN)/python tools/bench_render.py
+	$(BIN)/python tools/bench_policy.py
 	$(BIN)/python tools/bench_explorers.py
 
 scenes: install

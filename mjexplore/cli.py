@@ -6,6 +6,7 @@ Every command answers bad input with a one-paragraph message on stderr and exit 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import logging
@@ -53,6 +54,13 @@ def _positive(text: str) -> float:
     return value
 
 
+def _port(text: str) -> int:
+    if not text.isdigit() or not 0 <= int(text) <= 65535:
+        raise argparse.ArgumentTypeError(f"port {text!r} is not a TCP port (0 to 65535; 0 "
+                                         "takes a free one)")
+    return int(text)
+
+
 def _seed(text: str) -> int:
     try:
         value = int(text)
@@ -60,6 +68,16 @@ def _seed(text: str) -> int:
         raise argparse.ArgumentTypeError(f"seed {text!r} is not a whole number") from None
     if value < 0:
         raise argparse.ArgumentTypeError(f"seed {text!r} must be >= 0")
+    return value
+
+
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a whole number >= 1")
     return value
 
 
@@ -74,9 +92,21 @@ def cmd_scene_gen(args: argparse.Namespace) -> int:
             print(f"{name:24s} {c.role:5s} {c.family:22s} {c.size[0]:g}x{c.size[1]:g} m  "
                   f"seed {c.seed}  {c.note}")
         return 0
+    if args.from_scene is not None:
+        return _export_existing_scene(args)
     if args.out is None:
         raise UserInputError("scene-gen needs --out DIR: the folder to write the scene to.")
-    if args.from_map is not None:
+    if args.export is not None:
+        from mjexplore.scenes.mesh import check_export_path
+
+        check_export_path(args.export)  # Before the work, not after it.
+    mesh_options = [f"--{o.replace('_', '-')}" for o in MESH_OPTIONS
+                    if getattr(args, o) is not None]
+    if mesh_options and args.from_mesh is None:
+        raise UserInputError(f"{', '.join(mesh_options)} apply to --from-mesh only.")
+    if args.from_mesh is not None:
+        scene = _mesh_scene(args)
+    elif args.from_map is not None:
         if args.family is not None:
             raise UserInputError("give either a FAMILY or --from-map, not both.")
         if args.size is not None or args.wall_thickness is not None:
@@ -99,8 +129,8 @@ def cmd_scene_gen(args: argparse.Namespace) -> int:
             scene = dataclasses.replace(scene, name=args.name)
     else:
         if args.family is None:
-            raise UserInputError("scene-gen needs a FAMILY (e.g. office) or --from-map MAP.yaml; "
-                                 "see 'mjexplore scene-gen --list'.")
+            raise UserInputError("scene-gen needs a FAMILY (e.g. office), --from-map MAP.yaml or "
+                                 "--from-mesh FILE.glb; see 'mjexplore scene-gen --list'.")
         from mjexplore.scenes.generate import generate_scene
 
         cfg = (GeneratorConfig() if args.wall_thickness is None else
@@ -108,11 +138,53 @@ def cmd_scene_gen(args: argparse.Namespace) -> int:
         scene = generate_scene(args.family, *(args.size or DEFAULT_SCENE_SIZE), seed=args.seed,
                                resolution=args.resolution or 0.05, config=cfg, name=args.name)
         if args.start is not None:
-            raise UserInputError("--start applies to --from-map; generated scenes pick their "
-                                 "own start from the seed.")
+            raise UserInputError("--start applies to --from-map and --from-mesh; generated "
+                                 "scenes pick their own start from the seed.")
     xml = write_scene(scene, args.out)
-    print(json.dumps({"scene": str(xml), "start": list(scene.start),
-                      "wall_boxes": int(len(scene.wall_boxes()))}))
+    summary = {"scene": str(xml), "start": list(scene.start),
+               "wall_boxes": int(len(scene.wall_boxes()))}
+    if args.export is not None:
+        from mjexplore.scenes.mesh import export_scene_mesh
+
+        summary["export"] = str(export_scene_mesh(xml, args.export))
+    print(json.dumps(summary))
+    return 0
+
+
+MESH_OPTIONS = ("mesh_units", "mesh_scale", "up_axis", "floor_z", "height")
+
+
+def _mesh_scene(args: argparse.Namespace):
+    if args.family is not None or args.from_map is not None:
+        raise UserInputError("give one of FAMILY, --from-map and --from-mesh.")
+    if args.size is not None or args.wall_thickness is not None:
+        raise UserInputError("--size and --wall-thickness apply to generated scenes; a mesh "
+                             "has its own size and walls.")
+    if args.mesh_units is not None and args.mesh_scale is not None:
+        raise UserInputError("give --mesh-units or --mesh-scale, not both.")
+    from mjexplore.scenes.mesh import MeshImportConfig, scene_from_mesh, units_scale
+
+    config = MeshImportConfig(scale=args.mesh_scale or units_scale(args.mesh_units or "m"),
+                              up_axis=args.up_axis, floor_z=args.floor_z, height=args.height,
+                              resolution=args.resolution or 0.05)
+    return scene_from_mesh(args.from_mesh, config, start=args.start, seed=args.seed,
+                           name=args.name)
+
+
+def _export_existing_scene(args: argparse.Namespace) -> int:
+    if args.export is None:
+        raise UserInputError("--from-scene writes an existing scene as a mesh: add --export "
+                             "FILE.glb.")
+    given = [o for o, v in (("FAMILY", args.family), ("--from-map", args.from_map),
+                            ("--from-mesh", args.from_mesh), ("--out", args.out)) if v is not None]
+    if given:
+        raise UserInputError(f"--from-scene exports a scene and makes none: drop "
+                             f"{', '.join(given)}.")
+    from mjexplore.scenes.canonical import resolve_scene
+    from mjexplore.scenes.mesh import export_scene_mesh
+
+    xml = resolve_scene(args.from_scene).xml
+    print(json.dumps({"scene": str(xml), "export": str(export_scene_mesh(xml, args.export))}))
     return 0
 
 
@@ -166,9 +238,12 @@ def cmd_explore(args: argparse.Namespace) -> int:
         from mjexplore.render.gl import check_rendering
 
         check_rendering()  # Fails now, not after the episode, if GL cannot load.
-    metrics = write_run(args.out, resolve_scene(args.scene), args.explorer, args.seed,
-                        _episode_config(args), mcap=not args.no_mcap, explorer_kwargs=kwargs,
-                        video=video)
+    scene, config = resolve_scene(args.scene), _episode_config(args)
+    with _live_server(args) as live:
+        metrics = write_run(args.out, scene, args.explorer, args.seed, config,
+                            mcap=False if args.no_mcap else args.mcap_profile or "foxglove",
+                            explorer_kwargs=kwargs, video=video,
+                            progress=not args.no_progress, live=live)
     if video is not None:
         target = Path(args.video)
         inside = Path(args.out) / "video.mp4"
@@ -179,6 +254,28 @@ def cmd_explore(args: argparse.Namespace) -> int:
         metrics["video"] = str(target)
     print(json.dumps(metrics))
     return 0
+
+
+def _live_server(args: argparse.Namespace):
+    """explore's Foxglove live server (a context manager), or a null context without --live."""
+    if args.no_mcap and args.mcap_profile is not None:
+        raise UserInputError("--mcap-profile applies to episode.mcap: drop --no-mcap or it.")
+    if args.live is None:
+        given = [o for o, v in (("--live-host", args.live_host), ("--live-rate", args.live_rate),
+                                ("--live-wait", args.live_wait)) if v not in (None, False)]
+        if given:
+            raise UserInputError(f"{', '.join(given)}: settings of the live server, which "
+                                 "runs only with --live (optionally with a port, e.g. "
+                                 "--live 8765); add it or drop them.")
+        return contextlib.nullcontext()
+    from mjexplore.io.live import DEFAULT_HOST, LiveServer
+
+    live = LiveServer(args.live_host or DEFAULT_HOST, args.live, rate=args.live_rate,
+                      wait=args.live_wait)
+    print(f"mjexplore explore: live at {live.url} (Foxglove: Open connection, Foxglove "
+          "WebSocket)" + ("; the episode starts when Foxglove subscribes to a topic"
+                          if args.live_wait else ""), file=sys.stderr, flush=True)
+    return live
 
 
 def _video_config(args: argparse.Namespace):
@@ -229,7 +326,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def cmd_train(args: argparse.Namespace) -> int:
     from mjexplore.training import load_train_config, train
 
-    config = load_train_config(args.config)
+    config = load_train_config(args.config, total_steps=args.total_steps, n_envs=args.n_envs)
     summary = train(config, args.out, resume=args.resume, progress=not args.no_progress)
     print(json.dumps(summary))
     return 0
@@ -288,10 +385,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     gen = sub.add_parser(
         "scene-gen", help="generate a scene (MJCF + ground-truth map + preview)",
-        description="Generate a seeded scene of a family, or import a map_server map or an "
-                    "image, and write scene.xml, map.yaml/.pgm, preview.png and scene.json.")
-    gen.add_argument("family", nargs="?", help="office, maze, loop, corridor, rooms, hall, or "
-                     "several joined by '+' (e.g. loop+rooms)")
+        description="Generate a seeded scene of a family, or import a map_server map, an "
+                    "image or a 3D building model, and write scene.xml, map.yaml/.pgm, "
+                    "preview.png and scene.json (--export: also as a mesh file).")
+    gen.add_argument("family", nargs="?", help="office, maze, loop, corridor, rooms, hall, "
+                     "labmaze, or several joined by '+' (e.g. loop+rooms)")
     gen.add_argument("--seed", type=_seed, default=0, help="generator seed (default 0)")
     gen.add_argument("--size", type=_size, default=None,
                      help="WIDTHxHEIGHT in metres, outer walls included (default "
@@ -303,10 +401,31 @@ def build_parser() -> argparse.ArgumentParser:
                      "the image's metres per pixel")
     gen.add_argument("--from-map", metavar="MAP", help="map_server YAML, or an image with "
                      "--resolution (bright pixels free)")
+    gen.add_argument("--from-mesh", metavar="FILE", help="3D building model (GLB, glTF, OBJ, "
+                     "STL, PLY, OFF), cut at the lidar's height")
+    gen.add_argument("--mesh-units", default=None, metavar="UNIT",
+                     help="--from-mesh file's unit: m (default), cm, mm, in or ft")
+    gen.add_argument("--mesh-scale", type=_positive, default=None, metavar="S",
+                     help="--from-mesh file's metres per unit (instead of --mesh-units)")
+    gen.add_argument("--up-axis", choices=["y", "z"], default=None,
+                     help="--from-mesh file's up axis (default: y for GLB, glTF and OBJ; z for "
+                     "STL, PLY and OFF)")
+    gen.add_argument("--floor-z", type=float, default=None, metavar="Z",
+                     help="--from-mesh floor height in metres, z up (default: found; give it "
+                     "to pick a storey)")
+    gen.add_argument("--height", type=_positive, default=None, metavar="H",
+                     help="--from-mesh cut height above the floor in metres (default: the "
+                     "lidar's, 0.132)")
     gen.add_argument("--start", type=_pose, default=None, metavar="X,Y[,YAW]",
-                     help="start pose for --from-map, metres and radians in the map frame")
+                     help="start pose for --from-map and --from-mesh, metres and radians in "
+                     "the map frame")
     gen.add_argument("--name", default=None, help="scene name (default from family and size)")
     gen.add_argument("--out", type=Path, default=None, help="output folder")
+    gen.add_argument("--export", type=Path, default=None, metavar="FILE",
+                     help="also write the scene's walls and floor as a mesh (.glb y-up for "
+                     "Foxglove, Blender, Gazebo; .obj, .stl, .ply)")
+    gen.add_argument("--from-scene", metavar="SCENE", help="with --export: write an existing "
+                     "scene (canonical name, folder or MJCF) as a mesh, nothing else")
     gen.add_argument("--list", action="store_true", help="list families and canonical scenes")
     gen.set_defaults(func=cmd_scene_gen)
 
@@ -344,6 +463,22 @@ def build_parser() -> argparse.ArgumentParser:
     explore.add_argument("--seed", type=_seed, default=0)
     explore.add_argument("--out", type=Path, required=True, help="run folder")
     explore.add_argument("--no-mcap", action="store_true", help="do not write episode.mcap")
+    explore.add_argument("--mcap-profile", default=None, choices=["foxglove", "ros2"],
+                         help="messages in episode.mcap: foxglove (Foxglove schemas, the "
+                         "default) or ros2 (ROS 2 messages, CDR: for ros2 bag play)")
+    explore.add_argument("--live", type=_port, nargs="?", const=8765, default=None,
+                         metavar="PORT", help="serve the episode's topics to Foxglove while it "
+                         "runs (Open connection, ws://127.0.0.1:PORT; PORT 8765 if not given)")
+    explore.add_argument("--live-host", default=None, metavar="ADDRESS",
+                         help="address the live server binds (127.0.0.1: this machine only; "
+                         "0.0.0.0: every interface)")
+    explore.add_argument("--live-rate", type=_positive, default=None, metavar="R",
+                         help="pace the live episode at R simulated seconds per second (1: "
+                         "real time; default: as fast as it runs)")
+    explore.add_argument("--live-wait", action="store_true",
+                         help="start the episode only once Foxglove subscribes to a topic")
+    explore.add_argument("--no-progress", action="store_true",
+                         help="no progress bar (it is shown only when stderr is a terminal)")
     explore.add_argument("--video", default=None, metavar="PATH",
                          help="also film the episode (3D view beside the map panel) into "
                          "an H.264 MP4 at PATH (and OUT/video.mp4)")
@@ -361,7 +496,10 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1 per combination")
     bench.add_argument("--workers", type=int, default=2, help="worker processes")
     bench.add_argument("--out", type=Path, required=True, help="sweep folder")
-    bench.add_argument("--mcap", action="store_true", help="also write an MCAP per episode")
+    bench.add_argument("--mcap", nargs="?", const="foxglove", default=None,
+                       choices=["foxglove", "ros2"], metavar="PROFILE",
+                       help="also write an MCAP per episode; PROFILE foxglove (default) or "
+                       "ros2 as explore's --mcap-profile")
     _add_episode_args(bench)
     bench.set_defaults(func=cmd_bench)
 
@@ -383,6 +521,12 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--out", type=Path, required=True, help="run folder")
     tr.add_argument("--resume", action="store_true",
                     help="continue the run in --out from its last checkpoint")
+    tr.add_argument("--total-steps", type=_count, default=None, metavar="N",
+                    help="decision steps to train for, all envs together (replaces the "
+                         "config's total_steps)")
+    tr.add_argument("--n-envs", type=_count, default=None, metavar="N",
+                    help="environments, one worker process each (replaces the config's n_envs; "
+                         "may change on --resume)")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
     tr.set_defaults(func=cmd_train)
 

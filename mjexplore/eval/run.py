@@ -18,9 +18,10 @@ from typing import Any
 from mjexplore.drive import kinematics_csv
 from mjexplore.eval.episode import Episode, EpisodeConfig, EpisodeResult, Interrupted
 from mjexplore.eval.plots import kinematics_figure, map_figure, ratio_figure
+from mjexplore.eval.progress import EpisodeProgress
 from mjexplore.explorers import make_explorer
 from mjexplore.io.atomic import atomic_directory, write_text_atomic
-from mjexplore.io.mcap_log import McapEpisodeLog
+from mjexplore.io.mcap_log import FoxgloveEpisodeLog
 from mjexplore.io.provenance import git_revision
 from mjexplore.scenes.scene import SceneFiles
 
@@ -55,23 +56,46 @@ class Observers:
             raise errors[0]
 
 
+def _episode_logs(mcap_path: str | os.PathLike | None, mcap_profile: str,
+                  live: Any) -> list[Any]:
+    """The MCAP log in ``mcap_profile`` and the live stream (Foxglove messages)."""
+    logs = []
+    if mcap_profile == "ros2" and mcap_path is not None:
+        from mjexplore.io.ros2_mcap import Ros2EpisodeLog
+
+        logs.append(Ros2EpisodeLog(mcap_path))
+        mcap_path = None
+    if mcap_path is not None or live is not None:
+        logs.append(FoxgloveEpisodeLog(mcap_path, live=live))
+    return logs
+
+
 def run_episode(scene: SceneFiles, explorer: str, seed: int, config: EpisodeConfig,
                 mcap_path: str | os.PathLike | None = None,
                 explorer_kwargs: dict | None = None, video_path: str | os.PathLike | None = None,
-                video: Any = None, stills_dir: str | os.PathLike | None = None) -> EpisodeResult:
-    """Runs one episode, optionally logging it to MCAP, filming it (``video_path`` with a
-    :class:`~mjexplore.render.recorder.VideoConfig`) and writing still figures."""
+                video: Any = None, stills_dir: str | os.PathLike | None = None,
+                progress: bool = False, mcap_profile: str = "foxglove",
+                live: Any = None) -> EpisodeResult:
+    """Runs one episode, optionally logging it to MCAP (``mcap_profile``: ``foxglove`` or
+    ``ros2`` messages), streaming it (``live``: a started
+    :class:`~mjexplore.io.live.LiveServer`, which may hold the start until a client
+    subscribes), filming it (``video_path`` with a
+    :class:`~mjexplore.render.recorder.VideoConfig`), writing still figures and showing a
+    progress bar on stderr (``progress``; drawn only when stderr is a terminal)."""
     title = f"{scene.metadata.get('name', Path(scene.xml).parent.name)} / {explorer} / seed {seed}"
     film = None
     if video_path is not None:
         from mjexplore.render.recorder import EpisodeVideo
 
         film = EpisodeVideo(video_path, video, title)
-    observers = Observers(McapEpisodeLog(mcap_path) if mcap_path is not None else None, film)
-    episode = Episode(scene, make_explorer(explorer, **(explorer_kwargs or {})), seed, config,
-                      observer=observers)
+    observers = Observers(*_episode_logs(mcap_path, mcap_profile, live), film,
+                          EpisodeProgress(config.max_time) if progress else None)
     interrupted = None
     try:
+        if live is not None:
+            live.wait_for_subscriber()  # Before the episode is built: it takes the first scan.
+        episode = Episode(scene, make_explorer(explorer, **(explorer_kwargs or {})), seed,
+                          config, observer=observers)
         result = episode.run()
     except Interrupted as exc:  # Stills of the run so far, then on up.
         interrupted, result = exc, exc.result
@@ -94,13 +118,17 @@ def resolved_config(scene: SceneFiles, explorer: str, seed: int, config: Episode
 
 
 def write_run(out_dir: str | os.PathLike, scene: SceneFiles, explorer: str, seed: int,
-              config: EpisodeConfig, mcap: bool = True,
-              explorer_kwargs: dict | None = None, video: Any = None) -> dict[str, Any]:
+              config: EpisodeConfig, mcap: bool | str = True,
+              explorer_kwargs: dict | None = None, video: Any = None,
+              progress: bool = False, live: Any = None) -> dict[str, Any]:
     """Runs an episode and writes its run folder atomically; returns the metrics.
+
+    ``mcap``: a false value for no ``episode.mcap``, True or ``"foxglove"`` for one with
+    Foxglove messages, ``"ros2"`` for ROS 2 ones. ``live`` as :func:`run_episode`.
 
     With ``video`` (a :class:`~mjexplore.render.recorder.VideoConfig`) the folder also gets
     ``video.mp4`` and the 3D still ``scene.png``; ``ter.png`` (final map, trajectory and TER)
-    is always written.
+    is always written. ``progress`` as :func:`run_episode`.
     """
     interrupted = None
     with atomic_directory(out_dir, "metrics.json") as tmp:
@@ -108,7 +136,9 @@ def write_run(out_dir: str | os.PathLike, scene: SceneFiles, explorer: str, seed
             result = run_episode(scene, explorer, seed, config,
                                  tmp / "episode.mcap" if mcap else None, explorer_kwargs,
                                  video_path=tmp / "video.mp4" if video is not None else None,
-                                 video=video, stills_dir=tmp)
+                                 video=video, stills_dir=tmp, progress=progress,
+                                 mcap_profile=mcap if isinstance(mcap, str) else "foxglove",
+                                 live=live)
         except Interrupted as exc:
             # Ctrl-C: the run so far becomes a complete folder (end_reason 'interrupted').
             interrupted, result = exc, exc.result

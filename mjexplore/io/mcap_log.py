@@ -1,6 +1,12 @@
-"""MCAP logs of episodes that open in Foxglove, stamped with simulated time.
+"""Episode logs that open in Foxglove, stamped with simulated time.
 
-Topics (Foxglove schemas, protobuf encoded by ``foxglove-sdk``):
+:class:`EpisodeLogger` holds what every log shares: the REP-105 frames at each scan, when the
+map is due, the kinematics samples since the last scan and the TER at each decision. Two logs
+write it: :class:`FoxgloveEpisodeLog` (this module; to an MCAP file and/or a live Foxglove
+WebSocket server, see :mod:`mjexplore.io.live`) and
+:class:`~mjexplore.io.ros2_mcap.Ros2EpisodeLog` (ROS 2 messages).
+
+Foxglove topics (Foxglove schemas, protobuf encoded by ``foxglove-sdk``):
     /scan        foxglove.LaserScan in ``base_scan`` (every scan)
     /tf          foxglove.FrameTransforms: map->odom, odom->base_link, base_link->base_scan
     /pose        foxglove.PoseInFrame: ground-truth pose of base_link in ``map``
@@ -15,10 +21,12 @@ Log time and message timestamps are simulated time in nanoseconds since the epis
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import foxglove
 import numpy as np
@@ -33,6 +41,9 @@ from foxglove.messages import LaserScan as FoxgloveLaserScan
 
 from mjexplore.robot import TURTLEBOT3_WAFFLE
 
+if TYPE_CHECKING:
+    from mjexplore.io.live import LiveServer
+
 KINEMATICS_SCHEMA = {
     "type": "object",
     "properties": {k: {"type": "number"} for k in (
@@ -40,52 +51,200 @@ KINEMATICS_SCHEMA = {
         "angular_acceleration")},
 }
 TOPICS = ("/scan", "/tf", "/pose", "/odom", "/map", "/ter", "/goal", "/kinematics")
-_NODE_COLOURS = {0.0: Color(r=0.1, g=0.8, b=0.1, a=1.0), 1.0: Color(r=0.1, g=0.3, b=1.0, a=1.0),
-                 -1.0: Color(r=0.9, g=0.2, b=0.2, a=1.0)}
+# TER node colours (r, g, b, a) by node flag: 0 explored, 1 frontier, -1 dead end.
+NODE_RGBA = {0.0: (0.1, 0.8, 0.1, 1.0), 1.0: (0.1, 0.3, 1.0, 1.0), -1.0: (0.9, 0.2, 0.2, 1.0)}
+EDGE_RGBA = (0.9, 0.6, 0.1, 1.0)
+NODE_SIZE = 0.25  # Sphere diameter, metres.
+EDGE_WIDTH = 0.04  # Line width, metres.
+TER_HEIGHT = 0.2  # Height of the drawn TER above the floor, metres.
+_NODE_COLOURS = {flag: Color(r=r, g=g, b=b, a=a) for flag, (r, g, b, a) in NODE_RGBA.items()}
 
 
-def _ns(t: float) -> int:
+def sim_ns(t: float) -> int:
+    """Simulated time ``t`` in seconds as whole nanoseconds."""
     return int(round(t * 1e9))
 
 
+def sec_nsec(t: float) -> tuple[int, int]:
+    """Simulated time ``t`` in seconds as (seconds, nanoseconds) of a message stamp."""
+    return divmod(sim_ns(t), 1_000_000_000)
+
+
+def yaw_quaternion(yaw: float) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of a rotation by ``yaw`` radians about +z."""
+    return 0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)
+
+
+@dataclasses.dataclass(frozen=True)
+class ScanFrames:
+    """The REP-105 frames at one scan; poses are (x, y, yaw) in metres and radians.
+
+    Attributes:
+        t: Simulated time of the scan in seconds.
+        map_odom: Pose of ``odom`` in ``map``. When the map is built from the true pose it
+            absorbs the odometry drift, as a perfect localiser would, so that ``base_link``
+            through the frames sits where the map was built from.
+        odom_base: Wheel-odometry pose of ``base_link`` in ``odom``.
+        pose: Ground-truth pose of ``base_link`` in ``map``.
+        velocity: Ground-truth (forward m/s, yaw rate rad/s) of ``base_link``.
+    """
+
+    t: float
+    map_odom: tuple[float, float, float]
+    odom_base: tuple[float, float, float]
+    pose: tuple[float, float, float]
+    velocity: tuple[float, float]
+
+    @classmethod
+    def of(cls, episode, t: float) -> "ScanFrames":
+        """The frames of ``episode`` now (``t``: the scan's simulated time, seconds)."""
+        sim = episode.sim
+        x, y, yaw = (float(v) for v in sim.pose)
+        dx, dy, dyaw = (float(v) for v in sim.odom_pose)
+        if episode.config.mapping_pose == "ground_truth":
+            oyaw = yaw - dyaw
+            c, s = math.cos(oyaw), math.sin(oyaw)
+            map_odom = (x - (c * dx - s * dy), y - (s * dx + c * dy), oyaw)
+        else:  # The map is built from odometry: it is the robot's whole estimate.
+            map_odom = tuple(float(v) for v in sim.odom_origin)
+        v, w = (float(u) for u in sim.velocity)
+        return cls(t, map_odom, (dx, dy, dyaw), (x, y, yaw), (v, w))
+
+
+SCAN_OFFSET = TURTLEBOT3_WAFFLE.scan_offset  # (x, y, z) of base_scan in base_link, metres.
+
+
+class EpisodeLogger:
+    """Episode observer that turns the episode into messages; subclasses write them.
+
+    At each scan: :meth:`write_scan` (scan and frames), :meth:`write_map` every
+    ``map_period`` seconds of simulated time (and the final map on :meth:`close` if newer),
+    :meth:`write_kinematics` with the samples since the last scan. At each decision:
+    :meth:`write_goal` and :meth:`write_ter`.
+
+    Args:
+        map_period: Seconds of simulated time between maps.
+    """
+
+    def __init__(self, map_period: float = 1.0) -> None:
+        self.map_period = map_period
+        self._next_map = 0.0
+        self._map_logged = -math.inf  # Time of the last map written...
+        self._last_scan = None  # ...and (time, live map) at the last scan.
+        self._last_kin = 0
+
+    # Observer hooks ---------------------------------------------------------------
+
+    def on_scan(self, episode, scan) -> None:
+        t = scan.stamp
+        self.write_scan(episode, scan, ScanFrames.of(episode, t))
+        if t >= self._next_map - 1e-9:
+            self._next_map = t + self.map_period
+            self.write_map(t, episode.mapper.grid)
+            self._map_logged = t
+        self._last_scan = (t, episode.mapper.grid)
+        rows = episode.sim.kinematics_rows
+        start = max(self._last_kin, 1)
+        if len(rows) > start:
+            t, v, w = rows[start - 1:, 0], rows[start - 1:, 1], rows[start - 1:, 2]
+            dt = np.diff(t)
+            self.write_kinematics(np.column_stack(
+                [t[1:], v[1:], w[1:], np.diff(v) / dt, np.diff(w) / dt]))
+        self._last_kin = len(rows)
+
+    def on_decision(self, episode, state) -> None:
+        t = episode.sim.time
+        goal = episode.goal
+        self.write_goal(t, float(goal[0]), float(goal[1]))
+        ter = state.extras.get("ter")
+        if ter is None:
+            ter, _, _ = episode.tracker.ter(state.grid, state.pose)
+            state.extras["ter"] = ter  # Shared with other observers.
+        self.write_ter(t, ter)
+
+    def on_step(self, episode) -> None:
+        del episode
+
+    def close(self) -> None:
+        """Writes the final map (if newer than the last one written) and finishes."""
+        if self._last_scan is not None and self._last_scan[0] > self._map_logged:
+            self.write_map(*self._last_scan)
+        self.finish()
+
+    # For subclasses -------------------------------------------------------------------
+
+    def write_scan(self, episode, scan, frames: ScanFrames) -> None:
+        """The scan, the frames and the poses at ``frames.t``."""
+        raise NotImplementedError
+
+    def write_map(self, t: float, grid) -> None:
+        """The occupancy map (:class:`~mjexplore.maps.GridMap`) at ``t``."""
+        raise NotImplementedError
+
+    def write_goal(self, t: float, x: float, y: float) -> None:
+        """The goal chosen at ``t``, in ``map``."""
+        raise NotImplementedError
+
+    def write_ter(self, t: float, ter) -> None:
+        """The TER at ``t``: nodes (``positions`` in ``map``, ``flags``) and ``edges``."""
+        raise NotImplementedError
+
+    def write_kinematics(self, rows: np.ndarray) -> None:
+        """Samples (t s, v m/s, omega rad/s, dv/dt m/s^2, domega/dt rad/s^2), one a row."""
+        raise NotImplementedError
+
+    def finish(self) -> None:
+        raise NotImplementedError
+
+
 def _stamp(t: float) -> Timestamp:
-    ns = _ns(t)
-    return Timestamp(sec=ns // 1_000_000_000, nsec=ns % 1_000_000_000)
+    sec, nsec = sec_nsec(t)
+    return Timestamp(sec=sec, nsec=nsec)
+
+
+def _quaternion(yaw: float) -> Quaternion:
+    qx, qy, qz, qw = yaw_quaternion(yaw)
+    return Quaternion(x=qx, y=qy, z=qz, w=qw)
 
 
 def _pose(x: float, y: float, yaw: float, z: float = 0.0) -> Pose:
-    return Pose(position=Vector3(x=float(x), y=float(y), z=z),
-                orientation=Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2)))
+    return Pose(position=Vector3(x=float(x), y=float(y), z=z), orientation=_quaternion(yaw))
 
 
 def _transform(t: float, parent: str, child: str, x: float, y: float, yaw: float,
                z: float = 0.0) -> FrameTransform:
     return FrameTransform(timestamp=_stamp(t), parent_frame_id=parent, child_frame_id=child,
                           translation=Vector3(x=float(x), y=float(y), z=z),
-                          rotation=Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2),
-                                              w=math.cos(yaw / 2)))
+                          rotation=_quaternion(yaw))
 
 
-class McapEpisodeLog:
-    """Episode observer that writes an MCAP file (written to a temporary name, renamed on
-    :meth:`close`).
+class FoxgloveEpisodeLog(EpisodeLogger):
+    """Episode log with Foxglove schemas, written to an MCAP file (to a temporary name, renamed
+    on :meth:`close`) and/or streamed by a live Foxglove WebSocket server.
+
+    Both are sinks of one ``foxglove.Context``: each message is built once and goes to every
+    sink. A message nobody takes (live only, with no client subscribed to its topic) is not
+    built at all.
 
     Args:
-        path: Destination ``.mcap`` file.
+        path: Destination ``.mcap`` file, or None for none.
         map_period: Seconds of simulated time between /map messages.
+        live: A started :class:`~mjexplore.io.live.LiveServer` to stream to (its context
+            is used; it also paces the episode and gets the simulated time), or None.
     """
 
-    def __init__(self, path: str | os.PathLike, map_period: float = 1.0) -> None:
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = self.path.with_name(f".{self.path.name}.tmp")
-        self.map_period = map_period
-        self._next_map = 0.0
-        self._map_logged = -math.inf  # Time of the last /map message...
-        self._last_scan = None  # ...and (time, live map) at the last scan.
-        self._last_kin = 0
-        self.context = foxglove.Context()
-        self.writer = foxglove.open_mcap(self._tmp, allow_overwrite=True, context=self.context)
+    def __init__(self, path: str | os.PathLike | None = None, map_period: float = 1.0,
+                 live: "LiveServer | None" = None) -> None:
+        super().__init__(map_period)
+        self.live = live
+        self.context = live.context if live is not None else foxglove.Context()
+        self.path = self.writer = None
+        if path is not None:
+            self.path = Path(path)
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._tmp = self.path.with_name(f".{self.path.name}.tmp")
+            self.writer = foxglove.open_mcap(self._tmp, allow_overwrite=True,
+                                             context=self.context)
         ctx = self.context
         self.scan = LaserScanChannel("/scan", context=ctx)
         self.tf = FrameTransformsChannel("/tf", context=ctx)
@@ -99,72 +258,46 @@ class McapEpisodeLog:
             schema=foxglove.Schema(name="mjexplore.Kinematics", encoding="jsonschema",
                                    data=json.dumps(KINEMATICS_SCHEMA).encode()))
 
-    # Observer hooks ---------------------------------------------------------------
+    def write_scan(self, episode, scan, frames: ScanFrames) -> None:
+        t = frames.t
+        ns = sim_ns(t)
+        if self.scan.has_sinks():
+            self.scan.log(FoxgloveLaserScan(
+                timestamp=_stamp(t), frame_id="base_scan", pose=_pose(0.0, 0.0, 0.0),
+                start_angle=float(scan.angles[0]), end_angle=float(scan.angles[-1]),
+                ranges=scan.ranges.tolist(),  # +-inf as REP-117 has them.
+                intensities=[]), log_time=ns)
+        if self.tf.has_sinks():
+            sx, sy, sz = SCAN_OFFSET
+            self.tf.log(FrameTransforms(transforms=[
+                _transform(t, "map", "odom", *frames.map_odom),
+                _transform(t, "odom", "base_link", *frames.odom_base),
+                _transform(t, "base_link", "base_scan", sx, sy, 0.0, sz)]), log_time=ns)
+        if self.pose.has_sinks():
+            self.pose.log(PoseInFrame(timestamp=_stamp(t), frame_id="map",
+                                      pose=_pose(*frames.pose)), log_time=ns)
+        if self.odom.has_sinks():
+            self.odom.log(PoseInFrame(timestamp=_stamp(t), frame_id="odom",
+                                      pose=_pose(*frames.odom_base)), log_time=ns)
+        if self.live is not None:
+            self.live.pace(t)
 
-    def on_scan(self, episode, scan) -> None:
-        t = scan.stamp
-        ns = _ns(t)
-        sim = episode.sim
-        self.scan.log(FoxgloveLaserScan(
-            timestamp=_stamp(t), frame_id="base_scan", pose=_pose(0.0, 0.0, 0.0),
-            start_angle=float(scan.angles[0]), end_angle=float(scan.angles[-1]),
-            ranges=[float(r) for r in scan.ranges],  # +-inf as REP-117 has them.
-            intensities=[]), log_time=ns)
-        x, y, yaw = sim.pose
-        dx, dy, dyaw = sim.odom_pose
-        if episode.config.mapping_pose == "ground_truth":
-            # REP-105: map -> odom absorbs the drift, as a perfect localiser would, so
-            # that base_link through /tf sits where the map was built from.
-            oyaw = yaw - dyaw
-            c, s_ = math.cos(oyaw), math.sin(oyaw)
-            ox, oy = x - (c * dx - s_ * dy), y - (s_ * dx + c * dy)
-        else:  # The map is built from odometry: it is the robot's whole estimate.
-            ox, oy, oyaw = sim.odom_origin
-        sx, sy, sz = TURTLEBOT3_WAFFLE.scan_offset
-        self.tf.log(FrameTransforms(transforms=[
-            _transform(t, "map", "odom", ox, oy, oyaw),
-            _transform(t, "odom", "base_link", dx, dy, dyaw),
-            _transform(t, "base_link", "base_scan", sx, sy, 0.0, sz)]), log_time=ns)
-        self.pose.log(PoseInFrame(timestamp=_stamp(t), frame_id="map", pose=_pose(x, y, yaw)),
-                      log_time=ns)
-        self.odom.log(PoseInFrame(timestamp=_stamp(t), frame_id="odom",
-                                  pose=_pose(dx, dy, dyaw)), log_time=ns)
-        if t >= self._next_map - 1e-9:
-            self._next_map = t + self.map_period
-            self.log_map(t, episode.mapper.grid)
-            self._map_logged = t
-        self._last_scan = (t, episode.mapper.grid)
-        self._log_kinematics(sim)
+    def write_kinematics(self, rows: np.ndarray) -> None:
+        if not self.kinematics.has_sinks():
+            return
+        for t, v, w, a, alpha in rows.tolist():
+            self.kinematics.log({"t": t, "linear_velocity": v, "angular_velocity": w,
+                                 "linear_acceleration": a, "angular_acceleration": alpha},
+                                log_time=sim_ns(t))
 
-    def on_decision(self, episode, state) -> None:
-        t = episode.sim.time
-        goal = episode.goal
-        self.goal.log(PoseInFrame(timestamp=_stamp(t), frame_id="map",
-                                  pose=_pose(goal[0], goal[1], 0.0)), log_time=_ns(t))
-        ter = state.extras.get("ter")
-        if ter is None:
-            ter, _, _ = episode.tracker.ter(state.grid, state.pose)
-            state.extras["ter"] = ter  # Shared with other observers.
-        self.log_ter(t, ter)
+    def write_goal(self, t: float, x: float, y: float) -> None:
+        if self.goal.has_sinks():
+            self.goal.log(PoseInFrame(timestamp=_stamp(t), frame_id="map",
+                                      pose=_pose(x, y, 0.0)), log_time=sim_ns(t))
 
-    def on_step(self, episode) -> None:
-        del episode
-
-    # Messages -----------------------------------------------------------------------
-
-    def _log_kinematics(self, sim) -> None:
-        rows = sim.kinematics_rows
-        for i in range(max(self._last_kin, 1), len(rows)):
-            t, v, w = rows[i, :3]
-            dt = t - rows[i - 1, 0]
-            self.kinematics.log({"t": float(t), "linear_velocity": float(v),
-                                 "angular_velocity": float(w),
-                                 "linear_acceleration": float((v - rows[i - 1, 1]) / dt),
-                                 "angular_acceleration": float((w - rows[i - 1, 2]) / dt)},
-                                log_time=_ns(float(t)))
-        self._last_kin = len(rows)
-
-    def log_map(self, t: float, grid) -> None:
+    def write_map(self, t: float, grid) -> None:
+        if not self.map.has_sinks():
+            return
         rows, cols = grid.shape
         self.map.log(Grid(
             timestamp=_stamp(t), frame_id="map", pose=_pose(grid.origin[0], grid.origin[1], 0.0),
@@ -172,26 +305,27 @@ class McapEpisodeLog:
             row_stride=cols, cell_stride=1,
             fields=[PackedElementField(name="occupancy", offset=0,
                                        type=PackedElementFieldNumericType.Int8)],
-            data=np.ascontiguousarray(grid.data).tobytes()), log_time=_ns(t))
+            data=np.ascontiguousarray(grid.data).tobytes()), log_time=sim_ns(t))
 
-    def log_ter(self, t: float, ter) -> None:
-        spheres = [SpherePrimitive(pose=_pose(p[0], p[1], 0.0, 0.2),
-                                   size=Vector3(x=0.25, y=0.25, z=0.25),
+    def write_ter(self, t: float, ter) -> None:
+        if not self.ter.has_sinks():
+            return
+        spheres = [SpherePrimitive(pose=_pose(p[0], p[1], 0.0, TER_HEIGHT),
+                                   size=Vector3(x=NODE_SIZE, y=NODE_SIZE, z=NODE_SIZE),
                                    color=_NODE_COLOURS[float(f)])
                    for p, f in zip(ter.positions, ter.flags)]
-        points = [Point3(x=float(ter.positions[i, 0]), y=float(ter.positions[i, 1]), z=0.2)
-                  for e in ter.edges for i in e]
+        points = [Point3(x=float(ter.positions[i, 0]), y=float(ter.positions[i, 1]),
+                         z=TER_HEIGHT) for e in ter.edges for i in e]
         lines = [LinePrimitive(type=LinePrimitiveLineType.LineList, pose=_pose(0, 0, 0),
-                               thickness=0.04, scale_invariant=False, points=points,
-                               color=Color(r=0.9, g=0.6, b=0.1, a=1.0))] if points else []
+                               thickness=EDGE_WIDTH, scale_invariant=False, points=points,
+                               color=Color(r=EDGE_RGBA[0], g=EDGE_RGBA[1], b=EDGE_RGBA[2],
+                                           a=EDGE_RGBA[3]))] if points else []
         self.ter.log(SceneUpdate(entities=[SceneEntity(
             timestamp=_stamp(t), frame_id="map", id="ter", spheres=spheres, lines=lines)]),
-            log_time=_ns(t))
+            log_time=sim_ns(t))
 
-    def close(self) -> None:
-        """Logs the final map (if newer than the last one logged), finishes the file and
-        moves it into place."""
-        if self._last_scan is not None and self._last_scan[0] > self._map_logged:
-            self.log_map(*self._last_scan)
-        self.writer.close()
-        os.replace(self._tmp, self.path)
+    def finish(self) -> None:
+        """Finishes the MCAP file and moves it into place."""
+        if self.writer is not None:
+            self.writer.close()
+            os.replace(self._tmp, self.path)

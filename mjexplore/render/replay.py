@@ -64,6 +64,10 @@ class RecordedEpisode:
         try:
             with open(path, "rb") as f:
                 reader = make_reader(f)
+                if reader.get_header().profile == "ros2":
+                    raise UserInputError(
+                        f"{str(path)!r} holds ROS 2 messages (--mcap-profile ros2); render "
+                        "reads Foxglove ones: re-run the episode without --mcap-profile ros2.")
                 classes = _decoders(reader.get_summary())
                 for schema, channel, message in reader.iter_messages(
                         topics=["/pose", "/map", "/ter", "/goal"]):
@@ -73,6 +77,8 @@ class RecordedEpisode:
             raise UserInputError(f"cannot read {str(path)!r}: {exc.strerror}; render needs a run "
                                  "folder written by 'mjexplore explore' (without --no-mcap).") \
                 from None
+        except UserInputError:
+            raise
         except Exception as exc:  # The mcap reader raises many kinds for damaged files.
             raise UserInputError(f"{str(path)!r} is not a readable MCAP ({type(exc).__name__}: "
                                  f"{exc}); re-run the episode to record it again.") from None

@@ -4,7 +4,8 @@ A scene folder holds:
     scene.xml    the MuJoCo model (walls as merged boxes, floor, light and the robot);
     map.yaml/.pgm  the ground-truth map as a ROS map_server pair;
     preview.png  a picture of the ground truth with the start pose;
-    scene.json   what made it (family, seed, size, ...) and the start pose.
+    scene.json   what made it (family, seed, size, ...) and the start pose;
+    building.stl  (scenes from meshes only) the building, shown but not collided with.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from mjexplore.scenes.rectangles import cover_rectangles
 
 WALL_HEIGHT = 3.0
 WALL_GEOM_PREFIX = "wall_"
+VISUAL_MESH_FILE = "building.stl"
 PHYSICS_TIMESTEP = 0.005
 
 
@@ -45,6 +47,9 @@ class Scene:
         start: Start pose (x, y, yaw) of ``base_link`` in metres and radians.
         metadata: What made the scene (family, seed, size, source, ...), JSON-serialisable.
         wall_height: Wall height in metres.
+        visual_mesh: Binary STL shown in the scene but neither collided with nor seen by
+            the lidar (``map`` frame, metres, z up; written as ``VISUAL_MESH_FILE``), or
+            None. Set by :mod:`mjexplore.scenes.mesh`.
     """
 
     name: str
@@ -53,6 +58,7 @@ class Scene:
     start: tuple[float, float, float]
     metadata: dict[str, Any]
     wall_height: float = WALL_HEIGHT
+    visual_mesh: bytes | None = None
 
     def wall_boxes(self) -> np.ndarray:
         """Wall boxes as (n, 4) [x0, y0, x1, y1] in metres (``map`` frame)."""
@@ -212,6 +218,14 @@ def build_spec(scene: Scene) -> mujoco.MjSpec:
                        pos=[round((x0 + x1) / 2, 6), round((y0 + y1) / 2, 6), hz],
                        size=[round((x1 - x0) / 2, 6), round((y1 - y0) / 2, 6), hz],
                        material="wall", group=0)
+    if scene.visual_mesh is not None:
+        # Visual only: MuJoCo would collide with the mesh's convex hull (see scenes/mesh.py).
+        spec.assets = {**spec.assets, VISUAL_MESH_FILE: scene.visual_mesh}
+        spec.add_material(name="building", rgba=[0.85, 0.80, 0.72, 1.0])
+        mesh = spec.add_mesh(name="building", file=VISUAL_MESH_FILE)
+        mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL  # Open surfaces are fine.
+        world.add_geom(name="building", type=mujoco.mjtGeom.mjGEOM_MESH, meshname="building",
+                       material="building", group=2, contype=0, conaffinity=0)
     base = spec.body("base_link")
     x, y, yaw = scene.start
     base.pos = [x, y, base.pos[2]]
@@ -269,6 +283,8 @@ def write_scene(scene: Scene, out_dir: str | os.PathLike) -> Path:
         write_map(tmp / "map.yaml", scene.ground_truth)
         write_bytes_atomic(tmp / "preview.png",
                            encode_png(preview_image(scene.ground_truth, scene.start)))
+        if scene.visual_mesh is not None:
+            write_bytes_atomic(tmp / VISUAL_MESH_FILE, scene.visual_mesh)
         write_text_atomic(tmp / "scene.json", json.dumps(meta, indent=2, sort_keys=True) + "\n")
     return out_dir / "scene.xml"
 

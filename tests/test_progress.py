@@ -1,0 +1,41 @@
+"""The progress bar of ``mjexplore explore``: on a terminal only, and off with --no-progress."""
+
+from __future__ import annotations
+
+import io
+import json
+import sys
+
+from mjexplore.cli import main
+
+
+class Terminal(io.StringIO):
+    """A stream that says it is a terminal."""
+
+    def isatty(self) -> bool:
+        return True
+
+
+def _explore(tmp_path, monkeypatch, stream, *extra: str) -> tuple[dict, str]:
+    monkeypatch.setattr(sys, "stderr", stream)
+    out = tmp_path / f"run{len(list(tmp_path.iterdir()))}"
+    stdout = io.StringIO()
+    monkeypatch.setattr(sys, "stdout", stdout)
+    assert main(["explore", "--scene", "train_loop", "--max-time", "5", "--no-mcap",
+                 "--out", str(out), *extra]) == 0
+    return json.loads(stdout.getvalue()), stream.getvalue()
+
+
+def test_explore_shows_time_ratio_and_decisions_on_a_terminal(tmp_path, monkeypatch):
+    metrics, bar = _explore(tmp_path, monkeypatch, Terminal())
+    final = bar.replace("\r", "\n").strip().splitlines()[-1]  # The bar as it was left.
+    assert final.startswith("explore:")
+    assert "5/5 s simulated" in final
+    assert f"ratio {metrics['exploration_ratio']:.1%}" in final
+    assert f"decisions {metrics['decisions']}" in final
+    assert metrics["decisions"] > 0
+
+
+def test_explore_is_quiet_off_a_terminal_and_with_no_progress(tmp_path, monkeypatch):
+    assert _explore(tmp_path, monkeypatch, io.StringIO())[1] == ""
+    assert _explore(tmp_path, monkeypatch, Terminal(), "--no-progress")[1] == ""
