@@ -93,7 +93,7 @@ def _check_settings(jobs: list[Job], out: Path, config: EpisodeConfig) -> None:
                 "Use another --out, or delete that sweep's runs/ to start it afresh.")
 
 
-def _run_job(args: tuple[Job, Path, EpisodeConfig, bool]) -> dict[str, Any]:
+def _run_job(args: tuple[Job, Path, EpisodeConfig, bool | str]) -> dict[str, Any]:
     job, out, config, mcap = args
     folder = job.folder(out)
     done = _finished(folder)
@@ -115,9 +115,12 @@ def _run_job(args: tuple[Job, Path, EpisodeConfig, bool]) -> dict[str, Any]:
 
 
 def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Path,
-              config: EpisodeConfig, workers: int = 2, mcap: bool = False,
+              config: EpisodeConfig, workers: int = 2, mcap: bool | str = False,
               progress: bool = True, command: str | None = None) -> list[dict[str, Any]]:
     """Runs (or resumes) a sweep and writes its summary; returns every episode's metrics.
+
+    ``mcap``: False for no MCAPs, True or a profile (``"foxglove"``, ``"ros2"``) for one per
+    episode (see :func:`mjexplore.eval.run.write_run`).
 
     ``command`` (the command line that started the sweep) is kept in ``OUT/sweep.json`` with
     the code revision, for the reports made from the sweep.
