@@ -1,0 +1,23 @@
+"""A small fixed subset of the stress sweep (tools/stress_explorers.py): no classic
+explorer may end an episode before the target ratio on these layouts."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+TOOL = Path(__file__).resolve().parents[1] / "tools" / "stress_explorers.py"
+
+
+@pytest.mark.slow
+def test_classic_explorers_finish_small_layouts():
+    out = subprocess.run([sys.executable, str(TOOL), "--layouts", "2", "--sizes", "small",
+                          "--explorers", "nearest,explore_lite,frontier_tsp,potential,oracle",
+                          "--workers", "1"], capture_output=True, text=True, check=True,
+                         timeout=600)
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    assert result["runs"] == 10
+    assert result["premature"] == {}, result["failures"]
+    assert result["reached_target"] == result["runs"]

@@ -1,0 +1,115 @@
+"""Stress sweep: does any explorer stop before the map is explored? One JSON line.
+
+Draws ``--layouts`` generated layouts (every family and pair of families, several sizes,
+seeds from ``--seed``), explores each with every explorer in the kinematic world (the
+fastest faithful one: the same lidar, mapping, topology, navigation and explorers as in
+physics, without contact dynamics), and prints: runs, how many reached the target ratio,
+and the runs that ended before it, by explorer and end reason (``time_limit`` counts too:
+an explorer that never finishes is as wrong as one that stops). ``failures`` lists the
+first of those runs with their layout, so that one can be replayed with ``mjexplore
+explore``.
+
+Usage: python tools/stress_explorers.py [--layouts 200] [--explorers nearest,...]
+       [--sizes small,medium,large] [--workers 2] [--seed 0]
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import collections  # noqa: E402
+import itertools  # noqa: E402
+import json  # noqa: E402
+import multiprocessing  # noqa: E402
+import tempfile  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+EXPLORERS = "nearest,explore_lite,frontier_tsp,rrt,potential,oracle,gvn,cnn"
+# Width and height ranges (metres) of each size class.
+SIZES = {"small": ((10.0, 16.0), (8.0, 12.0)), "medium": ((16.0, 26.0), (12.0, 18.0)),
+         "large": ((26.0, 40.0), (18.0, 26.0))}
+BASE_FAMILIES = ("office", "maze", "loop", "corridor", "rooms", "hall", "labmaze")
+
+
+def layouts(count: int, sizes: list[str], seed: int) -> list[tuple[str, float, float, int]]:
+    """(family, width, height, seed) of ``count`` layouts: single families and pairs in
+    turn, sizes drawn uniformly within each class in turn."""
+    families = list(BASE_FAMILIES) + [f"{a}+{b}" for a, b in
+                                      itertools.combinations(BASE_FAMILIES, 2)]
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(count):
+        (w0, w1), (h0, h1) = SIZES[sizes[i % len(sizes)]]
+        family = families[i % len(families)]
+        out.append((family, round(float(rng.uniform(w0, w1)), 1),
+                    round(float(rng.uniform(h0, h1)), 1), int(rng.integers(0, 2**31 - 1))))
+    return out
+
+
+def explore(job: tuple[tuple[str, float, float, int], str, float]) -> dict:
+    """One episode of ``explorer`` on the layout; its end and ratio."""
+    (family, width, height, seed), explorer, max_time = job
+    import torch
+
+    from mjexplore.errors import UserInputError
+    from mjexplore.eval.episode import Episode, EpisodeConfig
+    from mjexplore.explorers import make_explorer
+    from mjexplore.scenes.generate import generate_scene
+    from mjexplore.scenes.scene import load_scene_files, write_scene
+    from mjexplore.sim.simulator import SimConfig
+
+    torch.set_num_threads(1)
+    record = {"layout": f"{family} {width:g}x{height:g} seed {seed}", "explorer": explorer}
+    try:
+        scene = generate_scene(family, width, height, seed)
+    except UserInputError as exc:  # A size too small for a family: no layout, no run.
+        return {**record, "end_reason": "no_layout", "error": str(exc)}
+    config = EpisodeConfig(max_time=max_time, sim=SimConfig(dynamics="kinematic"))
+    with tempfile.TemporaryDirectory() as tmp:
+        files = load_scene_files(write_scene(scene, Path(tmp) / "scene"))
+        m = Episode(files, make_explorer(explorer), seed % 1000, config).run().metrics
+    return {**record, "end_reason": m["end_reason"], "exploration_ratio": m["exploration_ratio"],
+            "fallbacks": m.get("fallbacks", 0)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--layouts", type=int, default=200)
+    parser.add_argument("--explorers", default=EXPLORERS)
+    parser.add_argument("--sizes", default="small,medium,large")
+    parser.add_argument("--max-time", type=float, default=1800.0)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    sizes = args.sizes.split(",")
+    if args.layouts < 1 or any(s not in SIZES for s in sizes):
+        parser.error(f"--layouts must be >= 1 and --sizes a list of {', '.join(SIZES)}")
+    jobs = [(layout, explorer, args.max_time)
+            for layout in layouts(args.layouts, sizes, args.seed)
+            for explorer in args.explorers.split(",")]
+    with multiprocessing.get_context("spawn").Pool(args.workers) as pool:
+        results = pool.map(explore, jobs, chunksize=1)
+    ran = [r for r in results if r["end_reason"] != "no_layout"]
+    premature: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
+    for r in ran:
+        if r["end_reason"] != "explored":
+            premature[r["explorer"]][r["end_reason"]] += 1
+    print(json.dumps({
+        "runs": len(ran), "layouts": args.layouts,
+        "skipped_layouts": len({r["layout"] for r in results if r["end_reason"] == "no_layout"}),
+        "reached_target": sum(r["end_reason"] == "explored" for r in ran),
+        "premature": {e: dict(c) for e, c in sorted(premature.items())},
+        "fallbacks": {e: sum(r["fallbacks"] for r in ran if r["explorer"] == e)
+                      for e in args.explorers.split(",")},
+        "failures": [r for r in ran if r["end_reason"] != "explored"][:20],
+    }))
+
+
+if __name__ == "__main__":
+    main()
