@@ -61,24 +61,23 @@ def _port(text: str) -> int:
     return int(text)
 
 
-def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"seed {text!r} is not a whole number") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"seed {text!r} must be >= 0")
-    return value
+def _whole(what: str, least: int):
+    """An argument type: a whole number >= ``least``, named ``what`` in errors."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{what}{text!r} is not a whole number") from None
+        if value < least:
+            raise argparse.ArgumentTypeError(f"{what}{text!r} must be a whole number >= {least}")
+        return value
+
+    return parse
 
 
-def _count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} must be a whole number >= 1")
-    return value
+_seed = _whole("seed ", 0)
+_count = _whole("", 1)
 
 
 def cmd_scene_gen(args: argparse.Namespace) -> int:

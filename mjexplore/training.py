@@ -39,6 +39,8 @@ from mjexplore.policies.weights import read_policy_weights, save_policy_weights
 log = logging.getLogger(__name__)
 
 CHECKPOINT_FORMAT = "mjexplore-checkpoint-v1"
+# Settings a resumed run may change: how long it trains and on how many envs.
+RESUMABLE_CHANGES = ("total_steps", "n_envs")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -150,15 +152,48 @@ class TrainConfig:
             raise ValueError("total_steps, n_envs and checkpoint_every must be >= 1")
 
 
-def load_train_config(path: str | Path) -> TrainConfig:
-    """Reads a training YAML (see training/gvn.yaml)."""
-    return load_yaml_config(TrainConfig, path)
+def load_train_config(path: str | Path, total_steps: int | None = None,
+                      n_envs: int | None = None) -> TrainConfig:
+    """Reads a training YAML (see training/gvn.yaml); ``total_steps`` and ``n_envs``, when
+    given, replace the file's values."""
+    config = load_yaml_config(TrainConfig, path)
+    overrides = {k: v for k, v in (("total_steps", total_steps), ("n_envs", n_envs))
+                 if v is not None}
+    return dataclasses.replace(config, **overrides) if overrides else config
 
 
 def _make_env(config: EnvConfig):
     def build():
         return ExplorationEnv(config)
     return build
+
+
+def make_vec_env(config: TrainConfig, seed: int):
+    """The training envs: ``n_envs`` of them (each in a worker process when more than one),
+    seeded from ``seed`` and wrapped in SB3's ``VecMonitor``."""
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
+
+    makers = [_make_env(config.env) for _ in range(config.n_envs)]
+    venv = (SubprocVecEnv(makers, start_method="forkserver") if config.n_envs > 1
+            else DummyVecEnv(makers))
+    venv.seed(seed)
+    return VecMonitor(venv)
+
+
+def make_model(config: TrainConfig, venv, seed: int, tensorboard_log: str | None = None):
+    """The MaskablePPO learner of ``config`` on the envs ``venv``."""
+    from sb3_contrib import MaskablePPO
+
+    from mjexplore.policies.registry import policy_class
+
+    ppo = config.ppo
+    return MaskablePPO(policy_class(config.kind), venv, n_steps=ppo.n_steps,
+                       batch_size=ppo.batch_size, n_epochs=ppo.n_epochs,
+                       learning_rate=ppo.learning_rate, gamma=ppo.gamma,
+                       gae_lambda=ppo.gae_lambda, clip_range=ppo.clip_range,
+                       ent_coef=ppo.ent_coef, vf_coef=ppo.vf_coef,
+                       max_grad_norm=ppo.max_grad_norm, policy_kwargs=_policy_kwargs(config),
+                       tensorboard_log=tensorboard_log, seed=seed, verbose=0)
 
 
 def _seed_everything(seed: int) -> None:
@@ -274,11 +309,7 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
         UserInputError: ``out`` already holds a run and ``resume`` is not set, or
             ``resume`` is set and there is nothing to resume.
     """
-    from sb3_contrib import MaskablePPO
     from stable_baselines3.common.callbacks import BaseCallback
-    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
-
-    from mjexplore.policies.registry import policy_class
 
     out = Path(out)
     ckpt = _Checkpointer(out, config)
@@ -292,11 +323,11 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
     state = load_checkpoint(latest) if latest is not None else None
     if state is not None:
         saved = json.loads(state["config"])
-        saved.pop("total_steps", None)
-        if saved != {k: v for k, v in to_dict(config).items() if k != "total_steps"}:
+        if ({k: v for k, v in saved.items() if k not in RESUMABLE_CHANGES}
+                != {k: v for k, v in to_dict(config).items() if k not in RESUMABLE_CHANGES}):
             raise UserInputError(f"the config differs from the one {str(out)!r} was trained with "
-                                 "(only total_steps may change): resume with "
-                                 f"{str(out / 'config.yaml')!r}.")
+                                 f"(only {' and '.join(RESUMABLE_CHANGES)} may change): resume "
+                                 f"with {str(out / 'config.yaml')!r}.")
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "config.yaml", f"# git revision {ckpt.revision}\n" +
                       yaml.safe_dump(to_dict(config), sort_keys=False))
@@ -304,18 +335,8 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
     done = int(state["num_timesteps"]) if state else 0
     _seed_everything(config.seed + done)
     torch.set_num_threads(config.torch_threads)
-    makers = [_make_env(config.env) for _ in range(config.n_envs)]
-    venv = (SubprocVecEnv(makers, start_method="forkserver") if config.n_envs > 1
-            else DummyVecEnv(makers))
-    venv.seed(config.seed + done)
-    venv = VecMonitor(venv)
-    ppo = config.ppo
-    model = MaskablePPO(policy_class(config.kind), venv, n_steps=ppo.n_steps, batch_size=ppo.batch_size,
-                        n_epochs=ppo.n_epochs, learning_rate=ppo.learning_rate,
-                        gamma=ppo.gamma, gae_lambda=ppo.gae_lambda, clip_range=ppo.clip_range,
-                        ent_coef=ppo.ent_coef, vf_coef=ppo.vf_coef,
-                        max_grad_norm=ppo.max_grad_norm, policy_kwargs=_policy_kwargs(config),
-                        tensorboard_log=str(out / "tb"), seed=config.seed + done, verbose=0)
+    venv = make_vec_env(config, config.seed + done)
+    model = make_model(config, venv, config.seed + done, tensorboard_log=str(out / "tb"))
     if state is not None:
         model.policy.load_state_dict(state["policy"])
         model.policy.optimizer.load_state_dict(state["optimizer"])

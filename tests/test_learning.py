@@ -25,7 +25,7 @@ from mjexplore.errors import UserInputError
 from mjexplore.eval.episode import Episode, EpisodeConfig
 from mjexplore.navigation.navigator import NavigatorConfig
 from mjexplore.policies.gvn import CausalConv, GraphConv, GvnConfig, SpatialEncoder, \
-    TemporalEncoder, normalized_adjacency
+    TemporalEncoder, distinct_graphs, normalized_adjacency
 from mjexplore.policies.sb3 import GvnPolicy
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.sim.simulator import SimConfig
@@ -210,6 +210,114 @@ def test_memory_matters_and_padding_does_not():
     assert torch.allclose(base[real], again[real], atol=1e-5)
 
 
+def test_distinct_graphs_merges_equal_graphs_only():
+    torch.manual_seed(0)
+    feats = torch.randn(5, 12, 6)
+    feats[:] = feats[0]
+    neigh = torch.tensor([[1, -1], [0, 2], [1, -1]] + [[-1, -1]] * 9,
+                         dtype=torch.float32).repeat(5, 1, 1)
+    mask = torch.zeros(5, 12)
+    mask[:, :10] = 1
+    feats[2, 8, 1] += 1e-3  # Beyond the sorting key: only the full comparison tells.
+    feats[4] = feats[2]
+    neigh[3, 2, 1] = 0  # The same node features, one more edge.
+    keep, inverse = distinct_graphs(feats, neigh, mask)
+    assert keep.tolist() == [0, 2, 3] and inverse.tolist() == [0, 0, 1, 2, 1]
+
+
+def _reference_features(policy: GvnPolicy, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+    """The GVN's features [z (N d), pooled (2 d)] by the dense formulas, one TER copy at a
+    time (paper Eq. 8-12): the reference of the batched encoder, which encodes each distinct
+    TER of a batch once, on its real nodes only."""
+    gvn = policy.features_extractor.gvn
+    enc = gvn.spatial
+    s = structured(obs)
+
+    def embed(feat, neigh, mask):  # (N, 6), (N, K), (N,) -> (N, d), zero on padding.
+        n = len(mask)
+        real = mask > 0
+        slots = neigh.long()
+        i, k = (slots >= 0).nonzero(as_tuple=True)
+        j = slots[i, k]
+        joins = real[j]  # An edge to a padding slot counts in the degree only.
+        a_hat = torch.eye(n).index_put((i[joins], j[joins]), torch.ones(int(joins.sum())),
+                                       accumulate=True)
+        inv = (1.0 + (slots >= 0).sum(1)).rsqrt()
+        a_norm = inv[:, None] * a_hat * inv[None, :]
+        h = feat * enc.scale
+        for layer_index, layer in enumerate(enc.layers):
+            skip = enc.input_skip(h) if layer_index == 0 else h
+            h = torch.relu(a_norm @ layer.weight(h)) + skip
+        return h * real[:, None]
+
+    out = []
+    for b in range(len(s["node_mask"])):
+        fragments = []
+        for j in range(s["memory_mask"].shape[1]):
+            m = s["memory_node_mask"][b, j]
+            h = embed(s["memory_node_features"][b, j], s["memory_neighbours"][b, j], m)
+            mean = h.sum(0) / m.sum().clamp(min=1.0)
+            fragments.append(gvn.fragment(torch.cat([mean, h[int(s["memory_choice"][b, j])]])))
+        memory = gvn.temporal(torch.stack(fragments)[None]
+                              * s["memory_mask"][b, None, :, None])[0, -1]
+        real = s["node_mask"][b] > 0
+        r = embed(s["node_features"][b], s["neighbours"][b], s["node_mask"][b])
+        hm = memory.expand_as(r)
+        alpha = torch.softmax(torch.cat([gvn.attention(r), gvn.attention(hm)], -1), -1)
+        z = gvn.aggregator(torch.cat([alpha[:, :1] * r + alpha[:, 1:] * hm, r], -1))
+        z = z * real[:, None]
+        out.append(torch.cat([z.flatten(), z[real].mean(0), z[real].amax(0)]))
+    return torch.stack(out)
+
+
+def test_batched_encoder_gives_the_ppo_loss_terms_of_the_per_ter_reference(monkeypatch):
+    """On a shuffled minibatch of real training observations (each TER recurs in the
+    memories of the next decisions), values, log-probabilities, entropy and their gradients
+    are those of encoding every TER copy on its own with the dense formulas."""
+    env = ExplorationEnv(EnvConfig(scenes=("train_loop",), episode=FAST, max_decisions=8))
+    rng = np.random.default_rng(0)
+    steps = []
+    obs, _ = env.reset(seed=0)
+    while len(steps) < 14:
+        mask = env.action_masks()
+        action = int(rng.choice(np.flatnonzero(mask)))
+        steps.append((obs, mask, action))
+        obs, _, terminated, truncated, _ = env.step(action)
+        if terminated or truncated:
+            obs, _ = env.reset(seed=len(steps))
+    order = rng.permutation(len(steps))
+    batch = {k: torch.as_tensor(np.stack([steps[i][0][k] for i in order])) for k in obs}
+    masks = torch.as_tensor(np.stack([steps[i][1] for i in order]))
+    actions = torch.as_tensor([steps[i][2] for i in order])
+    s = structured(batch)
+    stacked = [torch.cat([s[key][:, None], s[f"memory_{key}"]], 1).flatten(0, 1)
+               for key in ("node_features", "neighbours", "node_mask")]
+    _, inverse = distinct_graphs(*stacked)
+    real = stacked[2].sum(-1) > 0
+    assert len(set(inverse[real].tolist())) < real.sum() / 3  # Copies to share.
+
+    torch.manual_seed(0)
+    policy = GvnPolicy(env.observation_space, env.action_space, lambda _: 1e-3, hidden=16)
+
+    def loss_terms():
+        policy.zero_grad()
+        values, log_prob, entropy = policy.evaluate_actions(batch, actions, masks)
+        (values.sum() + log_prob.sum() + entropy.sum()).backward()
+        grads = {n: p.grad.clone() for n, p in policy.named_parameters() if p.grad is not None}
+        return (values, log_prob, entropy), grads
+
+    batched, batched_grads = loss_terms()
+    monkeypatch.setattr(policy.features_extractor, "forward",
+                        lambda o: _reference_features(policy, o))
+    reference, reference_grads = loss_terms()
+    for a, b in zip(batched, reference):
+        torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+    assert batched_grads.keys() == reference_grads.keys()
+    scale = max(float(g.norm()) for g in reference_grads.values())
+    for name, g in reference_grads.items():
+        assert float((batched_grads[name] - g).norm()) <= 1e-5 * scale, name
+
+
 # ----------------------------------------------------------------------------- env
 
 
@@ -382,6 +490,28 @@ def _train_cli(args, **kw):
                            *args], capture_output=True, text=True, **kw)
 
 
+def test_train_flags_replace_the_configs_steps_and_envs(tmp_path, capsys):
+    from mjexplore.cli import main
+
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text(TINY.format(total=64, n_envs=2))
+    for flag, value in (("--total-steps", "0"), ("--n-envs", "two"), ("--n-envs", "-1")):
+        with pytest.raises(SystemExit) as exc:
+            main(["train", "--config", str(cfg), "--out", str(tmp_path / "bad"), flag, value])
+        assert exc.value.code == 2 and f"argument {flag}" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+    config = load_train_config(cfg, total_steps=8, n_envs=1)
+    assert (config.total_steps, config.n_envs) == (8, 1)
+    assert config == dataclasses.replace(load_train_config(cfg), total_steps=8, n_envs=1)
+    out = tmp_path / "run"
+    r = _train_cli(["--config", str(cfg), "--out", str(out), "--total-steps", "8",
+                    "--n-envs", "1"])
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout.splitlines()[-1])["num_timesteps"] == 8
+    saved = load_train_config(out / "config.yaml")
+    assert (saved.total_steps, saved.n_envs) == (8, 1)
+
+
 @pytest.mark.slow
 def test_training_saves_resumes_and_loads(tmp_path):
     from mjexplore.policies.weights import load_policy
@@ -394,7 +524,7 @@ def test_training_saves_resumes_and_loads(tmp_path):
     assert json.loads(r.stdout.splitlines()[-1])["num_timesteps"] == 16
     again = _train_cli(["--config", str(cfg), "--out", str(out)])
     assert again.returncode == 2 and "--resume" in again.stderr
-    cfg.write_text(TINY.format(total=32, n_envs=1))
+    cfg.write_text(TINY.format(total=32, n_envs=2))  # Steps and envs may change.
     r = _train_cli(["--config", str(cfg), "--out", str(out), "--resume"])
     assert r.returncode == 0, r.stderr
     summary = json.loads(r.stdout.splitlines()[-1])

@@ -1,17 +1,22 @@
-"""Decision throughput of the learning loop, in full physics and in the training mode.
+"""Decision throughput of the learning loop, in full physics and in the training mode, and
+the cost of PPO's update.
 
 Runs the shipped GVN policy as the explorer for whole episodes (two worker processes, one
 per core) on the evaluation scenes, once with full MuJoCo contact dynamics and once in the
 kinematic training mode (training/gvn.yaml's episode settings), and times the parts of each
 decision: physics (simulator stepping without the lidar), lidar, mapping, topology
 (incremental GVD updates between decisions plus the TER build at the decision), navigation
-(planning and control) and the network (policy inference; also the full training-time
-forward that re-encodes the raw episodic memory, and PPO's update: forward and backward
-over minibatches of the last observation with a full memory, n_epochs times per decision,
-set against the rollout's own cost per decision). Prints one JSON line.
+(planning and control) and the network (policy inference; also the training-time forward
+of one observation, which re-encodes the raw episodic memory: the episode's last ten TERs).
+
+Then one round of training/gvn.yaml as ``mjexplore train`` runs it, starting from the
+shipped weights: one rollout (n_steps decisions on each of n_envs worker envs) and PPO's
+update on it (n_epochs over shuffled minibatches: forward, backward and optimizer steps),
+each timed per collected decision. Prints one JSON line.
 
 Target (issue 5): topology + policy at most 8 ms per decision; ARiADNE's own environment
-spends about 390 ms per decision on this machine.
+spends about 390 ms per decision on this machine. Target (issue 16): the update at most
+10 ms per decision.
 
 Usage: python tools/bench_train.py [--scenes loop_with_corridor,maze] [--max-time 300]
 """
@@ -70,45 +75,57 @@ def run(job: tuple[str, str, float]) -> dict:
     result = episode.run()
     wall = time.perf_counter() - t0
     decisions = max(result.metrics["decisions"], 1)
-    # The training-time forward (raw memory re-encoded) on this episode's last observation.
-    from mjexplore.envs.observation import TerMemory, ter_arrays
-
-    ter, _, _ = episode.tracker.ter(episode.mapper.grid, episode.sim.pose)
-    memory = TerMemory(_obs_config(explorer))
-    current = ter_arrays(ter.padded(explorer.ter_config))
-    for _ in range(memory.config.memory_length):
-        memory.remember(current, 0)
-    obs = {k: torch.as_tensor(v)[None] for k, v in memory.observation(current).items()}
+    # The training-time forward (raw memory re-encoded) of the last decision's observation.
+    obs = {k: torch.as_tensor(v)[None] for k, v in explorer.decisions.observation().items()}
     with torch.no_grad():
         t = time.perf_counter()
         for _ in range(10):
             explorer.policy.evaluate_actions(obs, torch.zeros(1, dtype=torch.long))
         c["training_forward"] = (time.perf_counter() - t) / 10 * decisions
-    # PPO's update: forward and backward over a minibatch of such observations, n_epochs
-    # times per collected decision.
-    ppo = train_config.ppo
-    batch = {k: v.repeat(ppo.batch_size, *([1] * (v.dim() - 1))) for k, v in obs.items()}
-    actions = torch.zeros(ppo.batch_size, dtype=torch.long)
-    t = time.perf_counter()
-    for _ in range(3):
-        values, log_prob, entropy = explorer.policy.evaluate_actions(batch, actions)
-        (values.sum() + log_prob.sum() + entropy.sum()).backward()
-    c["update"] = (time.perf_counter() - t) / 3 * ppo.n_epochs / ppo.batch_size * decisions
     physics = c["sim_step"] - c["lidar"]
     return {"scene": scene, "mode": mode, "wall_s": wall, "decisions": decisions,
             "sim_time_s": result.metrics["exploration_time_s"],
             "physics": physics, "lidar": c["lidar"], "mapping": c["mapping"],
             "topology": c["gvd"] + c["ter"], "ter": c["ter"], "navigation": c["navigation"],
-            "policy": c["policy"], "training_forward": c["training_forward"],
-            "update": c["update"]}
+            "policy": c["policy"], "training_forward": c["training_forward"]}
 
 
-def _obs_config(explorer):
-    from mjexplore.envs.observation import ObservationConfig
+def ppo_round() -> dict[str, float]:
+    """One rollout and one PPO update of training/gvn.yaml from the shipped weights: wall
+    seconds of each and the decisions collected."""
+    import torch
+    from stable_baselines3.common.callbacks import BaseCallback
 
-    return ObservationConfig(max_nodes=explorer.ter_config.max_nodes,
-                             max_neighbours=explorer.ter_config.max_neighbours,
-                             memory_length=explorer.memory_length)
+    from mjexplore.explorers.gvn import DEFAULT_WEIGHTS
+    from mjexplore.policies.weights import load_policy
+    from mjexplore.training import load_train_config, make_model, make_vec_env
+
+    config = load_train_config(DEFAULT_WEIGHTS.parent / "gvn.yaml")
+    torch.set_num_threads(config.torch_threads)
+    marks: dict[str, float] = {}
+
+    class Clock(BaseCallback):
+        def _on_rollout_start(self) -> None:
+            marks["start"] = time.perf_counter()
+
+        def _on_rollout_end(self) -> None:
+            marks["collected"] = time.perf_counter()
+
+        def _on_step(self) -> bool:
+            return True
+
+    venv = make_vec_env(config, config.seed)
+    try:
+        model = make_model(config, venv, config.seed)
+        shipped, _ = load_policy(DEFAULT_WEIGHTS, expected_kind="gvn")
+        model.policy.load_state_dict(shipped.state_dict())
+        decisions = config.ppo.n_steps * config.n_envs
+        model.learn(decisions, callback=Clock())  # One rollout, then one update.
+        end = time.perf_counter()
+    finally:
+        venv.close()
+    return {"decisions": decisions, "rollout_s": marks["collected"] - marks["start"],
+            "update_s": end - marks["collected"]}
 
 
 def main() -> None:
@@ -138,17 +155,22 @@ def main() -> None:
             ter = sum(r["ter"] for r in rows) / n * 1e3
             pol = sum(r["policy"] for r in rows) / n * 1e3
             fwd = sum(r["training_forward"] for r in rows) / n * 1e3
-            update = sum(r["update"] for r in rows) / n * 1e3
             out.update(topology_ms_per_decision=round(topo, 2), ter_build_ms=round(ter, 2),
                        policy_ms_per_decision=round(pol, 2),
                        topology_plus_policy_ms=round(topo + pol, 2),
                        target_ms=8.0,
                        training_forward_ms=round(fwd, 2),
-                       update_ms_per_decision=round(update, 2),
-                       update_share_of_training=round(update / (update + busy / n * 1e3), 3),
                        ariadne_ms_per_decision=ARIADNE_MS_PER_DECISION,
                        speedup_vs_ariadne=round(ARIADNE_MS_PER_DECISION / (topo + pol), 1))
         out[f"{mode}_bench_wall_s"] = round(wall, 1)
+    t = time.perf_counter()
+    ppo = ppo_round()
+    n, rollout, update = ppo["decisions"], ppo["rollout_s"], ppo["update_s"]
+    out.update(rollout_ms_per_decision=round(rollout / n * 1e3, 2),
+               update_ms_per_decision=round(update / n * 1e3, 2), update_target_ms=10.0,
+               update_share_of_training=round(update / (rollout + update), 3),
+               train_decisions_per_s=round(n / (rollout + update), 2),
+               ppo_bench_wall_s=round(time.perf_counter() - t, 1))
     out["decisions"] = "GVN policy, seed 0, " + ",".join(scenes)
     print(json.dumps(out))
 
