@@ -155,6 +155,21 @@ def _covered(ptr, idx, need, views, stamp, stamp_id):
     return total
 
 
+@numba.njit(cache=True)
+def _keep_needed(ptr, idx, need):
+    """The view lists with only the cells of ``need`` left (CSR ``ptr``, ``idx``)."""
+    out_ptr = np.zeros_like(ptr)
+    out_idx = np.empty(len(idx), idx.dtype)
+    n = 0
+    for i in range(len(ptr) - 1):
+        for j in range(ptr[i], ptr[i + 1]):
+            if need[idx[j]]:
+                out_idx[n] = idx[j]
+                n += 1
+        out_ptr[i + 1] = n
+    return out_ptr, out_idx[:n].copy()
+
+
 @dataclasses.dataclass
 class _Views:
     """Candidate viewpoints and what each sees (CSR lists of flat cell indices)."""
@@ -242,6 +257,7 @@ class OracleExplorer:
         idx = np.concatenate(seen) if seen else np.zeros(0, np.int64)
         self.views = _Views(gt.cell_to_world(cand).reshape(-1, 2), ptr, idx, observable)
         self._stamp, self._stamp_id = np.zeros(gt.data.size, np.int64), 0
+        self._listed = int(observable.sum())  # Unknown cells when the lists were last cut.
         # The viewpoint standing for each node of the path graph (the nearest within one
         # lattice step; -1 if none): what the robot sees while it drives through the node.
         if len(cand):
@@ -252,14 +268,21 @@ class OracleExplorer:
             self._node_view = np.full(len(self.graph.centres), -1)
 
     def _need(self, state: ExplorationState) -> tuple[np.ndarray, int]:
-        """The observable cells still unknown, and how many of them must still be seen."""
+        """The observable cells still unknown, and how many of them must still be seen.
+
+        Mapped cells stay mapped, so once half the cells the view lists held are known,
+        the lists are cut down to the unknown ones: every later pass over them is shorter.
+        """
         views = self.views
         unknown = state.grid.data.reshape(-1) < 0
         need = views.observable & unknown
         total = int(views.observable.sum())
-        known = total - int(need.sum())
-        required = math.ceil((state.target_ratio + self.margin) * total) - known
-        return need, max(1, min(required, int(need.sum())))
+        unseen = int(need.sum())
+        if unseen <= self._listed // 2:
+            views.ptr, views.idx = _keep_needed(views.ptr, views.idx, need)
+            self._listed = unseen
+        required = math.ceil((state.target_ratio + self.margin) * total) - (total - unseen)
+        return need, max(1, min(required, unseen))
 
     def replan(self, state: ExplorationState) -> list[int]:
         """Re-solves the plan for the state; returns the viewpoints in tour order."""
