@@ -270,15 +270,15 @@ class OracleExplorer:
     def _need(self, state: ExplorationState) -> tuple[np.ndarray, int]:
         """The observable cells still unknown, and how many of them must still be seen.
 
-        Mapped cells stay mapped, so once half the cells the view lists held are known,
-        the lists are cut down to the unknown ones: every later pass over them is shorter.
+        Mapped cells stay mapped, so once a quarter of the cells the view lists held are
+        known, the lists are cut down to the unknown ones: later passes over them are shorter.
         """
         views = self.views
         unknown = state.grid.data.reshape(-1) < 0
         need = views.observable & unknown
         total = int(views.observable.sum())
         unseen = int(need.sum())
-        if unseen <= self._listed // 2:
+        if 4 * unseen <= 3 * self._listed:
             views.ptr, views.idx = _keep_needed(views.ptr, views.idx, need)
             self._listed = unseen
         required = math.ceil((state.target_ratio + self.margin) * total) - (total - unseen)
