@@ -9,12 +9,16 @@ as the mapper marks them). At every decision it:
 1. counts the observable cells still unknown in the map and how many of them must still be
    seen to reach the target ratio plus ``margin``;
 2. keeps the viewpoints of its previous plan that still see at least ``min_gain`` of those
-   cells, adds viewpoints greedily by new cells seen (lazy greedy set cover) until the
-   plan sees enough, and drops the ones the rest make redundant;
+   cells and adds viewpoints greedily by new cells seen (lazy greedy set cover) until the
+   plan sees enough;
 3. orders them as an open tour from the robot over path distances on the ground truth
    (OR-Tools, :func:`mjexplore.navigation.tour.open_tour`, warm-started from the previous
-   order) and drives to the first with the same navigator as every explorer, on a costmap
-   of the ground truth.
+   order);
+4. drops the viewpoints the tour makes redundant, the largest saving in tour length first:
+   what the others see, and what the robot sees on the way between them (the views of the
+   lattice points along the path graph's shortest paths, every ``path_sample`` metres);
+5. drives to the first with the same navigator as every explorer, on a costmap of the
+   ground truth.
 
 Viewpoints whose cells got seen on the way drop out at the next decision, and a viewpoint
 whose view the drive uncovered is given up at once (``goal_open``). The cells the ray
