@@ -5,7 +5,7 @@ import pytest
 
 from mjexplore.errors import UserInputError
 from mjexplore.robot import motion_profile
-from mjexplore.sim.simulator import SimConfig, Simulator
+from mjexplore.sim.simulator import BODY_CENTRE_X, BODY_RADIUS, SimConfig, Simulator
 
 
 def mean_over_last(log_t, values, seconds):
@@ -129,3 +129,26 @@ def test_rates_must_fit_the_physics_step(box_room):
     folder, _ = box_room
     with pytest.raises(UserInputError, match="whole number of physics steps"):
         Simulator(folder, SimConfig(sample_rate_hz=30.0))
+
+
+def test_kinematic_mode_stops_at_unknown_ground_truth(tmp_path):
+    """On an imported map, unknown cells are walls in the MJCF: the kinematic world must
+    not drive into them (it used to treat them as free)."""
+    from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
+    from mjexplore.scenes.importer import scene_from_grid
+    from mjexplore.scenes.scene import load_scene_files, write_scene
+
+    data = np.full((60, 120), FREE, np.int8)  # 6 x 3 m at 0.05 m.
+    data[0, :] = data[-1, :] = data[:, 0] = data[:, -1] = OCCUPIED
+    data[1:-1, 80:90] = UNKNOWN  # An unknown strip from x = 4.0 m to 4.5 m.
+    scene = scene_from_grid(GridMap(data, 0.05), "strip", {"source": "test"},
+                            start=(1.0, 1.5, 0.0))
+    files = load_scene_files(write_scene(scene, tmp_path / "strip"))
+    sim = Simulator(files, SimConfig(dynamics="kinematic"))
+    sim.reset((1.0, 1.5, 0.0))
+    sim.command(0.5, 0.0)
+    for _ in range(200):  # 20 s at 0.5 m/s: would reach x = 5.5 m through the strip.
+        sim.step(0.1)
+    front = sim.pose[0] + BODY_CENTRE_X + BODY_RADIUS  # The body circle's leading edge.
+    assert 3.9 <= front <= 4.0 + 1e-6
+    assert sim.in_collision

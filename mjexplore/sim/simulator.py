@@ -308,14 +308,18 @@ class Simulator:
     # These run every sample period: plain floats, no small numpy arrays.
 
     def _wall_clearance(self) -> np.ndarray:
-        """Distance (m) from each ground-truth cell centre to the nearest wall cell."""
+        """Distance (m) from each ground-truth cell centre to the nearest wall surface.
+
+        Every cell that is not free blocks, unknown ones too: the MJCF makes them walls. A
+        wall cell's surface lies half a cell nearer than its centre.
+        """
         from scipy.ndimage import distance_transform_edt
 
         gt = self.scene.ground_truth
         if gt is None:
             raise UserInputError("kinematic dynamics needs the scene's ground-truth map "
                                  "(map.yaml beside scene.xml): regenerate the scene.")
-        return distance_transform_edt(~gt.occupied) * gt.resolution
+        return (distance_transform_edt(gt.free) - 0.5) * gt.resolution
 
     def _move_kinematic(self, stop: int) -> None:
         """Moves the base from step ``self._steps`` to ``stop`` along the commanded unicycle
