@@ -108,7 +108,7 @@ def _uncovered(ptr, idx, need, covered, i):
     return g
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def _greedy_cover(ptr, idx, need, allowed, selected, required, min_gain):
     """Lazy greedy set cover: viewpoints (flagged in ``allowed``) are added to ``selected``
     in order of the most cells of ``need`` not yet covered, until ``required`` cells are
@@ -124,7 +124,7 @@ def _greedy_cover(ptr, idx, need, allowed, selected, required, min_gain):
                     covered[k] = True
                     total += 1
     bound = np.full(len(ptr) - 1, -1, np.int64)
-    for i in range(len(ptr) - 1):
+    for i in numba.prange(len(ptr) - 1):
         if allowed[i] and not selected[i]:
             bound[i] = _uncovered(ptr, idx, need, covered, i)
     added = []
@@ -159,19 +159,27 @@ def _covered(ptr, idx, need, views, stamp, stamp_id):
     return total
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def _keep_needed(ptr, idx, need):
-    """The view lists with only the cells of ``need`` left (CSR ``ptr``, ``idx``)."""
+    """The view lists with only the cells of ``need`` left (CSR ``ptr``, ``idx``); one
+    viewpoint per thread."""
+    n = len(ptr) - 1
+    count = np.zeros(n, np.int64)
+    for i in numba.prange(n):
+        c = 0
+        for j in range(ptr[i], ptr[i + 1]):
+            c += need[idx[j]]
+        count[i] = c
     out_ptr = np.zeros_like(ptr)
-    out_idx = np.empty(len(idx), idx.dtype)
-    n = 0
-    for i in range(len(ptr) - 1):
+    out_ptr[1:] = np.cumsum(count)
+    out_idx = np.empty(out_ptr[-1], idx.dtype)
+    for i in numba.prange(n):
+        k = out_ptr[i]
         for j in range(ptr[i], ptr[i + 1]):
             if need[idx[j]]:
-                out_idx[n] = idx[j]
-                n += 1
-        out_ptr[i + 1] = n
-    return out_ptr, out_idx[:n].copy()
+                out_idx[k] = idx[j]
+                k += 1
+    return out_ptr, out_idx
 
 
 @dataclasses.dataclass
