@@ -1,8 +1,9 @@
 """The GVN explorer: a trained policy picks a TER node at each decision (the paper's method).
 
 When frontiers remain but none is a TER node (the TER links a frontier only where a GVD
-vertex of the robot's component, or the robot, sees it), the nearest frontier is taken
-(``fallbacks`` counts how often), so that the episode does not end with open frontiers.
+vertex of the robot's component, or the robot, sees it), it answers None and the episode
+takes the nearest frontier (counted in ``fallbacks`` of metrics.json), so that the episode
+does not end with open frontiers.
 
 The policy's episodic memory is kept here as encoded fragments: with fixed weights,
 encoding each decision's TER once and caching its fragment gives the same numbers as
@@ -20,7 +21,6 @@ import torch
 from mjexplore.envs.decisions import TerDecisions
 from mjexplore.errors import UserInputError
 from mjexplore.explorers.base import ExplorationState, register
-from mjexplore.explorers.nearest import NearestFrontier
 
 DEFAULT_WEIGHTS = Path(__file__).resolve().parents[2] / "training" / "gvn_policy.safetensors"
 
@@ -49,13 +49,11 @@ class GvnExplorer:
         self.masking = masking
         self.deterministic = deterministic
         self.waypoint = False
-        self._fallback = NearestFrontier()
         self.reset(np.random.default_rng(0))
 
     def reset(self, rng: np.random.Generator) -> None:
         self.rng = rng
         self.waypoint = False
-        self.fallbacks = 0
         self.decisions.reset()
         self._fragments = torch.zeros(1, self.memory_length, self.gvn.config.hidden)
         self._memory_mask = torch.zeros(1, self.memory_length)
@@ -83,10 +81,9 @@ class GvnExplorer:
         d = self.decisions
         if not d.prepare(state):
             # Frontiers the TER cannot link (no GVD vertex of the robot's component sees
-            # them) are not nodes; rather than end with them open, take the nearest one.
+            # them) are not nodes: the episode's fallback takes the nearest one.
             self.waypoint = False
-            self.fallbacks += 1
-            return self._fallback.select_goal(state)
+            return None
         logits, r = self.logits(d.current)
         masked = torch.where(torch.as_tensor(d.mask), logits, torch.tensor(-1e8))
         if self.deterministic:
