@@ -82,13 +82,18 @@ class FarGoal:
         return np.array([state.pose[0], state.pose[1] - 3.0]) if self.goal is None else self.goal
 
 
-def test_lingering_ends_the_episode():
+@pytest.mark.parametrize("strikes", [0, 2])
+def test_lingering_ends_the_episode_after_its_strikes(strikes):
+    # The explorer insists on one goal: each lingering spell gives it up, and the episode
+    # ends at the spell after the last strike.
     scene = resolve_scene(SMALL_LOOP)
-    config = EpisodeConfig(navigator=NavigatorConfig(linger_radius=100.0, linger_time=5.0))
+    config = EpisodeConfig(navigator=NavigatorConfig(linger_radius=100.0, linger_time=5.0),
+                           linger_strikes=strikes)
     episode = Episode(scene, FarGoal(), 0, config)
     result = episode.run()
     assert result.metrics["end_reason"] == "lingering"
-    assert result.metrics["exploration_time_s"] == pytest.approx(5.0, abs=0.15)
+    assert result.metrics["given_up"]["lingered"] == min(strikes, 1)
+    assert result.metrics["exploration_time_s"] == pytest.approx(5.0 * (strikes + 1), abs=0.25)
 
 
 def test_time_limit_and_unknown_explorer():

@@ -2,14 +2,24 @@
 
 Every 0.1 s of simulated time the navigator commands the robot; every scan is mapped and
 the GVD updated; when a goal is reached (within zeta), vanishes (its frontier got seen)
-or turns out unreachable, the explorer is asked for the next one. The episode ends when
-the exploration ratio reaches the target (98.5 % by default: ``explored``), when no
-frontier that is not blacklisted can be reached (``no_frontiers``: an explorer that sees
-nothing left while one can is overruled, and the robot goes to the nearest), when the
-robot lingers (``lingering``, the
-paper's "terminated unexpectedly"; a wedged robot ends so too), tips over (``tipped_over``),
-when the physics fails (``physics_fault``: non-finite state or MuJoCo's instability reset;
-the broken scans are not mapped), or at the time cap (``time_limit``). ``run`` turns Ctrl-C
+or is given up, the explorer is asked for the next one.
+
+Exploration is over only when no frontier of the known map can be reached (one rule for
+every explorer): an explorer that sees nothing left while the map shows a reachable
+frontier is overruled, and the robot goes to the nearest one (counted in ``fallbacks``).
+Goals are given up (:mod:`mjexplore.navigation.blacklist`) when no path leads to them,
+when the path to them stops shrinking, when the robot lingers on the way, or when the robot
+stood at them (within zeta) and their frontier stayed open; given-up goals are forgotten when the map around them changes and offered again when
+nothing else is left. So a frontier counts as unreachable when no path leads to it, when the
+robot failed to get to it ``max_attempts`` times with the map around it unchanged, or when
+the robot stood at it without seeing past it.
+
+The episode ends when the exploration ratio reaches the target (98.5 % by default:
+``explored``), when no frontier is reachable in that sense (``no_frontiers``), when the
+robot stays on one spot though it has tried ``linger_strikes`` goals there
+(``lingering``, the paper's "terminated unexpectedly"), tips over (``tipped_over``), when
+the physics fails (``physics_fault``: non-finite state or MuJoCo's instability reset; the
+broken scans are not mapped), or at the time cap (``time_limit``). ``run`` turns Ctrl-C
 into ``interrupted`` with everything recorded so far intact.
 """
 
@@ -29,6 +39,7 @@ from mjexplore.explorers.nearest import NearestFrontier
 from mjexplore.mapping.metrics import exploration_ratio, iou, observable_ground_truth
 from mjexplore.mapping.occupancy import MapperConfig, OccupancyMapper
 from mjexplore.maps import GridMap
+from mjexplore.navigation.blacklist import BlacklistConfig, GoalBlacklist
 from mjexplore.navigation.navigator import Navigator, NavigatorConfig, NavStatus
 from mjexplore.navigation.planner import Costmap, PlannerConfig
 from mjexplore.robot import TURTLEBOT3_WAFFLE
@@ -55,13 +66,14 @@ class EpisodeConfig:
         navigator: Navigation settings (zeta, replanning, lingering).
         planner: Costmap settings.
         topology: Frontier and GVD settings.
-        unreachable_radius: A goal that cannot be reached, or is reached while its frontier
-            stays open, blacklists frontier goals within this radius, metres.
+        blacklist: When given-up goals are forgotten and offered again.
         start_jitter: (metres, radians) half-widths of the seeded uniform offset of the start
             pose from the scene's (kept only where the robot fits), so that seeds differ.
-        progress_timeout: A goal the robot has not come 0.25 m closer to for this many
-            seconds is given up and blacklisted (a gap the costmap allows but the body does
-            not pass), as explore_lite does.
+        progress_timeout: A goal whose path has not become 0.25 m shorter for this many
+            seconds is given up (a gap the costmap allows but the body does not pass); a
+            replanned path more than 1 m longer restarts the clock.
+        linger_strikes: Goals given up for lingering on one spot before the episode ends
+            as ``lingering``.
     """
 
     max_time: float = 1800.0
@@ -72,9 +84,10 @@ class EpisodeConfig:
     navigator: NavigatorConfig = dataclasses.field(default_factory=NavigatorConfig)
     planner: PlannerConfig = dataclasses.field(default_factory=PlannerConfig)
     topology: TopologyConfig = dataclasses.field(default_factory=TopologyConfig)
-    unreachable_radius: float = 0.5
+    blacklist: BlacklistConfig = dataclasses.field(default_factory=BlacklistConfig)
     start_jitter: tuple[float, float] = (0.25, 0.3)
     progress_timeout: float = 20.0
+    linger_strikes: int = 3
 
     def __post_init__(self) -> None:
         if self.mapping_pose not in ("ground_truth", "odometry"):
@@ -83,10 +96,10 @@ class EpisodeConfig:
             raise ValueError("max_time and control_rate_hz must be > 0")
         if not 0 < self.target_ratio <= 1:
             raise ValueError("target_ratio must be in (0, 1]")
-        if self.unreachable_radius < 0 or self.progress_timeout <= 0 or min(
-                self.start_jitter) < 0:
-            raise ValueError("unreachable_radius and start_jitter must be >= 0, "
-                             "progress_timeout > 0")
+        if self.progress_timeout <= 0 or min(self.start_jitter) < 0 or \
+                self.linger_strikes < 0:
+            raise ValueError("start_jitter and linger_strikes must be >= 0, progress_timeout "
+                             "> 0")
 
 
 @dataclasses.dataclass
@@ -237,7 +250,10 @@ class Episode:
         self._decided_at = 0.0
         self._fallback = NearestFrontier()
         self.fallbacks = 0
-        self.blacklist: list[np.ndarray] = []
+        self.reoffers = 0
+        self.blacklist = GoalBlacklist(cfg.blacklist)
+        self._linger_strikes = 0
+        self._strike_at: np.ndarray | None = None
         self.curve: list[tuple[float, float]] = []
         self.goals: list[tuple[float, float, float]] = []
         self.visited: list[np.ndarray] = []
@@ -303,11 +319,12 @@ class Episode:
         """What the explorer sees now (frontiers already filtered by the blacklist)."""
         grid = self.mapper.grid
         cfg = self.config
+        self.blacklist.forget_changed(grid)
         state = ExplorationState(grid, self.sim.pose, self.sim.time, [], self.costmap(),
                                  np.array(self.visited).reshape(-1, 2),
-                                 blacklist=np.array(self.blacklist).reshape(-1, 2),
+                                 blacklist=self.blacklist.points(),
                                  ground_truth=self.scene.ground_truth,
-                                 blacklist_radius=cfg.unreachable_radius,
+                                 blacklist_radius=cfg.blacklist.radius,
                                  sensor_range=self.sim.lidar.config.range_max,
                                  target_ratio=cfg.target_ratio,
                                  extras={"tracker": self.tracker})
@@ -321,8 +338,8 @@ class Episode:
         """Makes ``goal`` (x, y, metres) the navigation goal.
 
         Returns:
-            False if the goal was refused and blacklisted: it cannot be reached, or it lies
-            within reach yet its frontier is still open (the lidar cannot see it from here).
+            False if the goal was refused and given up: no path leads to it, or it lies
+            within zeta yet its frontier is still open (the lidar cannot see it from here).
         """
         goal = np.asarray(goal, float)
         if (self.goal is not None and np.array_equal(goal, self.goal) and
@@ -337,16 +354,22 @@ class Episode:
             self.observer.on_decision(self, state if state is not None else self.decision_state())
         pose = self.sim.pose
         near = np.hypot(*(self.goal - pose[:2])) <= self.config.navigator.goal_tolerance
-        waypoint = getattr(self.explorer, "waypoint", False)
-        if not (near and not waypoint and self._goal_still_open()) and \
-                self.navigator.set_goal(self.goal, self.costmap(), pose, self.sim.time):
-            self._best_distance = float(np.hypot(*(self.goal - pose[:2])))
-            self._best_time = self.sim.time
-            self._decided_at = self.sim.time
-            self._decision_due = False
-            return True
-        self.blacklist.append(self.goal)
-        return False
+        if near and not getattr(self.explorer, "waypoint", False) and self._goal_still_open():
+            self._give_up("seen_open")
+            return False
+        if not self.navigator.set_goal(self.goal, self.costmap(), pose, self.sim.time):
+            self._give_up("no_path")
+            return False
+        self._best_distance = self.navigator.remaining_length(pose)
+        self._best_time = self._decided_at = self.sim.time
+        self._decision_due = False
+        return True
+
+    def _give_up(self, reason: str) -> None:
+        """Blacklists the current goal for ``reason`` and asks for a new one."""
+        self.blacklist.add(self.goal, reason, self.mapper.grid)
+        self.navigator.status = NavStatus.NO_PATH
+        self._decision_due = True
 
     def _decide(self) -> bool:
         """Asks the explorer for a goal; False when exploration is over.
@@ -354,13 +377,19 @@ class Episode:
         An explorer's "nothing left" is checked against the map: while a frontier that is
         not blacklisted can be reached, the robot goes to the nearest one instead (counted
         in ``fallbacks``), so an explorer that misses small or distant frontiers (one that
-        drops frontiers under a size, a coarse view) does not end the episode early.
+        drops frontiers under a size, a coarse view) does not end the episode early. When
+        none is left, the goals given up for want of a path or of progress are offered
+        again (counted in ``reoffers``) before exploration is declared over.
         """
         for _ in range(8):
             state = self.decision_state()
             goal = self.explorer.select_goal(state)
             if goal is None:
                 goal = self._fallback.select_goal(state)
+                while goal is None and self.blacklist.reoffer():
+                    self.reoffers += 1
+                    state = self.decision_state()
+                    goal = self._fallback.select_goal(state)
                 if goal is None:
                     return False
                 self.fallbacks += 1
@@ -385,9 +414,25 @@ class Episode:
             self.end_reason = "physics_fault"
         elif not sim.is_upright:
             self.end_reason = "tipped_over"
-        elif self.navigator.lingering(sim.pose, t):
+        elif self._lingered(sim.pose, t):
             self.end_reason = "lingering"
         return self.end_reason is not None
+
+    def _lingered(self, pose: np.ndarray, t: float) -> bool:
+        """True when the robot has stayed on one spot through ``linger_strikes`` goals;
+        before that, a goal the robot lingers on is given up and the clock restarts."""
+        radius = self.config.navigator.linger_radius
+        if self._strike_at is not None and np.hypot(*(pose[:2] - self._strike_at)) > radius:
+            self._linger_strikes, self._strike_at = 0, None
+        if not self.navigator.lingering(pose, t):
+            return False
+        if self.goal is None or self._linger_strikes >= self.config.linger_strikes:
+            return True
+        self._linger_strikes += 1
+        self._strike_at = pose[:2].copy()
+        self._give_up("lingered")
+        self.navigator.restart_linger_clock(pose, t)
+        return False
 
     def decision_due(self) -> bool:
         """Whether the explorer must choose a goal before the next control period (the
@@ -403,20 +448,22 @@ class Episode:
             self._decision_due = True
             return True
         if self.goal is not None and self.navigator.status == NavStatus.ACTIVE:
-            d = float(np.hypot(*(self.goal - pose[:2])))
-            if d < self._best_distance - 0.25:
+            d = self.navigator.remaining_length(pose)
+            if d < self._best_distance - 0.25 or d > self._best_distance + 1.0:
+                # Closer along the path, or a longer route replanned: the clock restarts.
                 self._best_distance, self._best_time = d, t
             elif t - self._best_time > cfg.progress_timeout:
-                self.blacklist.append(self.goal)  # No progress: give the goal up.
-                self.navigator.status = NavStatus.NO_PATH
-        if (self.goal is None or self.navigator.status != NavStatus.ACTIVE or
-                not self._goal_still_open()):
-            if (self.navigator.status == NavStatus.REACHED and self._goal_still_open()):
+                self._give_up("no_progress")
+                return True
+        if self.goal is None or self.navigator.status != NavStatus.ACTIVE or \
+                not self._goal_still_open():
+            if self.navigator.status == NavStatus.REACHED and self._goal_still_open():
                 # Reached, yet still next to unknown space: the lidar cannot see it from
-                # here (a gap too small, a blind corner). Do not come back for it.
-                self.blacklist.append(self.goal)
+                # here (a blind corner, a gap too small).
+                self._give_up("seen_open")
             self._decision_due = True
         return self._decision_due
+
 
     def control(self) -> None:
         """One control period of navigation towards the current goal."""
@@ -477,6 +524,8 @@ class Episode:
         metrics["exploration_ratio_check"] = round(exploration_ratio(grid, self.reference), 5)
         metrics["decisions"] = len(self.goals)
         metrics["fallbacks"] = self.fallbacks
+        metrics["reoffers"] = self.reoffers
+        metrics["given_up"] = self.blacklist.reasons()
         return EpisodeResult(metrics, curve, log,
                              GridMap(grid.data.copy(), grid.resolution, grid.origin),
                              np.array(self.goals).reshape(-1, 3))

@@ -86,6 +86,16 @@ class Navigator:
         self._replan(costmap, pose, t)
         return self.status == NavStatus.ACTIVE
 
+    def remaining_length(self, pose: np.ndarray) -> float:
+        """Length of the rest of the current path from ``pose``, metres (the distance to
+        its nearest point, then along it); inf without a path."""
+        path = self.path
+        if path is None or self.status != NavStatus.ACTIVE:
+            return math.inf
+        d = np.hypot(path[:, 0] - pose[0], path[:, 1] - pose[1])
+        nearest = int(np.argmin(d))
+        return float(d[nearest] + np.hypot(*np.diff(path[nearest:], axis=0).T).sum())
+
     def _replan(self, costmap: Costmap, pose: np.ndarray, t: float) -> None:
         self._last_plan = t
         path = costmap.plan(pose[:2], self.goal, goal_radius=self.config.goal_tolerance)
@@ -105,6 +115,11 @@ class Navigator:
             self._anchor_time = t
             return False
         return t - self._anchor_time >= self.config.linger_time
+
+    def restart_linger_clock(self, pose: np.ndarray, t: float) -> None:
+        """Counts lingering afresh from ``pose`` at time ``t`` (s)."""
+        self._anchor = np.array(pose[:2], float)
+        self._anchor_time = t
 
     def update(self, pose: np.ndarray, t: float, costmap_fn) -> tuple[float, float]:
         """One control step: (v, omega) toward the goal.

@@ -205,6 +205,18 @@ class Costmap:
                                          self._search_id, self._keys, self._vals, targets,
                                          stop_after)
 
+    def _nearest_reachable(self, xy: np.ndarray, radius: float, start: int) -> int:
+        """Flat index of the traversable cell within ``radius`` of ``xy`` nearest to
+        ``start`` by path (the search's parents lead back to ``start``), or -1."""
+        grid = self.grid
+        rows, cols = np.indices(grid.shape)
+        centre = grid.world_to_cell(np.asarray(xy, float))
+        disk = ((rows - centre[0]) ** 2 + (cols - centre[1]) ** 2 <=
+                (radius / grid.resolution) ** 2) & self.traversable
+        self._run(start, -1, np.ascontiguousarray(disk.reshape(-1)), 1)
+        reached = np.flatnonzero(disk.reshape(-1) & (self._stamp == -self._search_id))
+        return int(reached[np.argmin(self._dist[reached])]) if len(reached) else -1
+
     def distances_from(self, xy: np.ndarray, targets: np.ndarray | None = None,
                        stop_after: int = 0) -> np.ndarray:
         """Path cost (metres, wall penalty included) from ``xy`` to the cells; inf if none.
@@ -227,7 +239,9 @@ class Costmap:
 
     def plan(self, start_xy: np.ndarray, goal_xy: np.ndarray,
              goal_radius: float = 1.0) -> np.ndarray | None:
-        """A* path from ``start_xy`` to the traversable cell nearest ``goal_xy``.
+        """A* path from ``start_xy`` to the traversable cell nearest ``goal_xy``, or, when
+        that one cannot be reached (it lies beyond a wall), to the nearest by path of the
+        traversable cells within ``goal_radius``.
 
         Returns:
             (k, 2) waypoints in the ``map`` frame (start to goal), or None if no path.
@@ -238,7 +252,9 @@ class Costmap:
             return None
         self._run(start, goal)
         if self._stamp[goal] != -self._search_id:
-            return None
+            goal = self._nearest_reachable(goal_xy, goal_radius, start)
+            if goal < 0:
+                return None
         cells = _trace_back(self._parent, start, goal)
         rc = np.column_stack(np.divmod(cells, self.grid.shape[1]))
         return self.grid.cell_to_world(rc)
