@@ -31,6 +31,7 @@ import signal
 import threading
 from typing import Any
 
+import cv2
 import numpy as np
 
 from mjexplore.drive import odom_in_map
@@ -47,6 +48,7 @@ from mjexplore.errors import UserInputError
 from mjexplore.scenes.scene import SceneFiles, check_start
 from mjexplore.sim.kinematics import KinematicsLog
 from mjexplore.sim.simulator import SimConfig, Simulator
+from mjexplore.topology.frontiers import frontier_mask
 from mjexplore.topology.pipeline import TopologyConfig, TopologyTracker
 
 END_REASONS = ("explored", "no_frontiers", "lingering", "tipped_over", "time_limit",
@@ -379,23 +381,51 @@ class Episode:
         in ``fallbacks``), so an explorer that misses small or distant frontiers (one that
         drops frontiers under a size, a coarse view) does not end the episode early. When
         none is left, the goals given up for want of a path or of progress are offered
-        again (counted in ``reoffers``) before exploration is declared over.
+        again (counted in ``reoffers``), and any frontier cell within zeta of the reachable
+        space counts (clusters too small or too thin to be frontiers of their own, goals
+        that lie off a frontier's reachable side), before exploration is declared over.
         """
         for _ in range(8):
             state = self.decision_state()
             goal = self.explorer.select_goal(state)
             if goal is None:
-                goal = self._fallback.select_goal(state)
+                goal = self._last_resort(state)
                 while goal is None and self.blacklist.reoffer():
                     self.reoffers += 1
                     state = self.decision_state()
-                    goal = self._fallback.select_goal(state)
+                    goal = self._last_resort(state)
                 if goal is None:
                     return False
                 self.fallbacks += 1
             if self.adopt_goal(goal, state):
                 return True
         return True  # Keep going; the next tick decides again.
+
+    def _last_resort(self, state: ExplorationState) -> np.ndarray | None:
+        """The nearest frontier by path, else the nearest frontier cell (an unknown cell
+        next to free space) that a traversable cell within zeta of it connects to the
+        robot; None if there is none (neither counting blacklisted goals)."""
+        goal = self._fallback.select_goal(state)
+        if goal is not None:
+            return goal
+        grid = state.grid
+        cells = np.argwhere(frontier_mask(grid))
+        if len(cells) == 0:
+            return None
+        cells = cells[state.allowed(grid.cell_to_world(cells))]
+        if len(cells) == 0:
+            return None
+        near = np.zeros(grid.shape, np.uint8)
+        near[cells[:, 0], cells[:, 1]] = 1
+        k = int(round(self.config.navigator.goal_tolerance / grid.resolution))
+        disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1, 2 * k + 1))
+        targets = cv2.dilate(near, disk).astype(bool) & state.costmap.traversable
+        dist = state.costmap.distances_from(state.pose[:2], targets, stop_after=1)
+        reached = np.argwhere(np.isfinite(dist) & targets)
+        if len(reached) == 0:
+            return None
+        entry = reached[np.argmin(dist[reached[:, 0], reached[:, 1]])]
+        return grid.cell_to_world(cells[np.argmin(np.hypot(*(cells - entry).T))])
 
     # ------------------------------------------------------------------ stepping
 
