@@ -187,16 +187,30 @@ def _export_existing_scene(args: argparse.Namespace) -> int:
     return 0
 
 
+def _lidar_config(args: argparse.Namespace, ideal_noise: float):
+    """The lidar of --lidar-model, --lidar-range and --lidar-noise (``ideal_noise`` when
+    the ideal model is given none)."""
+    from mjexplore.robot import motion_profile
+    from mjexplore.sim.lidar import lidar_model
+
+    if args.lidar_model == "ideal":
+        noise = ideal_noise if args.lidar_noise is None else args.lidar_noise
+        return lidar_model("ideal", noise_std=noise,
+                           range_max=args.lidar_range or motion_profile(args.profile).lidar_range)
+    if args.lidar_noise is not None:
+        raise UserInputError("--lidar-noise sets the ideal lidar's noise, and --lidar-model "
+                             f"{args.lidar_model} has its unit's range-dependent noise: drop "
+                             "--lidar-noise, or use --lidar-model ideal.")
+    return lidar_model(args.lidar_model, **(
+        {} if args.lidar_range is None else {"range_max": args.lidar_range}))
+
+
 def cmd_drive(args: argparse.Namespace) -> int:
     from mjexplore.drive import DriveConfig, run_drive
     from mjexplore.scenes.canonical import resolve_scene
-    from mjexplore.sim.lidar import LidarConfig
     from mjexplore.sim.simulator import SimConfig
-    from mjexplore.robot import motion_profile
 
-    profile = motion_profile(args.profile)
-    lidar = LidarConfig(range_max=args.lidar_range or profile.lidar_range,
-                        noise_std=args.lidar_noise)
+    lidar = _lidar_config(args, ideal_noise=0.0)
     config = DriveConfig(duration=args.duration, seed=args.seed,
                          sim=SimConfig(profile=args.profile, lidar=lidar, seed=args.seed))
     summary = run_drive(resolve_scene(args.scene), config, args.out)
@@ -206,15 +220,11 @@ def cmd_drive(args: argparse.Namespace) -> int:
 
 def _episode_config(args: argparse.Namespace):
     from mjexplore.eval.episode import EpisodeConfig
-    from mjexplore.robot import motion_profile
-    from mjexplore.sim.lidar import LidarConfig
     from mjexplore.sim.simulator import SimConfig
 
-    profile = motion_profile(args.profile)
     if not 0 < args.target_ratio <= 1:
         raise UserInputError(f"--target-ratio {args.target_ratio} must be in (0, 1].")
-    lidar = LidarConfig(range_max=args.lidar_range or profile.lidar_range,
-                        noise_std=args.lidar_noise)
+    lidar = _lidar_config(args, ideal_noise=0.01)
     return EpisodeConfig(max_time=args.max_time, target_ratio=args.target_ratio,
                          mapping_pose=args.mapping_pose,
                          sim=SimConfig(profile=args.profile, lidar=lidar))
@@ -364,15 +374,24 @@ def _add_episode_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--profile", default="sim", choices=["sim", "real"],
                    help="motion profile: sim (0.5 m/s, 6 m lidar) or real (0.18 m/s, 5 m)")
     p.add_argument("--lidar-range", type=_positive, default=None,
-                   help="lidar range in metres (default: the profile's; Explore-Bench uses 7)")
+                   help="lidar range in metres (default: the profile's, lds01's 3.5 with "
+                        "--lidar-model lds01; Explore-Bench uses 7)")
     p.add_argument("--max-time", type=_positive, default=1800.0,
                    help="time cap in simulated seconds (1800)")
     p.add_argument("--target-ratio", type=float, default=0.985,
                    help="exploration ratio that ends the episode (0.985)")
     p.add_argument("--mapping-pose", default="ground_truth", choices=["ground_truth", "odometry"],
                    help="pose the mapper uses")
-    p.add_argument("--lidar-noise", type=float, default=0.01,
-                   help="Gaussian range noise std in metres (0.01, about an LDS-01's)")
+    p.add_argument("--lidar-noise", type=float, default=None,
+                   help="the ideal lidar's Gaussian range noise std in metres (0.01)")
+    _add_lidar_model_arg(p)
+
+
+def _add_lidar_model_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--lidar-model", default="ideal", choices=["ideal", "lds01"],
+                   help="ideal (every beam at once, constant noise; the paper's tables) or "
+                        "lds01 (the Turtlebot3's LDS-01: 5 Hz, 0.12-3.5 m, range-dependent "
+                        "noise, dropouts, motion skew)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -438,9 +457,11 @@ def build_parser() -> argparse.ArgumentParser:
     drive.add_argument("--profile", default="sim", choices=["sim", "real"],
                        help="motion profile: sim (0.5 m/s) or real (0.18 m/s)")
     drive.add_argument("--lidar-range", type=_positive, default=None,
-                       help="lidar range in metres (default: the profile's)")
-    drive.add_argument("--lidar-noise", type=float, default=0.0,
-                       help="Gaussian range noise std in metres")
+                       help="lidar range in metres (default: the profile's, lds01's 3.5 "
+                            "with --lidar-model lds01)")
+    drive.add_argument("--lidar-noise", type=float, default=None,
+                       help="the ideal lidar's Gaussian range noise std in metres (0)")
+    _add_lidar_model_arg(drive)
     drive.add_argument("--seed", type=_seed, default=0)
     drive.add_argument("--out", type=Path, required=True, help="run folder")
     drive.set_defaults(func=cmd_drive)

@@ -15,7 +15,10 @@ run of the reactive wanderer (closed loop on the lidar) is recorded first; then:
     sensor_scans_per_s the bound: the same scan as 360 MuJoCo rangefinder sensors
                        (``mj_sensorPos`` after ``mj_kinematics``), same poses;
     loop_without_lidar_rtf  as full_loop_rtf with scans skipped: the lidar's share;
-    ratios             full_loop_over_physics, full_loop_over_loop_without_lidar and
+    full_loop_rtf_lds01  as full_loop_rtf with the LDS-01 lidar model (5 Hz, noise,
+                       dropouts, motion skew) instead of the ideal one;
+    ratios             full_loop_over_physics, full_loop_over_loop_without_lidar,
+                       lds01_over_ideal (full_loop_rtf_lds01 / full_loop_rtf) and
                        lidar_over_sensor.
 
 Usage: python tools/bench_sim.py [--scene office] [--seconds 60]
@@ -39,7 +42,8 @@ import numpy as np  # noqa: E402
 
 from mjexplore.navigation.wander import WanderController  # noqa: E402
 from mjexplore.scenes.canonical import resolve_scene  # noqa: E402
-from mjexplore.sim.simulator import SCAN_SITE, Simulator  # noqa: E402
+from mjexplore.sim.lidar import lidar_model  # noqa: E402
+from mjexplore.sim.simulator import SCAN_SITE, SimConfig, Simulator  # noqa: E402
 
 CONTROL_PERIOD = 0.1
 
@@ -70,6 +74,16 @@ def seconds_per_scan(m: mujoco.MjModel, d: mujoco.MjData, poses: list[np.ndarray
             mujoco.mj_kinematics(m, d)
             scan()
     return (time.perf_counter() - t0) / (repeats * len(poses))
+
+
+def replay_wall(sim: Simulator, twists: list[tuple[float, float]]) -> float:
+    """Wall seconds of replaying (v, omega) commands through ``sim`` after a reset."""
+    sim.reset()
+    t0 = time.perf_counter()
+    for v, w in twists:
+        sim.command(v, w)
+        sim.step(CONTROL_PERIOD)
+    return time.perf_counter() - t0
 
 
 def main() -> None:
@@ -105,12 +119,7 @@ def main() -> None:
     sim_seconds = sim.time
     path_m = sim.kinematics().path_length()
 
-    sim.reset()
-    t0 = time.perf_counter()
-    for v, w in twists:
-        sim.command(v, w)
-        sim.step(CONTROL_PERIOD)
-    full_wall = time.perf_counter() - t0
+    full_wall = replay_wall(sim, twists)
 
     m, d = sim.model, sim.data
     steps = int(round(CONTROL_PERIOD / m.opt.timestep))
@@ -123,19 +132,21 @@ def main() -> None:
     physics_wall = time.perf_counter() - t0
 
     # The same commands through the Simulator with scans skipped: what the lidar costs.
-    sim.reset()
     sim.lidar.scan = lambda data, stamp, last=sim.latest_scan: last  # type: ignore[method-assign]
-    t0 = time.perf_counter()
-    for v, w in twists:
-        sim.command(v, w)
-        sim.step(CONTROL_PERIOD)
-    no_lidar_wall = time.perf_counter() - t0
+    no_lidar_wall = replay_wall(sim, twists)
     del sim.lidar.scan
+
+    # The same commands with the LDS-01 model; the first pass builds its lidar tiles.
+    lds01 = Simulator(scene, SimConfig(lidar=lidar_model("lds01")))
+    replay_wall(lds01, twists)
+    lds01_wall = replay_wall(lds01, twists)
 
     sample = poses[:: max(1, len(poses) // 200)]
     lidar_s = seconds_per_scan(m, d, sample, lambda: sim.lidar.scan(d, 0.0))
     sm = sensor_model(str(sim.scene.xml), sim.lidar.config.num_beams)
     sd = mujoco.MjData(sm)
+    first = sm.sensor_adr[sm.sensor("range_0").id]  # After the robot's IMU sensors.
+    beams = slice(first, first + sim.lidar.config.num_beams)
     sensor_s = seconds_per_scan(sm, sd, sample, lambda: mujoco.mj_sensorPos(sm, sd))
     max_diff = 0.0
     for q in sample[:20]:  # Both paths must read the same ranges.
@@ -146,7 +157,8 @@ def main() -> None:
         mujoco.mj_sensorPos(sm, sd)
         fast = sim.lidar.cast(d).copy()
         ok = (fast >= 0) & (fast < sim.lidar.config.range_max)
-        max_diff = max(max_diff, float(np.abs(fast[ok] - sd.sensordata[ok]).max(initial=0.0)))
+        max_diff = max(max_diff,
+                       float(np.abs(fast[ok] - sd.sensordata[beams][ok]).max(initial=0.0)))
 
     n_walls = int(sim.lidar.static_scene.geom_ids.size)
     result = {
@@ -160,6 +172,8 @@ def main() -> None:
         "with_reactive_controller_rtf": round(sim_seconds / controller_wall, 1),
         "loop_without_lidar_rtf": round(sim_seconds / no_lidar_wall, 1),
         "full_loop_over_loop_without_lidar": round(no_lidar_wall / full_wall, 3),
+        "full_loop_rtf_lds01": round(sim_seconds / lds01_wall, 1),
+        "lds01_over_ideal": round(full_wall / lds01_wall, 3),
         "lidar_scans_per_s": round(1.0 / lidar_s, 1),
         "lidar_rays_per_s": round(sim.lidar.config.num_beams / lidar_s),
         "sensor_scans_per_s": round(1.0 / sensor_s, 1),

@@ -206,7 +206,7 @@ class Ros2EpisodeLog(EpisodeLogger):
             "header": _header(t, "base_scan"), "angle_min": float(angles[0]),
             "angle_max": float(angles[-1]),
             "angle_increment": float(angles[1] - angles[0]) if len(angles) > 1 else 0.0,
-            "time_increment": 0.0,  # The simulated lidar takes a scan at once.
+            "time_increment": float(scan.time_increment),  # Negative: LDS-01 turns clockwise.
             "scan_time": 1.0 / lidar.rate_hz, "range_min": lidar.range_min,
             "range_max": float(scan.range_max),
             "ranges": scan.ranges.tolist(),  # +-inf as REP-117 has them.

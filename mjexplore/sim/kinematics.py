@@ -1,4 +1,4 @@
-"""Recording the robot's velocity and acceleration over simulated time."""
+"""Recording the robot's velocity, acceleration and IMU over simulated time."""
 
 from __future__ import annotations
 
@@ -46,6 +46,12 @@ class KinematicsLog:
         cmd_angular: Commanded yaw rate after the acceleration limiter, rad/s.
         pose: (n, 3) ground-truth (x, y, yaw) of ``base_link`` in the ``map`` frame.
         odom_pose: (n, 3) wheel-odometry (x, y, yaw) of ``base_link`` in the ``odom`` frame.
+        imu_gyro: (n, 3) angular velocity in rad/s measured by the IMU, in ``imu_link``
+            (axes as ``base_link``'s); None or NaN where there is no IMU (kinematic mode).
+            MuJoCo computes sensors at the start of a physics step, so a reading is one
+            step (5 ms) older than its sample.
+        imu_accel: (n, 3) specific force in m/s^2 (acceleration minus gravity: +9.81 on z
+            at rest) measured by the IMU, in ``imu_link``; None or NaN where there is none.
     """
 
     t: np.ndarray
@@ -57,16 +63,23 @@ class KinematicsLog:
     cmd_angular: np.ndarray
     pose: np.ndarray
     odom_pose: np.ndarray
+    imu_gyro: np.ndarray | None = None
+    imu_accel: np.ndarray | None = None
 
     COLUMNS = ("t", "linear_velocity", "angular_velocity", "linear_acceleration",
                "angular_acceleration", "cmd_linear", "cmd_angular", "x", "y", "yaw",
-               "odom_x", "odom_y", "odom_yaw")
+               "odom_x", "odom_y", "odom_yaw", "gyro_x", "gyro_y", "gyro_z", "accel_x",
+               "accel_y", "accel_z")
 
     def as_table(self) -> np.ndarray:
-        """(n, 13) array in the order of :attr:`COLUMNS`."""
+        """(n, 19) array in the order of :attr:`COLUMNS` (NaN IMU columns without an IMU)."""
+        missing = np.full((len(self.t), 3), np.nan)
+        gyro = missing if self.imu_gyro is None else self.imu_gyro
+        accel = missing if self.imu_accel is None else self.imu_accel
         return np.column_stack([self.t, self.linear_velocity, self.angular_velocity,
                                 self.linear_acceleration, self.angular_acceleration,
-                                self.cmd_linear, self.cmd_angular, self.pose, self.odom_pose])
+                                self.cmd_linear, self.cmd_angular, self.pose, self.odom_pose,
+                                gyro, accel])
 
     def path_length(self) -> float:
         """Length of the ground-truth path of ``base_link`` in metres."""
@@ -76,10 +89,11 @@ class KinematicsLog:
 
 
 class KinematicsRecorder:
-    """Collects samples (t, v, omega, v_cmd, omega_cmd, pose, odometry pose) during a run."""
+    """Collects samples (t, v, omega, v_cmd, omega_cmd, pose, odometry pose, IMU) during a
+    run."""
 
     def __init__(self) -> None:
-        self._rows = GrowableArray(11)
+        self._rows = GrowableArray(17)
 
     def clear(self) -> None:
         self._rows.clear()
@@ -87,14 +101,15 @@ class KinematicsRecorder:
     @property
     def rows(self) -> np.ndarray:
         """A view of the raw samples (t, v, omega, v_cmd, omega_cmd, x, y, yaw, odom x, y,
-        yaw); valid until the next sample."""
+        yaw, gyro x, y, z, accel x, y, z); valid until the next sample."""
         return self._rows.array
 
     def record(self, t: float, v: float, omega: float, cmd: tuple[float, float],
-               pose: tuple[float, float, float], odom: tuple[float, float, float]) -> None:
+               pose: tuple[float, float, float], odom: tuple[float, float, float],
+               imu: tuple[float, ...] = (np.nan,) * 6) -> None:
         """Appends one sample: time s, speed m/s, yaw rate rad/s, command (v, omega), true
-        pose and odometry pose (x, y, yaw)."""
-        self._rows.append((t, v, omega, cmd[0], cmd[1], *pose, *odom))
+        pose and odometry pose (x, y, yaw), IMU (gyro rad/s, accelerometer m/s^2)."""
+        self._rows.append((t, v, omega, cmd[0], cmd[1], *pose, *odom, *imu))
 
     def log(self) -> KinematicsLog:
         rows = self._rows.array.copy()
@@ -107,4 +122,5 @@ class KinematicsRecorder:
                              linear_acceleration=derivative(rows[:, 1]),
                              angular_acceleration=derivative(rows[:, 2]),
                              cmd_linear=rows[:, 3], cmd_angular=rows[:, 4], pose=rows[:, 5:8],
-                             odom_pose=rows[:, 8:11])
+                             odom_pose=rows[:, 8:11], imu_gyro=rows[:, 11:14],
+                             imu_accel=rows[:, 14:17])

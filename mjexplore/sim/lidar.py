@@ -1,8 +1,21 @@
-"""A 2D lidar as a fan of rays cast with one ``mj_multiRay`` call per scan.
+"""A 2D lidar as a fan of rays cast with ``mj_multiRay``, and the models of its errors.
 
 This is the fast path (no rangefinder sensors are evaluated during physics steps): the
 beam directions are fixed in the ``base_scan`` frame, rotated into the world with the
 site's orientation at scan time, and cast in one ``mj_multiRay`` call.
+
+Two models (``LidarConfig.model``, built by :func:`lidar_model`):
+
+* ``ideal``: every beam at the scan's instant, constant Gaussian range noise.
+* ``lds01``: the Turtlebot3's LDS-01 (HLS-LFCD2): 360 beams of 1 degree at 5 Hz, 0.12 to
+  3.5 m; range-dependent noise (its datasheet's precision: 10 mm below 0.5 m, 3.5 % of the
+  range beyond); dropouts, random per beam and certain at glancing incidence (reported as
+  NaN: invalid, as REP-117 has it); and motion skew: the unit turns clockwise once per
+  scan, so each beam is cast from the pose of its own instant, interpolated between the
+  simulator's samples (one ``mj_multiRay`` per ``SKEW_CHUNK_S`` of beams).
+
+The error model (:func:`measure_ranges`) takes true distances and incidence cosines from
+any ray caster, so other simulators share it.
 
 ``mj_multiRay`` tests every ray against every geom of a model, so its cost grows with the
 number of walls in the whole scene. The rays are therefore cast against small MuJoCo
@@ -25,34 +38,68 @@ import numpy as np
 from mjexplore.errors import UserInputError
 
 SCAN_GEOMGROUP = np.array([1, 0, 0, 0, 0, 0], dtype=np.uint8)
+# Motion skew: the beams of each SKEW_CHUNK_S of a scan are cast from one origin, the pose
+# of the chunk's middle beam (each beam keeps its own direction). A beam's origin is then
+# off by at most half a chunk's travel: 2.5 mm at 0.5 m/s, a quarter of the LDS-01's
+# finest noise; one mj_multiRay call costs as much as about 35 rays.
+SKEW_CHUNK_S = 0.01
 _TILEABLE = (mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_SPHERE,
              mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_CYLINDER,
              mujoco.mjtGeom.mjGEOM_ELLIPSOID)
 
 
+LIDAR_MODELS = ("ideal", "lds01")
+
+
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class LidarConfig:
-    """Lidar settings (defaults: the paper's simulated 360-degree, 6 m lidar).
+    """Lidar settings (defaults: the paper's simulated 360-degree, 6 m lidar, ``ideal``).
+
+    Build a model's settings with :func:`lidar_model`; the error fields below default to
+    none.
 
     Attributes:
+        model: 'ideal' or 'lds01': the model these settings come from (see
+            :func:`lidar_model`).
         num_beams: Beams per scan, spread evenly over ``fov``.
         fov: Field of view in radians (2 pi for a full turn).
-        range_min: Readings closer than this are invalid (reported as inf), in metres.
+        range_min: Readings closer than this are invalid (-inf), in metres.
         range_max: Readings farther than this are no return (inf), in metres.
-        noise_std: Standard deviation of additive Gaussian range noise in metres.
+        noise_std: Standard deviation of additive Gaussian range noise in metres (below
+            ``noise_rel_from`` when ``noise_rel`` is set).
+        noise_rel: From ``noise_rel_from`` on, the noise's standard deviation is
+            ``max(noise_std, noise_rel * range)`` (a fraction of the range).
+        noise_rel_from: Range in metres from which ``noise_rel`` applies.
+        dropout_prob: Probability that a beam returns nothing valid (NaN), any beam.
+        grazing_start: Incidence angle (between the beam and the surface normal) in
+            radians beyond which returns drop out, with a probability rising linearly to 1
+            at ``grazing_full``; pi/2 turns incidence dropouts off.
+        grazing_full: Incidence angle in radians beyond which every return drops out.
+        motion_skew: Cast each beam from the pose of its own instant within the scan (a
+            clockwise turn per scan period) instead of all at the scan's instant.
         rate_hz: Scans per second of simulated time.
         tile_size: Side of the floor tiles the static geometry is grouped by, in metres.
     """
 
+    model: str = "ideal"
     num_beams: int = 360
     fov: float = 2 * np.pi
     range_min: float = 0.12
     range_max: float = 6.0
     noise_std: float = 0.0
+    noise_rel: float = 0.0
+    noise_rel_from: float = 0.0
+    dropout_prob: float = 0.0
+    grazing_start: float = np.pi / 2
+    grazing_full: float = np.pi / 2
+    motion_skew: bool = False
     rate_hz: float = 10.0
     tile_size: float = 4.0
 
     def __post_init__(self) -> None:
+        if self.model not in LIDAR_MODELS:
+            raise UserInputError(f"lidar model {self.model!r} is unknown: use one of "
+                                 f"{', '.join(LIDAR_MODELS)}.")
         if self.num_beams < 1:
             raise UserInputError(f"lidar num_beams {self.num_beams} must be at least 1.")
         if not 0 < self.fov <= 2 * np.pi:
@@ -62,6 +109,19 @@ class LidarConfig:
                                  f"(got {self.range_min}, {self.range_max}).")
         if self.noise_std < 0 or self.rate_hz <= 0 or self.tile_size <= 0:
             raise UserInputError("lidar noise_std must be >= 0, rate_hz and tile_size > 0.")
+        if self.noise_rel < 0 or self.noise_rel_from < 0:
+            raise UserInputError("lidar noise_rel and noise_rel_from must be >= 0.")
+        if not 0 <= self.dropout_prob < 1:
+            raise UserInputError(f"lidar dropout_prob {self.dropout_prob} must be in [0, 1).")
+        if not 0 <= self.grazing_start <= self.grazing_full <= np.pi / 2:
+            raise UserInputError("lidar incidence angles must satisfy 0 <= grazing_start <= "
+                                 f"grazing_full <= pi/2 (got {self.grazing_start}, "
+                                 f"{self.grazing_full}).")
+
+    @property
+    def incidence_dropouts(self) -> bool:
+        """Whether returns drop out at glancing incidence (the caster must give normals)."""
+        return self.grazing_start < np.pi / 2
 
     @property
     def angles(self) -> np.ndarray:
@@ -77,12 +137,17 @@ class LaserScan:
     """One scan, like ``sensor_msgs/LaserScan``.
 
     Attributes:
-        stamp: Simulated time of the scan in seconds.
+        stamp: Simulated time of the scan in seconds: when it is complete and delivered,
+            the instant of beam 0.
         ranges: float32 ranges in metres (REP-117): ``inf`` where there is no return within
-            ``range_max``, ``-inf`` where the return is closer than ``range_min``.
+            ``range_max``, ``-inf`` where the return is closer than ``range_min``, NaN where
+            the reading is invalid (a dropout). Only ``inf`` says the beam's line is free.
         angles: Beam angles in the ``base_scan`` frame in radians.
         range_max: Maximum range in metres.
-        pose: (x, y, yaw) of ``base_scan`` in the world (``map``) frame at scan time.
+        pose: (x, y, yaw) of ``base_scan`` in the world (``map``) frame at ``stamp``.
+        time_increment: Seconds between beams, as ``sensor_msgs/LaserScan``'s: beam ``i``
+            was taken at ``stamp + i * time_increment``. 0 when all beams are taken at once;
+            negative for the LDS-01 model, which turns clockwise (beam 0 is its last).
     """
 
     stamp: float
@@ -90,6 +155,7 @@ class LaserScan:
     angles: np.ndarray
     range_max: float
     pose: np.ndarray
+    time_increment: float = 0.0
 
 
 class StaticRayScene:
@@ -174,11 +240,15 @@ class StaticRayScene:
 class Lidar:
     """Casts scans for the lidar mounted at a site of a MuJoCo model.
 
+    With ``motion_skew``, the simulator reports the robot's pose at each of its samples
+    (:meth:`observe_base_pose`); the pose of each beam's instant is interpolated between
+    them.
+
     Args:
-        model: The compiled model.
+        model: The compiled model; the site's body is the robot's free base.
         site: Name of the lidar frame site (``base_scan``).
         config: Lidar settings.
-        rng: Generator for range noise (needed only when ``noise_std > 0``).
+        rng: Generator for range noise and dropouts (needed only when they are on).
     """
 
     def __init__(self, model: mujoco.MjModel, site: str, config: LidarConfig,
@@ -195,38 +265,189 @@ class Lidar:
         self._vec = np.empty((n, 3))
         self._dist = np.empty(n)
         self._geomid = np.empty(n, dtype=np.int32)
+        self._normal = np.empty((n, 3)) if config.incidence_dropouts else None
+        self._offset = tuple(float(v) for v in model.site_pos[self.site_id][:2])
+        period = 1.0 / config.rate_hz
+        self.time_increment = -period / n if config.motion_skew else 0.0
+        self._beam_dt = self.time_increment * np.arange(n)
+        # Beams taken within SKEW_CHUNK_S of each other share an origin (one mj_multiRay).
+        chunks = min(n, max(1, math.ceil(period / SKEW_CHUNK_S - 1e-9)))
+        bounds = np.linspace(0, n, chunks + 1).round().astype(int)
+        self._chunks = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+        self._history: collections.deque[tuple[float, float, float, float]] = (
+            collections.deque())
+        self._period = period
+
+    def clear_history(self) -> None:
+        """Forgets the poses observed so far (at a reset)."""
+        self._history.clear()
+
+    def observe_base_pose(self, t: float, x: float, y: float, yaw: float) -> None:
+        """Records the robot base's planar pose at simulated time ``t`` (seconds, metres,
+        radians, ``map`` frame), for motion skew."""
+        ox, oy = self._offset
+        c, s = math.cos(yaw), math.sin(yaw)
+        self._history.append((t, x + c * ox - s * oy, y + s * ox + c * oy, yaw))
+
+    def _ray_scene(self, origin: np.ndarray, data: mujoco.MjData,
+                   ) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        if self.static_scene.tileable:
+            return self.static_scene.tile_model(self.static_scene.tile_of(origin[0], origin[1]))
+        return self.model, data
+
+    def _multi_ray(self, origin: np.ndarray, data: mujoco.MjData, i0: int, i1: int) -> None:
+        model, ray_data = self._ray_scene(origin, data)
+        normal = None if self._normal is None else self._normal[i0:i1].reshape(-1)
+        mujoco.mj_multiRay(model, ray_data, origin, self._vec[i0:i1].reshape(-1),
+                           SCAN_GEOMGROUP, 1, -1, self._geomid[i0:i1], self._dist[i0:i1],
+                           normal, i1 - i0, self.config.range_max + 0.1)
 
     def cast(self, data: mujoco.MjData) -> np.ndarray:
-        """Raw distances (float64, -1 for no hit) from the site at the current state.
+        """Raw distances (float64, -1 for no hit) from the site at the current state, all
+        beams at once.
 
         ``data`` must have up-to-date kinematics (``site_xpos``, ``site_xmat``).
         """
         rot = data.site_xmat[self.site_id].reshape(3, 3)
-        origin = data.site_xpos[self.site_id]
         np.matmul(rot, self._local_dirs, out=self._vec.T)
-        cutoff = self.config.range_max + 0.1
-        if self.static_scene.tileable:
-            model, ray_data = self.static_scene.tile_model(
-                self.static_scene.tile_of(origin[0], origin[1]))
-        else:
-            model, ray_data = self.model, data
-        mujoco.mj_multiRay(model, ray_data, origin, self._vec.reshape(-1), SCAN_GEOMGROUP, 1, -1,
-                           self._geomid, self._dist, None, self.config.num_beams, cutoff)
+        self._multi_ray(data.site_xpos[self.site_id], data, 0, self.config.num_beams)
         return self._dist
+
+    def _cast_skewed(self, data: mujoco.MjData, stamp: float) -> None:
+        """Casts every beam from the pose of its instant ``stamp + i * time_increment``."""
+        rot = data.site_xmat[self.site_id]
+        origin = data.site_xpos[self.site_id]
+        np.matmul(rot.reshape(3, 3), self._local_dirs, out=self._vec.T)
+        history = self._history
+        while len(history) >= 2 and history[1][0] <= stamp - self._period:
+            history.popleft()
+        past = [h for h in history if h[0] < stamp - 1e-9]
+        past.append((stamp, float(origin[0]), float(origin[1]), math.atan2(rot[3], rot[0])))
+        t, x, y, yaw = np.array(past).T
+        turn = np.diff(yaw)
+        yaw[1:] = yaw[0] + np.cumsum((turn + np.pi) % (2 * np.pi) - np.pi)  # Unwrapped.
+        when = stamp + self._beam_dt
+        dx = np.interp(when, t, x) - x[-1]
+        dy = np.interp(when, t, y) - y[-1]
+        dyaw = np.interp(when, t, yaw) - yaw[-1]
+        c, s = np.cos(dyaw), np.sin(dyaw)
+        vx, vy = self._vec[:, 0].copy(), self._vec[:, 1]
+        self._vec[:, 0] = c * vx - s * vy
+        self._vec[:, 1] = s * vx + c * vy
+        for i0, i1 in self._chunks:
+            mid = (i0 + i1 - 1) // 2
+            self._multi_ray(np.array([origin[0] + dx[mid], origin[1] + dy[mid], origin[2]]),
+                            data, i0, i1)
 
     def scan(self, data: mujoco.MjData, stamp: float) -> LaserScan:
         """Casts one scan at the current state (``data`` must have up-to-date kinematics)."""
         cfg = self.config
-        dist = self.cast(data)
-        ranges = dist.astype(np.float32)
-        if cfg.noise_std > 0:
-            ranges += self.rng.normal(0.0, cfg.noise_std, size=ranges.shape).astype(np.float32)
-        # REP-117: -inf for a return closer than range_min (invalid: nothing may be
-        # cleared along it), +inf for none within range_max (free out to range_max).
-        ranges[(dist >= 0) & (ranges < cfg.range_min)] = -np.inf
-        ranges[(dist < 0) | (ranges > cfg.range_max)] = np.inf
+        if cfg.motion_skew:
+            self._cast_skewed(data, stamp)
+        else:
+            self.cast(data)
+        cos_incidence = None
+        if self._normal is not None:
+            cos_incidence = np.abs(np.einsum("ij,ij->i", self._vec, self._normal))
+        ranges = measure_ranges(self._dist, cfg, self.rng, cos_incidence)
         rot = data.site_xmat[self.site_id]
         origin = data.site_xpos[self.site_id]
         yaw = math.atan2(rot[3], rot[0])
         return LaserScan(stamp, ranges, self._angles, cfg.range_max,
-                         np.array([origin[0], origin[1], yaw]))
+                         np.array([origin[0], origin[1], yaw]), self.time_increment)
+
+
+# The Turtlebot3's LDS-01 (HLS-LFCD2; ROBOTIS e-Manual, LDS-01 specifications; the
+# hls_lfcd_lds_driver's scan). Dropout rates are not published: 1 % per beam, and returns
+# fading from 70 degrees of incidence to none at 85, are this model's assumptions.
+LDS01 = LidarConfig(model="lds01", num_beams=360, fov=2 * np.pi, range_min=0.12,
+                    range_max=3.5, noise_std=0.010, noise_rel=0.035, noise_rel_from=0.5,
+                    dropout_prob=0.01, grazing_start=math.radians(70.0),
+                    grazing_full=math.radians(85.0), motion_skew=True, rate_hz=5.0)
+
+
+def lidar_model(name: str = "ideal", **overrides) -> LidarConfig:
+    """The settings of a lidar model, with some replaced.
+
+    Args:
+        name: 'ideal' (:class:`LidarConfig`'s defaults) or 'lds01' (:data:`LDS01`).
+        **overrides: :class:`LidarConfig` fields to replace (e.g. ``range_max``).
+
+    Raises:
+        UserInputError: unknown model or invalid settings.
+    """
+    if name == "ideal":
+        return LidarConfig(**overrides)
+    if name == "lds01":
+        return dataclasses.replace(LDS01, **overrides)
+    raise UserInputError(f"lidar model {name!r} is unknown: use one of "
+                         f"{', '.join(LIDAR_MODELS)}.")
+
+
+def range_noise_std(dist: np.ndarray, config: LidarConfig) -> np.ndarray:
+    """Standard deviation of the range noise at each true distance, in metres."""
+    std = np.full(dist.shape, float(config.noise_std))
+    if config.noise_rel > 0:
+        far = dist >= config.noise_rel_from
+        std[far] = np.maximum(config.noise_std, config.noise_rel * dist[far])
+    return std
+
+
+def dropout_probability(config: LidarConfig, cos_incidence: np.ndarray | None,
+                        n: int) -> np.ndarray:
+    """Probability that each of ``n`` beams drops out.
+
+    Args:
+        config: Lidar settings.
+        cos_incidence: |cos| of each beam's angle to the surface normal at its hit (1 for
+            beams that hit nothing), or None for normal incidence everywhere.
+        n: Number of beams.
+    """
+    p = np.full(n, float(config.dropout_prob))
+    if cos_incidence is not None and config.incidence_dropouts:
+        angle = np.arccos(np.clip(cos_incidence, 0.0, 1.0))
+        span = config.grazing_full - config.grazing_start
+        if span > 0:
+            grazing = np.clip((angle - config.grazing_start) / span, 0.0, 1.0)
+        else:
+            grazing = (angle > config.grazing_start).astype(float)
+        p = 1.0 - (1.0 - p) * (1.0 - grazing)
+    return p
+
+
+def measure_ranges(dist: np.ndarray, config: LidarConfig, rng: np.random.Generator,
+                   cos_incidence: np.ndarray | None = None) -> np.ndarray:
+    """Readings of a scan from true distances: noise, range limits and dropouts.
+
+    Random draws, in this order: one normal per beam when there is noise, one uniform per
+    beam when there are dropouts; the ideal model draws exactly as it always has.
+
+    Args:
+        dist: True distance of each beam's hit in metres; negative or inf for no hit.
+        config: Lidar settings.
+        rng: Generator for noise and dropouts.
+        cos_incidence: |cos| of each beam's angle to the surface normal at its hit (any
+            value for beams that hit nothing), or None for normal incidence everywhere.
+
+    Returns:
+        float32 ranges as :attr:`LaserScan.ranges` has them (REP-117: -inf closer than
+        ``range_min``, inf no return within ``range_max``, NaN dropped out).
+    """
+    cfg = config
+    hit = (dist >= 0) & np.isfinite(dist)
+    ranges = dist.astype(np.float32)
+    if cfg.noise_rel > 0:
+        std = range_noise_std(np.where(hit, dist, 0.0), cfg)
+        ranges += (rng.normal(0.0, 1.0, size=ranges.shape) * std).astype(np.float32)
+    elif cfg.noise_std > 0:
+        ranges += rng.normal(0.0, cfg.noise_std, size=ranges.shape).astype(np.float32)
+    # REP-117: -inf for a return closer than range_min (invalid: nothing may be
+    # cleared along it), +inf for none within range_max (free out to range_max).
+    ranges[hit & (ranges < cfg.range_min)] = -np.inf
+    ranges[~hit | (ranges > cfg.range_max)] = np.inf
+    if cfg.dropout_prob > 0 or cfg.incidence_dropouts:
+        if cos_incidence is not None:
+            cos_incidence = np.where(hit, cos_incidence, 1.0)
+        p = dropout_probability(cfg, cos_incidence, len(ranges))
+        ranges[rng.random(len(ranges)) < p] = np.nan
+    return ranges

@@ -4,9 +4,9 @@ Time is simulated time only. Physics runs at the model's time step; three things
 on fixed grids of physics steps:
 
 * every sample period (``sample_rate_hz``, default 20 Hz): odometry update, kinematics
-  sample, collision check, and one step of the acceleration limiter: the wheel speed
-  set-points then ramp linearly inside MuJoCo (integrator actuators) to the limited
-  command by the end of the period;
+  and IMU sample, collision check, and one step of the acceleration limiter: the wheel
+  speed set-points then ramp linearly inside MuJoCo (integrator actuators) to the limited
+  command (within the wheels' speed limit) by the end of the period;
 * every scan period (``LidarConfig.rate_hz``, default 10 Hz): one lidar scan;
 * a controller calls :meth:`Simulator.command` whenever it likes (typically 10 Hz).
 
@@ -18,7 +18,8 @@ the base follows the acceleration-limited command exactly (unicycle model, integ
 closed form over each interval), wheel angles follow the wheel speeds (so odometry reads
 the truth), and a move that would bring the body's bounding circle into a wall of the
 ground truth is refused and counted as a collision. Lidar, sampling and timing are the
-same as in physics mode, so everything downstream sees the same kinds of data.
+same as in physics mode, so everything downstream sees the same kinds of data (but the
+IMU's, which are NaN: there are no dynamics to measure).
 """
 
 from __future__ import annotations
@@ -31,7 +32,8 @@ import mujoco
 import numpy as np
 
 from mjexplore.errors import UserInputError
-from mjexplore.robot import TURTLEBOT3_WAFFLE, MotionProfile, motion_profile
+from mjexplore.robot import (TURTLEBOT3_WAFFLE, MotionProfile, limit_wheel_speeds,
+                             motion_profile)
 from mjexplore.scenes.scene import SceneFiles, load_scene_files
 from mjexplore.sim.kinematics import KinematicsLog, KinematicsRecorder
 from mjexplore.sim.lidar import Lidar, LidarConfig, LaserScan
@@ -41,13 +43,17 @@ BASE_BODY = "base_link"
 SCAN_SITE = "base_scan"
 WHEEL_JOINTS = ("wheel_left_joint", "wheel_right_joint")
 WHEEL_ACTUATORS = ("wheel_left", "wheel_right")
+WHEEL_GEOMS = ("wheel_left_collision", "wheel_right_collision")
+IMU_SENSORS = ("imu_gyro", "imu_accel")
+# IMU readings where there are none: the kinematic mode has no dynamics to measure.
+NO_IMU = (math.nan,) * 6
 UPRIGHT_COS = math.cos(math.radians(30.0))
 # Contacts with walls closer in time than this belong to one collision (a robot pushing
 # against a wall bounces on and off it).
 COLLISION_GAP_S = 0.5
 DYNAMICS = ("physics", "kinematic")
 # The base plate's bounding circle (kinematic mode): centre behind base_link, radius the
-# half-diagonal of the 0.281 x 0.266 m plate, metres.
+# half-diagonal of the 0.281 x 0.266 m plate (the wheels lie within it), metres.
 BODY_CENTRE_X = -0.064
 BODY_RADIUS = 0.194
 
@@ -65,6 +71,9 @@ class SimConfig:
         seed: Seed for sensor noise.
         dynamics: 'physics' (MuJoCo contact dynamics) or 'kinematic' (training mode, see
             the module docstring).
+        wheel_friction: Sliding friction coefficient of the drive wheels' contacts (the
+            wheels' friction wins over the floor's). 1.0 is rubber on an indoor floor;
+            turtlebot3_gazebo's 0.1 lets the wheels slip above about 0.6 m/s^2.
     """
 
     profile: str = "sim"
@@ -72,8 +81,11 @@ class SimConfig:
     sample_rate_hz: float = 20.0
     seed: int = 0
     dynamics: str = "physics"
+    wheel_friction: float = 1.0
 
     def __post_init__(self) -> None:
+        if not self.wheel_friction > 0:
+            raise UserInputError(f"wheel_friction {self.wheel_friction} must be positive.")
         if self.dynamics not in DYNAMICS:
             raise UserInputError(f"dynamics {self.dynamics!r} is unknown: use one of "
                                  f"{', '.join(DYNAMICS)}.")
@@ -132,9 +144,16 @@ class Simulator:
             self._actadr_left, self._actadr_right = (m.actuator_actadr[i] for i in (
                 self._act_left, self._act_right))
             m.site(SCAN_SITE)
+            wheel_geoms = [m.geom(g).id for g in WHEEL_GEOMS]
         except KeyError as exc:
             raise UserInputError(f"MJCF {str(self.scene.xml)!r} lacks the robot's {exc}: include "
                                  "assets/turtlebot3_waffle/robot.xml.") from None
+        m.geom_friction[wheel_geoms, 0] = self.config.wheel_friction
+        # The IMU's (gyro, accelerometer) sensordata addresses; an MJCF from before the
+        # IMU has none, and its IMU columns are NaN.
+        names = [m.sensor(i).name for i in range(m.nsensor)]
+        self._imu_adr = tuple(int(m.sensor_adr[names.index(n)]) for n in IMU_SENSORS) if all(
+            n in names for n in IMU_SENSORS) else None
         free = m.body_jntadr[self._base]
         if m.jnt_type[free] != mujoco.mjtJoint.mjJNT_FREE:
             raise UserInputError("the robot's base_link must have a free joint.")
@@ -150,6 +169,7 @@ class Simulator:
         self._scan_every = _steps_per(1.0 / lidar_cfg.rate_hz, dt, "lidar scan")
         self._rng = np.random.default_rng(self.config.seed)
         self.lidar = Lidar(m, SCAN_SITE, lidar_cfg, self._rng)
+        self._skew = lidar_cfg.motion_skew
         self.odometry = WheelOdometry(TURTLEBOT3_WAFFLE)
         self._kinematics = KinematicsRecorder()
         self._clearance: np.ndarray | None = None
@@ -260,6 +280,7 @@ class Simulator:
         self._kinematic_contact = False
         self.odometry.reset(d.qpos[self._wheel_qpos], 0.0)
         self._kinematics.clear()
+        self.lidar.clear_history()
         self._sample()
         self._scan = self.lidar.scan(d, 0.0)
         return self._scan
@@ -267,12 +288,16 @@ class Simulator:
     def command(self, linear: float, angular: float) -> None:
         """Sets the velocity target (m/s, rad/s), clipped to the profile's limits.
 
-        The applied command approaches the target no faster than the profile's
-        acceleration limits, updated every sample period.
+        Speed and yaw rate are clipped to their limits, then both are scaled down together
+        where a wheel would turn faster than the profile's wheel speed limit. The applied
+        command approaches the target no faster than the profile's acceleration limits,
+        updated every sample period.
         """
         p = self.profile
-        self._target = (min(max(float(linear), -p.max_linear_speed), p.max_linear_speed),
-                        min(max(float(angular), -p.max_angular_speed), p.max_angular_speed))
+        self._target = limit_wheel_speeds(
+            min(max(float(linear), -p.max_linear_speed), p.max_linear_speed),
+            min(max(float(angular), -p.max_angular_speed), p.max_angular_speed),
+            p.max_wheel_speed)
         if self._steps % self._sample_every == 0:
             self._ramp()
 
@@ -369,6 +394,12 @@ class Simulator:
         v0, w0 = self._cmd_base
         v = v0 + min(max(self._target[0] - v0, -dv), dv)
         w = w0 + min(max(self._target[1] - w0, -dw), dw)
+        if limit_wheel_speeds(v, w, p.max_wheel_speed) != (v, w):
+            # Off the straight line to the target, a wheel can be too fast: step along that
+            # line instead (both ends are within the wheel limits, so all of it is).
+            ev, ew = self._target[0] - v0, self._target[1] - w0
+            f = min(1.0, dv / abs(ev) if ev else 1.0, dw / abs(ew) if ew else 1.0)
+            v, w = v0 + f * ev, w0 + f * ew
         self._cmd = (v, w)
         self._apply_cmd()
 
@@ -394,7 +425,14 @@ class Simulator:
         yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
         vx, vy, _, _, _, wz = d.qvel[self._qvel0:self._qvel0 + 6].tolist()
         v = vx * math.cos(yaw) + vy * math.sin(yaw)
-        self._kinematics.record(t, v, wz, self._cmd, (x, y, yaw), self.odometry.pose_tuple)
+        if self._imu_adr is None or self._clearance is not None:
+            imu = NO_IMU
+        else:
+            g, a = self._imu_adr
+            imu = (*d.sensordata[g:g + 3].tolist(), *d.sensordata[a:a + 3].tolist())
+        self._kinematics.record(t, v, wz, self._cmd, (x, y, yaw), self.odometry.pose_tuple, imu)
+        if self._skew:
+            self.lidar.observe_base_pose(t, x, y, yaw)
         if self._clearance is None:
             ncon = d.ncon
             touching = ncon > 0 and bool(self._is_wall_geom[d.contact.geom[:ncon]].any())
