@@ -21,3 +21,17 @@ def test_classic_explorers_finish_small_layouts():
     assert result["runs"] == 10
     assert result["premature"] == {}, result["failures"]
     assert result["reached_target"] == result["runs"]
+
+
+def test_a_sweep_started_again_skips_the_runs_it_has(tmp_path):
+    out = tmp_path / "stress.jsonl"
+    args = [sys.executable, str(TOOL), "--layouts", "1", "--sizes", "small", "--explorers",
+            "nearest", "--workers", "1", "--out", str(out)]
+    first = json.loads(subprocess.run(args, capture_output=True, text=True, check=True,
+                                      timeout=300).stdout.strip().splitlines()[-1])
+    lines = out.read_text().splitlines()
+    assert len(lines) == 1 and json.loads(lines[0])["revision"]
+    second = json.loads(subprocess.run(args, capture_output=True, text=True, check=True,
+                                       timeout=300).stdout.strip().splitlines()[-1])
+    assert out.read_text().splitlines() == lines  # Nothing ran again...
+    assert second == first  # ...and the summary still covers the run.

@@ -7,10 +7,12 @@ physics, without contact dynamics), and prints: runs, how many reached the targe
 and the runs that ended before it, by explorer and end reason (``time_limit`` counts too:
 an explorer that never finishes is as wrong as one that stops). ``failures`` lists the
 first of those runs with their layout, so that one can be replayed with ``mjexplore
-explore``.
+explore``. With ``--out FILE`` every finished run is appended to FILE (JSON lines, with the
+git revision) as it ends, and a sweep started again with the same FILE skips the runs
+already there: a sweep of hours survives being stopped, and the summary covers them all.
 
 Usage: python tools/stress_explorers.py [--layouts 200] [--explorers nearest,...]
-       [--sizes small,medium,large] [--workers 2] [--seed 0]
+       [--sizes small,medium,large] [--workers 2] [--seed 0] [--out runs/stress.jsonl]
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ import tempfile  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+
+from mjexplore.io import provenance  # noqa: E402
 
 EXPLORERS = "nearest,explore_lite,frontier_tsp,rrt,potential,oracle,gvn,cnn"
 # Width and height ranges (metres) of each size class.
@@ -75,7 +79,8 @@ def explore(job: tuple[tuple[str, float, float, int], str, float]) -> dict:
         files = load_scene_files(write_scene(scene, Path(tmp) / "scene"))
         m = Episode(files, make_explorer(explorer), seed % 1000, config).run().metrics
     return {**record, "end_reason": m["end_reason"], "exploration_ratio": m["exploration_ratio"],
-            "fallbacks": m.get("fallbacks", 0)}
+            "exploration_time_s": m["exploration_time_s"], "fallbacks": m.get("fallbacks", 0),
+            "max_time": max_time}
 
 
 def main() -> None:
@@ -86,6 +91,8 @@ def main() -> None:
     parser.add_argument("--max-time", type=float, default=1800.0)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=None,
+                        help="JSON lines of finished runs: appended to, and skipped on a rerun")
     args = parser.parse_args()
     sizes = args.sizes.split(",")
     if args.layouts < 1 or any(s not in SIZES for s in sizes):
@@ -93,8 +100,25 @@ def main() -> None:
     jobs = [(layout, explorer, args.max_time)
             for layout in layouts(args.layouts, sizes, args.seed)
             for explorer in args.explorers.split(",")]
+    results, done = [], set()
+    if args.out is not None and args.out.exists():
+        for line in args.out.read_text().splitlines():
+            if line.strip():
+                r = json.loads(line)
+                results.append(r)
+                done.add((r["layout"], r["explorer"], r.get("max_time", args.max_time)))
+    todo = [j for j in jobs
+            if (f"{j[0][0]} {j[0][1]:g}x{j[0][2]:g} seed {j[0][3]}", j[1], j[2]) not in done]
+    revision = provenance.git_revision()
     with multiprocessing.get_context("spawn").Pool(args.workers) as pool:
-        results = pool.map(explore, jobs, chunksize=1)
+        for r in pool.imap_unordered(explore, todo, chunksize=1):
+            results.append(r)
+            if args.out is not None:
+                args.out.parent.mkdir(parents=True, exist_ok=True)
+                with args.out.open("a") as f:  # One whole line per run: a kill loses none.
+                    f.write(json.dumps({**r, "revision": revision}) + "\n")
+    wanted = {(f"{j[0][0]} {j[0][1]:g}x{j[0][2]:g} seed {j[0][3]}", j[1]) for j in jobs}
+    results = [r for r in results if (r["layout"], r["explorer"]) in wanted]
     ran = [r for r in results if r["end_reason"] != "no_layout"]
     premature: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
     for r in ran:
@@ -102,6 +126,7 @@ def main() -> None:
             premature[r["explorer"]][r["end_reason"]] += 1
     print(json.dumps({
         "runs": len(ran), "layouts": args.layouts,
+        "revisions": sorted({r.get("revision", revision) for r in results}),
         "skipped_layouts": len({r["layout"] for r in results if r["end_reason"] == "no_layout"}),
         "reached_target": sum(r["end_reason"] == "explored" for r in ran),
         "premature": {e: dict(c) for e, c in sorted(premature.items())},
