@@ -219,7 +219,7 @@ def cmd_drive(args: argparse.Namespace) -> int:
 
 
 def _episode_config(args: argparse.Namespace):
-    from mjexplore.eval.episode import EpisodeConfig
+    from mjexplore.episode import EpisodeConfig
     from mjexplore.sim.simulator import SimConfig
 
     if not 0 < args.target_ratio <= 1:

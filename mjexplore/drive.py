@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import os
 import time
 
@@ -23,6 +22,7 @@ from mjexplore.maps import GridMap
 from mjexplore.navigation.wander import WanderController
 from mjexplore.scenes.scene import SceneFiles, encode_png, preview_image
 from mjexplore.sim.kinematics import KinematicsLog
+from mjexplore.sim.odometry import odom_in_map
 from mjexplore.sim.simulator import SimConfig, Simulator
 
 
@@ -48,15 +48,6 @@ class DriveConfig:
         if not 0 < self.control_rate_hz <= 100:
             raise UserInputError(f"control rate {self.control_rate_hz} Hz is out of range: "
                                  "give 0 to 100 Hz.")
-
-
-def odom_in_map(origin: np.ndarray, odom: np.ndarray) -> np.ndarray:
-    """Composes ``map -> odom`` (x, y, yaw) with poses (n, 3) in ``odom``: poses in ``map``."""
-    c, s = math.cos(origin[2]), math.sin(origin[2])
-    x = origin[0] + c * odom[:, 0] - s * odom[:, 1]
-    y = origin[1] + s * odom[:, 0] + c * odom[:, 1]
-    yaw = (odom[:, 2] + origin[2] + math.pi) % (2 * math.pi) - math.pi
-    return np.column_stack([x, y, yaw])
 
 
 def trajectory_image(grid: GridMap, truth: np.ndarray, odom: np.ndarray,

@@ -30,7 +30,7 @@ import yaml
 from mjexplore.config import load_yaml_config, to_dict
 from mjexplore.envs.exploration import EnvConfig, ExplorationEnv
 from mjexplore.errors import UserInputError
-from mjexplore.eval.episode import EpisodeConfig
+from mjexplore.episode import EpisodeConfig
 from mjexplore.io.atomic import write_bytes_atomic, write_text_atomic
 from mjexplore.io.provenance import git_revision
 from mjexplore.policies.registry import layout_of

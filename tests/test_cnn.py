@@ -10,7 +10,7 @@ import pytest
 
 from mjexplore.envs import EnvConfig, ExplorationEnv, GridConfig
 from mjexplore.envs.decisions import GRID_CHANNELS
-from mjexplore.eval.episode import Episode, EpisodeConfig
+from mjexplore.episode import Episode, EpisodeConfig
 from mjexplore.navigation.navigator import NavigatorConfig
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.sim.simulator import SimConfig

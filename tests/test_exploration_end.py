@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from mjexplore.eval.episode import Episode, EpisodeConfig
+from mjexplore.episode import Episode, EpisodeConfig
 from mjexplore.explorers.nearest import NearestFrontier
 from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
 from mjexplore.navigation.blacklist import BlacklistConfig, GoalBlacklist

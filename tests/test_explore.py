@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from mjexplore.eval.episode import Episode, EpisodeConfig, episode_metrics, first_time_at
+from mjexplore.episode import Episode, EpisodeConfig, episode_metrics, first_time_at
 from mjexplore.explorers import make_explorer
 from mjexplore.explorers.base import ExplorationState
 from mjexplore.navigation.navigator import NavigatorConfig

@@ -22,7 +22,7 @@ from mjexplore.config import from_dict, to_dict
 from mjexplore.envs import ENV_IDS, EnvConfig, ExplorationEnv, ObservationConfig, TerMemory
 from mjexplore.envs.observation import observation_space, structured
 from mjexplore.errors import UserInputError
-from mjexplore.eval.episode import Episode, EpisodeConfig
+from mjexplore.episode import Episode, EpisodeConfig
 from mjexplore.navigation.navigator import NavigatorConfig
 from mjexplore.policies.gvn import CausalConv, GraphConv, GvnConfig, SpatialEncoder, \
     TemporalEncoder, distinct_graphs, normalized_adjacency

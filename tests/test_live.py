@@ -6,7 +6,7 @@ import threading
 
 import pytest
 
-from mjexplore.eval.episode import EpisodeConfig
+from mjexplore.episode import EpisodeConfig
 from mjexplore.io.mcap_log import TOPICS
 from mjexplore.scenes.canonical import resolve_scene
 

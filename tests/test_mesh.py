@@ -250,7 +250,7 @@ def test_config_is_checked():
 
 @pytest.mark.slow
 def test_nearest_explores_the_imported_building(files, tmp_path):
-    from mjexplore.eval.episode import Episode, EpisodeConfig
+    from mjexplore.episode import Episode, EpisodeConfig
     from mjexplore.explorers import make_explorer
 
     write_scene(scene_from_mesh(files["glb"], seed=0), tmp_path / "scene")

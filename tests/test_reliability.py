@@ -15,7 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mjexplore.errors import UserInputError
-from mjexplore.eval.episode import Episode, EpisodeConfig
+from mjexplore.episode import Episode, EpisodeConfig
 from mjexplore.explorers import make_explorer
 from mjexplore.maps import FREE, OCCUPIED, GridMap
 from mjexplore.scenes.canonical import resolve_scene

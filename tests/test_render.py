@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mjexplore.errors import UserInputError
-from mjexplore.eval.episode import Episode, EpisodeConfig
+from mjexplore.episode import Episode, EpisodeConfig
 from mjexplore.eval.run import write_run
 from mjexplore.explorers import make_explorer
 from mjexplore.maps import GridMap

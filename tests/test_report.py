@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from mjexplore.errors import UserInputError
-from mjexplore.eval.episode import EpisodeConfig
+from mjexplore.episode import EpisodeConfig
 from mjexplore.eval.report import build_report, claims_table
 from mjexplore.eval.summaries import (RATIO_DT, collect_sweep, ratio_curve, read_summary,
                                       write_summary)

@@ -5,7 +5,7 @@ from collections import defaultdict
 import numpy as np
 import pytest
 
-from mjexplore.eval.episode import Episode, EpisodeConfig
+from mjexplore.episode import Episode, EpisodeConfig
 from mjexplore.eval.run import Observers
 from mjexplore.explorers import make_explorer
 from mjexplore.scenes.canonical import resolve_scene

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from mjexplore.eval.episode import Episode, EpisodeConfig
+from mjexplore.episode import Episode, EpisodeConfig
 from mjexplore.eval.summaries import merge_summaries
 from mjexplore.explorers import make_explorer
 from mjexplore.explorers.base import ExplorationState

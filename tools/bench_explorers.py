@@ -28,7 +28,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from mjexplore.eval.episode import Episode, EpisodeConfig  # noqa: E402
+from mjexplore.episode import Episode, EpisodeConfig  # noqa: E402
 from mjexplore.explorers import make_explorer  # noqa: E402
 from mjexplore.scenes.canonical import resolve_scene  # noqa: E402
 from mjexplore.sim.simulator import SimConfig  # noqa: E402

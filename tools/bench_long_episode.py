@@ -38,7 +38,7 @@ def main() -> None:
     from mjexplore.memory import bound_heap_growth
 
     bounded = False if args.default_malloc else bound_heap_growth()
-    from mjexplore.eval.episode import Episode, EpisodeConfig
+    from mjexplore.episode import Episode, EpisodeConfig
     from mjexplore.explorers import make_explorer
     from mjexplore.scenes.generate import generate_scene
     from mjexplore.scenes.scene import load_scene_files, write_scene

@@ -34,7 +34,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=60)
     args = parser.parse_args()
-    from mjexplore.eval.episode import Episode, EpisodeConfig
+    from mjexplore.episode import Episode, EpisodeConfig
     from mjexplore.explorers import make_explorer
     from mjexplore.render.recorder import EpisodeVideo, VideoConfig, episode_panel
     from mjexplore.render.scene_view import CameraConfig, SceneView

@@ -49,7 +49,7 @@ def run(job: tuple[str, str, float]) -> dict:
 
     torch.set_num_threads(1)
     from mjexplore.config import load_yaml_config
-    from mjexplore.eval.episode import Episode, EpisodeConfig
+    from mjexplore.episode import Episode, EpisodeConfig
     from mjexplore.explorers.gvn import DEFAULT_WEIGHTS, GvnExplorer
     from mjexplore.scenes.canonical import resolve_scene
     from mjexplore.training import TrainConfig

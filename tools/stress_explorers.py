@@ -62,7 +62,7 @@ def explore(job: tuple[tuple[str, float, float, int], str, float]) -> dict:
     import torch
 
     from mjexplore.errors import UserInputError
-    from mjexplore.eval.episode import Episode, EpisodeConfig
+    from mjexplore.episode import Episode, EpisodeConfig
     from mjexplore.explorers import make_explorer
     from mjexplore.scenes.generate import generate_scene
     from mjexplore.scenes.scene import load_scene_files, write_scene

@@ -30,7 +30,7 @@ ENTRY_POINT = "mjexplore.envs.exploration:ExplorationEnv"
 
 
 def _configs() -> dict[str, EnvConfig]:
-    from mjexplore.eval.episode import EpisodeConfig
+    from mjexplore.episode import EpisodeConfig
     from mjexplore.scenes.canonical import canonical_names
     from mjexplore.sim.simulator import SimConfig
 

@@ -13,7 +13,7 @@ import numpy as np
 from mjexplore.envs.decisions import GridConfig, GridDecisions, TerDecisions
 from mjexplore.envs.observation import ObservationConfig
 from mjexplore.errors import UserInputError
-from mjexplore.eval.episode import Episode, EpisodeConfig
+from mjexplore.episode import Episode, EpisodeConfig
 from mjexplore.explorers.base import ExplorationState
 from mjexplore.mapping.metrics import accuracy
 from mjexplore.scenes.canonical import resolve_scene

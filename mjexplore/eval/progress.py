@@ -10,7 +10,7 @@ from tqdm import tqdm
 
 
 class EpisodeProgress:
-    """An episode observer (see :class:`~mjexplore.eval.episode.Episode`) that draws a tqdm
+    """An episode observer (see :class:`~mjexplore.episode.Episode`) that draws a tqdm
     bar of simulated time out of ``max_time``, with the exploration ratio and the number
     of decisions so far.
 

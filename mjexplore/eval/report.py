@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from mjexplore.errors import UserInputError
-from mjexplore.eval.episode import MILESTONES
+from mjexplore.episode import MILESTONES
 from mjexplore.eval.plots import METHOD_LABELS, kinematics_figure, ratio_figure
 from mjexplore.eval.summaries import KINEMATIC_FIELDS, KINEMATICS_DT, ratio_curve, read_summary
 from mjexplore.eval.sweep import MEAN_STD_NOTE, format_mean_std, markdown_table, summary_table

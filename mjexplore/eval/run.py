@@ -16,7 +16,7 @@ from typing import Any
 
 
 from mjexplore.drive import kinematics_csv
-from mjexplore.eval.episode import Episode, EpisodeConfig, EpisodeResult, Interrupted
+from mjexplore.episode import Episode, EpisodeConfig, EpisodeResult, Interrupted
 from mjexplore.eval.plots import kinematics_figure, map_figure, ratio_figure
 from mjexplore.eval.progress import EpisodeProgress
 from mjexplore.explorers import make_explorer

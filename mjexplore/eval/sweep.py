@@ -25,7 +25,7 @@ import numpy as np
 from tqdm import tqdm
 
 from mjexplore.errors import UserInputError
-from mjexplore.eval.episode import EpisodeConfig
+from mjexplore.episode import EpisodeConfig
 from mjexplore.eval.plots import kinematics_figure, ratio_figure
 from mjexplore.eval.run import write_run
 from mjexplore.io.atomic import write_text_atomic

@@ -274,7 +274,7 @@ def record_decisions(weights: str | os.PathLike, count: int, scene: str = "train
         (observation arrays, each (D, ...), action masks (D, A)), D <= ``count``.
     """
     from mjexplore.envs import EnvConfig, ExplorationEnv, GridConfig, ObservationConfig
-    from mjexplore.eval.episode import EpisodeConfig
+    from mjexplore.episode import EpisodeConfig
     from mjexplore.sim.simulator import SimConfig
 
     policy, meta = load_policy(weights)

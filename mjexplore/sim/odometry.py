@@ -69,3 +69,12 @@ class WheelOdometry:
         if dt > 0:
             self._twist = (ds / dt, dtheta / dt)
         self._last_time = stamp
+
+
+def odom_in_map(origin: np.ndarray, odom: np.ndarray) -> np.ndarray:
+    """Composes ``map -> odom`` (x, y, yaw) with poses (n, 3) in ``odom``: poses in ``map``."""
+    c, s = math.cos(origin[2]), math.sin(origin[2])
+    x = origin[0] + c * odom[:, 0] - s * odom[:, 1]
+    y = origin[1] + s * odom[:, 0] + c * odom[:, 1]
+    yaw = (odom[:, 2] + origin[2] + math.pi) % (2 * math.pi) - math.pi
+    return np.column_stack([x, y, yaw])

@@ -34,7 +34,6 @@ from typing import Any
 import cv2
 import numpy as np
 
-from mjexplore.drive import odom_in_map
 from mjexplore.explorers.base import ExplorationState, Explorer
 from mjexplore.explorers.nearest import NearestFrontier
 from mjexplore.mapping.metrics import exploration_ratio, iou, observable_ground_truth
@@ -46,7 +45,9 @@ from mjexplore.navigation.planner import Costmap, PlannerConfig
 from mjexplore.robot import TURTLEBOT3_WAFFLE
 from mjexplore.errors import UserInputError
 from mjexplore.scenes.scene import SceneFiles, check_start
+from mjexplore.episode.metrics import KnownCounter, episode_metrics
 from mjexplore.sim.kinematics import KinematicsLog
+from mjexplore.sim.odometry import odom_in_map
 from mjexplore.sim.simulator import SimConfig, Simulator
 from mjexplore.topology.frontiers import frontier_mask
 from mjexplore.topology.pipeline import TopologyConfig, TopologyTracker
@@ -123,41 +124,6 @@ class EpisodeResult:
     goals: np.ndarray
 
 
-def first_time_at(curve: np.ndarray, level: float) -> float | None:
-    """First time (s) at which the ratio curve reaches ``level``, or None."""
-    hit = np.flatnonzero(curve[:, 1] >= level)
-    return round(float(curve[hit[0], 0]), 3) if len(hit) else None
-
-
-# Exploration ratios whose first times are metrics (the paper's Fig. 5), and their keys.
-MILESTONES = ((0.80, "t80_s"), (0.985, "t985_s"))
-
-
-def episode_metrics(curve: np.ndarray, log: KinematicsLog, final_iou: float,
-                    collisions: int, end_reason: str) -> dict[str, Any]:
-    """The paper's metrics from an episode's records (all times simulated).
-
-    Keys: ``iou``; ``exploration_ratio`` (final); ``exploration_time_s`` (ET: time at the
-    end of the episode); ``path_length_m`` (PL: length of the true path of ``base_link``);
-    ``odometry_path_length_m``; ``t80_s`` and ``t985_s`` (first times the ratio reaches
-    0.80 and 0.985, None if never); ``collisions``; ``end_reason``; ``mean_speed_mps``.
-    """
-    odom = log.odom_pose[:, :2]
-    t_end = float(curve[-1, 0])
-    path = log.path_length()
-    return {
-        "iou": round(final_iou, 5),
-        "exploration_ratio": round(float(curve[-1, 1]), 5),
-        "exploration_time_s": round(t_end, 3),
-        "path_length_m": round(path, 3),
-        "odometry_path_length_m": round(float(np.linalg.norm(np.diff(odom, axis=0), axis=1).sum()), 3),
-        **{key: first_time_at(curve, level) for level, key in MILESTONES},
-        "collisions": int(collisions),
-        "end_reason": end_reason,
-        "mean_speed_mps": round(path / t_end, 4) if t_end > 0 else 0.0,
-    }
-
-
 class _SigintFlag:
     """Within the block, the first SIGINT sets ``raised`` instead of raising (main thread
     only; elsewhere SIGINT keeps its usual effect)."""
@@ -189,25 +155,6 @@ class Interrupted(KeyboardInterrupt):
         self.result = result
 
 
-class _KnownCounter:
-    """Exploration ratio kept up to date from the cells the mapper reports as changed."""
-
-    def __init__(self, reference: GridMap) -> None:
-        self.ref_known = reference.known.reshape(-1)
-        self.total = int(self.ref_known.sum())
-        self.known = np.zeros(self.ref_known.shape, bool)
-        self.count = 0
-
-    def update(self, state: np.ndarray, changed: np.ndarray, cols: int) -> float:
-        if len(changed):
-            flat = changed[:, 0] * cols + changed[:, 1]
-            new = state.reshape(-1)[flat] >= 0
-            ref = self.ref_known[flat]
-            self.count += int((new & ref).sum() - (self.known[flat] & ref).sum())
-            self.known[flat] = new
-        return self.count / self.total
-
-
 class Episode:
     """Runs one episode; steps are exposed so that callers (logging, video) can watch.
 
@@ -235,7 +182,7 @@ class Episode:
         self.mapper = OccupancyMapper.like(gt, MapperConfig(resolution=gt.resolution))
         self.tracker = TopologyTracker(gt.shape, cfg.topology, gt)
         self.reference = observable_ground_truth(gt)
-        self.counter = _KnownCounter(self.reference)
+        self.counter = KnownCounter(self.reference)
         self.navigator = Navigator(self.sim.profile, cfg.navigator)
         self._costmap = Costmap(self.mapper.grid, self.tracker.gvd.distance2, cfg.planner)
         # An explorer that knows the ground truth (the oracle) also navigates on it.
