@@ -1,6 +1,8 @@
 import numpy as np
+import pytest
 
 from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
+from mjexplore.navigation.navigator import NavigatorConfig
 from mjexplore.navigation.planner import Costmap, PlannerConfig, path_length
 from mjexplore.topology.gvd import DynamicGVD
 
@@ -59,3 +61,22 @@ def test_distances_from_stop_at_first_target():
     assert np.isfinite(full[10, 90]) and np.isfinite(first[10, 20])
     assert first[10, 20] == full[10, 20]
     assert np.isinf(first[10, 90])
+
+
+@pytest.mark.slow
+def test_replanning_on_a_blocked_path_at_1_hz_explores_as_fast_as_at_5_hz():
+    from mjexplore.episode import Episode, EpisodeConfig
+    from mjexplore.explorers import make_explorer
+    from mjexplore.scenes.canonical import resolve_scene
+    from mjexplore.sim.simulator import SimConfig
+
+    def run(navigator):
+        config = EpisodeConfig(sim=SimConfig(dynamics="kinematic"), navigator=navigator)
+        return Episode(resolve_scene("maze"), make_explorer("nearest"), 0, config).run().metrics
+
+    default, every_200ms = run(NavigatorConfig()), run(
+        NavigatorConfig(replan_rate_hz=5.0, replan_when_blocked=False))
+    assert default["end_reason"] == every_200ms["end_reason"] == "explored"
+    assert default["collisions"] == 0
+    for key in ("exploration_time_s", "path_length_m"):
+        assert default[key] <= 1.1 * every_200ms[key]

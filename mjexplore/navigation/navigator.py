@@ -1,7 +1,11 @@
 """Goal-to-motion: global path, pure-pursuit tracking, goal and lingering detection.
 
 The stand-in for the paper's move_base: a path is planned on the known map
-(:mod:`mjexplore.navigation.planner`) and replanned at ``replan_rate_hz``; a pure-pursuit
+(:mod:`mjexplore.navigation.planner`) when the goal changes, at once when a cell of the
+path stops being traversable (a newly seen wall), and otherwise at ``replan_rate_hz`` so
+that newly seen shortcuts are taken (move_base plans on a new goal or a blocked path only:
+its ``planner_frequency`` is 0 by default; 1 Hz gives the same exploration times as 5 Hz
+on the maze and the office at half the cost of the whole loop); a pure-pursuit
 controller follows it within the motion profile's limits (the simulator enforces the
 acceleration limits); the goal counts as reached within ``goal_tolerance`` (the paper's
 zeta = 1 m), which triggers the next decision.
@@ -34,17 +38,16 @@ class NavigatorConfig:
         linger_radius: Radius of the spot the robot must leave...
         linger_time: ...within this time, or the episode ends as lingering.
         replan_when_blocked: Also replan at once when a cell of the current path stops
-            being traversable (a newly seen wall); lets a low ``replan_rate_hz`` (the
-            training mode) stay safe.
+            being traversable (a newly seen wall); lets a low ``replan_rate_hz`` stay safe.
     """
 
     goal_tolerance: float = 1.0
-    replan_rate_hz: float = 5.0
+    replan_rate_hz: float = 1.0
     lookahead: float = 0.6
     turn_in_place_angle: float = math.radians(60)
     linger_radius: float = 0.5
     linger_time: float = 60.0
-    replan_when_blocked: bool = False
+    replan_when_blocked: bool = True
 
     def __post_init__(self) -> None:
         if min(self.goal_tolerance, self.replan_rate_hz, self.lookahead, self.linger_radius,
