@@ -693,3 +693,14 @@ def test_ablation_explorers_say_how_to_make_their_missing_policy(tmp_path, monke
     for name in ("gvn_naive", "gvn_none"):
         with pytest.raises(UserInputError, match=f"training/{name}.yaml"):
             make_explorer(name)
+
+
+def test_env_without_a_valid_action_goes_on_with_the_engines_fallback(monkeypatch):
+    # As if the TER never offered a valid frontier node: the env must not end the episode
+    # as no_frontiers while one can be reached; the engine's fallback explores instead.
+    env = ExplorationEnv(EnvConfig(scenes=("train_loop",), episode=FAST, observation=SMALL))
+    monkeypatch.setattr(env.decisions, "prepare", lambda state: False)
+    env.reset(seed=0)
+    ep = env.episode
+    assert ep.end_reason == "explored"
+    assert ep.result().metrics["fallbacks"] > 0

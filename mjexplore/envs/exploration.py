@@ -169,8 +169,9 @@ class ExplorationEnv(gym.Env):
 
     ## Episode End
 
-    Terminated when the exploration ratio reaches the target (``explored``), when no valid
-    frontier is left (``no_frontiers``) or the robot tips over. Truncated at the time cap
+    Terminated when the exploration ratio reaches the target (``explored``), when no
+    frontier can be reached (``no_frontiers``: while one can, a decision without a valid
+    action is taken by the engine's fallback, as in evaluation) or the robot tips over. Truncated at the time cap
     (simulated), when the robot lingers, or after ``max_decisions`` decisions.
     ``info['end_reason']`` says which.
 
@@ -239,17 +240,24 @@ class ExplorationEnv(gym.Env):
     # ------------------------------------------------------------------ decisions
 
     def _prepare_decision(self) -> bool:
-        """Builds the observation at a due decision; False if the episode is over."""
+        """Builds the observation at a due decision; False if the episode is over.
+
+        A decision without a valid action is taken by the engine's own rule, as for the
+        deployed explorer: the nearest reachable frontier (counted in ``fallbacks``); the
+        episode ends only when none is left, so the endgame is trained as it is evaluated.
+        """
         ep = self.episode
-        if not ep.run_to_decision():
-            if ep.end_reason not in TERMINAL_REASONS and np.isfinite(ep.sim.pose).all():
-                # Cut short: PPO bootstraps from this state's value, so observe it.
-                self.decisions.prepare(ep.decision_state())
-            return False
-        if not self.decisions.prepare(ep.decision_state()):
-            ep.end_reason = "no_frontiers"
-            return False
-        return True
+        while True:
+            if not ep.run_to_decision():
+                if ep.end_reason not in TERMINAL_REASONS and np.isfinite(ep.sim.pose).all():
+                    # Cut short: PPO bootstraps from this state's value, so observe it.
+                    self.decisions.prepare(ep.decision_state())
+                return False
+            if self.decisions.prepare(ep.decision_state()):
+                return True
+            if not ep.decide_fallback():
+                ep.end_reason = "no_frontiers"
+                return False
 
     def action_masks(self) -> np.ndarray:
         """Valid actions now (bool), for sb3-contrib's MaskablePPO."""

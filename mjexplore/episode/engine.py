@@ -323,27 +323,39 @@ class Episode:
     def _decide(self) -> bool:
         """Asks the explorer for a goal; False when exploration is over.
 
-        An explorer's "nothing left" is checked against the map: while a frontier that is
-        not blacklisted can be reached, the robot goes to the nearest one instead (counted
-        in ``fallbacks``), so an explorer that misses small or distant frontiers (one that
-        drops frontiers under a size, a coarse view) does not end the episode early. When
-        none is left, the goals given up for want of a path or of progress are offered
-        again (counted in ``reoffers``), and any frontier cell within zeta of the reachable
-        space counts (clusters too small or too thin to be frontiers of their own, goals
-        that lie off a frontier's reachable side), before exploration is declared over.
+        An explorer's "nothing left" is checked against the map (:meth:`decide_fallback`),
+        so an explorer that misses small or distant frontiers (one that drops frontiers
+        under a size, a coarse view) does not end the episode early.
         """
         for _ in range(8):
             state = self.decision_state()
             goal = self.explorer.select_goal(state)
             if goal is None:
+                return self.decide_fallback()
+            if self.adopt_goal(goal, state):
+                return True
+        return True  # Keep going; the next tick decides again.
+
+    def decide_fallback(self) -> bool:
+        """The engine's own decision, for when the explorer has none; False when
+        exploration is over (no frontier can be reached).
+
+        The robot goes to the nearest frontier that is not blacklisted (counted in
+        ``fallbacks``). When none is left, the goals given up for want of a path or of
+        progress are offered again (counted in ``reoffers``), and any frontier cell within
+        zeta of the reachable space counts (clusters too small or too thin to be frontiers
+        of their own, goals that lie off a frontier's reachable side).
+        """
+        for _ in range(8):
+            state = self.decision_state()
+            goal = self._last_resort(state)
+            while goal is None and self.blacklist.reoffer():
+                self.reoffers += 1
+                state = self.decision_state()
                 goal = self._last_resort(state)
-                while goal is None and self.blacklist.reoffer():
-                    self.reoffers += 1
-                    state = self.decision_state()
-                    goal = self._last_resort(state)
-                if goal is None:
-                    return False
-                self.fallbacks += 1
+            if goal is None:
+                return False
+            self.fallbacks += 1
             if self.adopt_goal(goal, state):
                 return True
         return True  # Keep going; the next tick decides again.
