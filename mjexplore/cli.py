@@ -336,7 +336,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     from mjexplore.training import load_train_config, train
 
     config = load_train_config(args.config, total_steps=args.total_steps, n_envs=args.n_envs)
-    summary = train(config, args.out, resume=args.resume, progress=not args.no_progress)
+    summary = train(config, args.out, resume=args.resume, progress=not args.no_progress,
+                    ray_address=args.ray)
     print(json.dumps(summary))
     return 0
 
@@ -547,6 +548,11 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--n-envs", type=_count, default=None, metavar="N",
                     help="environments, one worker process each (replaces the config's n_envs; "
                          "may change on --resume)")
+    tr.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
+                    help="run each env in a Ray actor: without ADDRESS on a local Ray instance "
+                         "on this machine; with ADDRESS (auto, or the head's HOST:6379) on an "
+                         "existing cluster started with `ray start --head` (README: 'Training "
+                         "on more than one machine'); may change on --resume")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
     tr.set_defaults(func=cmd_train)
 

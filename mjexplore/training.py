@@ -16,6 +16,7 @@ continues: episodes in progress start afresh and every random stream is re-seede
 from __future__ import annotations
 
 import dataclasses
+import functools
 import io
 import json
 import logging
@@ -163,19 +164,37 @@ def load_train_config(path: str | Path, total_steps: int | None = None,
 
 
 def _make_env(config: EnvConfig):
-    def build():
-        return ExplorationEnv(config)
-    return build
+    # A partial of a module-level class: plain pickle sends it to any worker or machine.
+    return functools.partial(ExplorationEnv, config)
 
 
-def make_vec_env(config: TrainConfig, seed: int):
-    """The training envs: ``n_envs`` of them (each in a worker process when more than one),
-    seeded from ``seed`` and wrapped in SB3's ``VecMonitor``."""
+def make_vec_env(config: TrainConfig, seed: int, ray_address: str | None = None):
+    """The training envs: ``n_envs`` of them, seeded from ``seed`` and wrapped in SB3's
+    ``VecMonitor``.
+
+    Args:
+        config: The run's settings.
+        seed: Seed of the first env (the others: ``seed + 1``, ...).
+        ray_address: None: each env in a worker process when more than one
+            (``SubprocVecEnv``). Otherwise each env in a Ray actor
+            (:mod:`mjexplore.ray_vec_env`): 'local' on a Ray instance started on this
+            machine, 'auto' or 'HOST:PORT' on a running cluster. Ray is shut down when the
+            envs are closed if this call initialised it.
+
+    Raises:
+        UserInputError: No Ray cluster at ``ray_address``, or one that cannot run the envs.
+    """
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
 
     makers = [_make_env(config.env) for _ in range(config.n_envs)]
-    venv = (SubprocVecEnv(makers, start_method="forkserver") if config.n_envs > 1
-            else DummyVecEnv(makers))
+    if ray_address is not None:
+        from mjexplore.ray_vec_env import RayVecEnv, connect
+
+        venv = RayVecEnv(makers, shutdown_ray=connect(ray_address, config.n_envs))
+    elif config.n_envs > 1:
+        venv = SubprocVecEnv(makers, start_method="forkserver")
+    else:
+        venv = DummyVecEnv(makers)
     venv.seed(seed)
     return VecMonitor(venv)
 
@@ -299,15 +318,19 @@ def _best_score(path: Path) -> float | None:
 
 
 def train(config: TrainConfig, out: str | Path, resume: bool = False,
-          progress: bool = True) -> dict[str, Any]:
+          progress: bool = True, ray_address: str | None = None) -> dict[str, Any]:
     """Trains a policy into the run folder ``out`` (see the module docstring).
+
+    ``ray_address`` runs the envs as Ray actors (see :func:`make_vec_env`); it is no part of
+    the config, so a run may resume with or without Ray, on any cluster.
 
     Returns:
         Summary: steps, checkpoints written, final weights path.
 
     Raises:
         UserInputError: ``out`` already holds a run and ``resume`` is not set, or
-            ``resume`` is set and there is nothing to resume.
+            ``resume`` is set and there is nothing to resume, or no Ray cluster at
+            ``ray_address``.
     """
     from stable_baselines3.common.callbacks import BaseCallback
 
@@ -328,14 +351,13 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
             raise UserInputError(f"the config differs from the one {str(out)!r} was trained with "
                                  f"(only {' and '.join(RESUMABLE_CHANGES)} may change): resume "
                                  f"with {str(out / 'config.yaml')!r}.")
-    out.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(out / "config.yaml", f"# git revision {ckpt.revision}\n" +
-                      yaml.safe_dump(to_dict(config), sort_keys=False))
-
     done = int(state["num_timesteps"]) if state else 0
     _seed_everything(config.seed + done)
     torch.set_num_threads(config.torch_threads)
-    venv = make_vec_env(config, config.seed + done)
+    venv = make_vec_env(config, config.seed + done, ray_address)  # Before writing: may refuse.
+    out.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(out / "config.yaml", f"# git revision {ckpt.revision}\n" +
+                      yaml.safe_dump(to_dict(config), sort_keys=False))
     model = make_model(config, venv, config.seed + done, tensorboard_log=str(out / "tb"))
     if state is not None:
         model.policy.load_state_dict(state["policy"])
