@@ -23,7 +23,8 @@ from mjexplore.navigation.wander import WanderController
 from mjexplore.scenes.scene import SceneFiles, encode_png, preview_image
 from mjexplore.sim.kinematics import KinematicsLog
 from mjexplore.sim.odometry import odom_in_map
-from mjexplore.sim.simulator import SimConfig, Simulator
+from mjexplore.sim.simulator import SimConfig
+from mjexplore.sim.world import make_world
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -34,7 +35,8 @@ class DriveConfig:
         duration: Simulated seconds to drive.
         control_rate_hz: Controller rate in Hz.
         seed: Seed of the controller's tie-breaking (and the lidar noise).
-        sim: Simulator settings.
+        sim: Simulator settings (``dynamics`` picks the world, see
+            :func:`~mjexplore.sim.world.make_world`).
     """
 
     duration: float = 120.0
@@ -80,7 +82,7 @@ def run_drive(scene: SceneFiles, config: DriveConfig, out_dir: str | os.PathLike
     Returns:
         The summary written to ``summary.json``.
     """
-    sim = Simulator(scene, config.sim)
+    sim = make_world(scene, config.sim)
     controller = WanderController(rng=np.random.default_rng(config.seed))
     period = 1.0 / config.control_rate_hz
     wall_start = time.perf_counter()

@@ -17,8 +17,12 @@ run of the reactive wanderer (closed loop on the lidar) is recorded first; then:
     loop_without_lidar_rtf  as full_loop_rtf with scans skipped: the lidar's share;
     full_loop_rtf_lds01  as full_loop_rtf with the LDS-01 lidar model (5 Hz, noise,
                        dropouts, motion skew) instead of the ideal one;
+    kinematic_rtf, grid_rtf  as full_loop_rtf in the training worlds: ``dynamics``
+                       'kinematic' (MuJoCo lidar, no contact dynamics) and 'grid' (no
+                       MuJoCo: the lidar cast on the ground-truth grid);
     ratios             full_loop_over_physics, full_loop_over_loop_without_lidar,
-                       lds01_over_ideal (full_loop_rtf_lds01 / full_loop_rtf) and
+                       lds01_over_ideal (full_loop_rtf_lds01 / full_loop_rtf),
+                       grid_over_kinematic (grid_rtf / kinematic_rtf) and
                        lidar_over_sensor.
 
 Usage: python tools/bench_sim.py [--scene office] [--seconds 60]
@@ -44,6 +48,7 @@ from mjexplore.navigation.wander import WanderController  # noqa: E402
 from mjexplore.scenes.canonical import resolve_scene  # noqa: E402
 from mjexplore.sim.lidar import lidar_model  # noqa: E402
 from mjexplore.sim.simulator import SCAN_SITE, SimConfig, Simulator  # noqa: E402
+from mjexplore.sim.world import World, make_world  # noqa: E402
 
 CONTROL_PERIOD = 0.1
 
@@ -76,7 +81,7 @@ def seconds_per_scan(m: mujoco.MjModel, d: mujoco.MjData, poses: list[np.ndarray
     return (time.perf_counter() - t0) / (repeats * len(poses))
 
 
-def replay_wall(sim: Simulator, twists: list[tuple[float, float]]) -> float:
+def replay_wall(sim: World, twists: list[tuple[float, float]]) -> float:
     """Wall seconds of replaying (v, omega) commands through ``sim`` after a reset."""
     sim.reset()
     t0 = time.perf_counter()
@@ -141,6 +146,13 @@ def main() -> None:
     replay_wall(lds01, twists)
     lds01_wall = replay_wall(lds01, twists)
 
+    # The same commands in the training worlds (the first pass builds tiles / compiles).
+    world_walls = {}
+    for dynamics in ("kinematic", "grid"):
+        world = make_world(scene, SimConfig(dynamics=dynamics))
+        replay_wall(world, twists)
+        world_walls[dynamics] = replay_wall(world, twists)
+
     sample = poses[:: max(1, len(poses) // 200)]
     lidar_s = seconds_per_scan(m, d, sample, lambda: sim.lidar.scan(d, 0.0))
     sm = sensor_model(str(sim.scene.xml), sim.lidar.config.num_beams)
@@ -174,6 +186,9 @@ def main() -> None:
         "full_loop_over_loop_without_lidar": round(no_lidar_wall / full_wall, 3),
         "full_loop_rtf_lds01": round(sim_seconds / lds01_wall, 1),
         "lds01_over_ideal": round(full_wall / lds01_wall, 3),
+        "kinematic_rtf": round(sim_seconds / world_walls["kinematic"], 1),
+        "grid_rtf": round(sim_seconds / world_walls["grid"], 1),
+        "grid_over_kinematic": round(world_walls["kinematic"] / world_walls["grid"], 2),
         "lidar_scans_per_s": round(1.0 / lidar_s, 1),
         "lidar_rays_per_s": round(sim.lidar.config.num_beams / lidar_s),
         "sensor_scans_per_s": round(1.0 / sensor_s, 1),

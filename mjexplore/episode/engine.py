@@ -48,7 +48,8 @@ from mjexplore.scenes.scene import SceneFiles, check_start
 from mjexplore.episode.metrics import KnownCounter, episode_metrics
 from mjexplore.sim.kinematics import KinematicsLog
 from mjexplore.sim.odometry import odom_in_map
-from mjexplore.sim.simulator import SimConfig, Simulator
+from mjexplore.sim.simulator import SimConfig
+from mjexplore.sim.world import make_world
 from mjexplore.topology.frontiers import frontier_mask
 from mjexplore.topology.pipeline import TopologyConfig, TopologyTracker
 
@@ -65,7 +66,7 @@ class EpisodeConfig:
         target_ratio: Exploration ratio at which the scene counts as explored.
         control_rate_hz: Navigator rate.
         mapping_pose: 'ground_truth' or 'odometry': which pose the mapper uses.
-        sim: Simulator settings (profile, lidar).
+        sim: World settings (dynamics: physics, kinematic or grid; profile, lidar).
         navigator: Navigation settings (zeta, replanning, lingering).
         planner: Costmap settings.
         topology: Frontier and GVD settings.
@@ -176,7 +177,7 @@ class Episode:
         self.explorer = explorer
         self.observer = observer
         sim_cfg = dataclasses.replace(cfg.sim, seed=seed)
-        self.sim = Simulator(scene, sim_cfg)
+        self.sim = make_world(scene, sim_cfg)
         gt = scene.ground_truth
         self.sim.reset(self._jittered_start(scene, gt, np.random.default_rng(seed)))
         self.mapper = OccupancyMapper.like(gt, MapperConfig(resolution=gt.resolution))

@@ -19,7 +19,12 @@ closed form over each interval), wheel angles follow the wheel speeds (so odomet
 the truth), and a move that would bring the body's bounding circle into a wall of the
 ground truth is refused and counted as a collision. Lidar, sampling and timing are the
 same as in physics mode, so everything downstream sees the same kinds of data (but the
-IMU's, which are NaN: there are no dynamics to measure).
+IMU's, which are NaN: there are no dynamics to measure). The motion model is
+:mod:`mjexplore.sim.motion`.
+
+``dynamics='grid'`` is the fastest: the same motion as the kinematic mode without MuJoCo,
+the lidar cast on the ground-truth grid (:class:`mjexplore.sim.grid_world.GridWorld`;
+:func:`mjexplore.sim.world.make_world` builds the world any ``dynamics`` asks for).
 """
 
 from __future__ import annotations
@@ -32,12 +37,15 @@ import mujoco
 import numpy as np
 
 from mjexplore.errors import UserInputError
-from mjexplore.robot import (TURTLEBOT3_WAFFLE, MotionProfile, limit_wheel_speeds,
-                             motion_profile)
+from mjexplore.robot import TURTLEBOT3_WAFFLE, MotionProfile, motion_profile
 from mjexplore.scenes.scene import SceneFiles, load_scene_files
-from mjexplore.sim.kinematics import KinematicsLog, KinematicsRecorder
+from mjexplore.sim.kinematics import KinematicsRecorder
 from mjexplore.sim.lidar import Lidar, LidarConfig, LaserScan
-from mjexplore.sim.odometry import WheelOdometry
+from mjexplore.sim.motion import BODY_CENTRE_X, BODY_RADIUS  # noqa: F401 (re-exported)
+from mjexplore.sim.motion import kinematic_step, mean_ramp_twist, ramp_command, wall_clearance
+from mjexplore.sim.robot_world import RobotWorld
+from mjexplore.sim.odometry import (OdometryErrorConfig, WheelOdometry, odometry_error,
+                                    odometry_error_config)
 
 BASE_BODY = "base_link"
 SCAN_SITE = "base_scan"
@@ -51,11 +59,7 @@ UPRIGHT_COS = math.cos(math.radians(30.0))
 # Contacts with walls closer in time than this belong to one collision (a robot pushing
 # against a wall bounces on and off it).
 COLLISION_GAP_S = 0.5
-DYNAMICS = ("physics", "kinematic")
-# The base plate's bounding circle (kinematic mode): centre behind base_link, radius the
-# half-diagonal of the 0.281 x 0.266 m plate (the wheels lie within it), metres.
-BODY_CENTRE_X = -0.064
-BODY_RADIUS = 0.194
+DYNAMICS = ("physics", "kinematic", "grid")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -69,11 +73,13 @@ class SimConfig:
             acceleration limiter, in Hz of simulated time. Its period must be a whole
             number of physics steps.
         seed: Seed for sensor noise.
-        dynamics: 'physics' (MuJoCo contact dynamics) or 'kinematic' (training mode, see
-            the module docstring).
+        dynamics: 'physics' (MuJoCo contact dynamics), 'kinematic' or 'grid' (training
+            modes, see the module docstring; 'grid' needs :func:`~mjexplore.sim.world.make_world`).
         wheel_friction: Sliding friction coefficient of the drive wheels' contacts (the
             wheels' friction wins over the floor's). 1.0 is rubber on an indoor floor;
             turtlebot3_gazebo's 0.1 lets the wheels slip above about 0.6 m/s^2.
+        odometry_error: The wheel odometry's errors: 'none' (exact geometry), 'typical'
+            or an :class:`~mjexplore.sim.odometry.OdometryErrorConfig`; drawn from ``seed``.
     """
 
     profile: str = "sim"
@@ -82,8 +88,10 @@ class SimConfig:
     seed: int = 0
     dynamics: str = "physics"
     wheel_friction: float = 1.0
+    odometry_error: str | OdometryErrorConfig = "none"
 
     def __post_init__(self) -> None:
+        odometry_error_config(self.odometry_error)  # Refuses an unknown preset now.
         if not self.wheel_friction > 0:
             raise UserInputError(f"wheel_friction {self.wheel_friction} must be positive.")
         if self.dynamics not in DYNAMICS:
@@ -108,7 +116,7 @@ def yaw_from_quat(q: np.ndarray) -> float:
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
-class Simulator:
+class Simulator(RobotWorld):
     """Steps a scene's MuJoCo model with the robot driven by (v, omega) commands.
 
     Args:
@@ -170,11 +178,15 @@ class Simulator:
         self._rng = np.random.default_rng(self.config.seed)
         self.lidar = Lidar(m, SCAN_SITE, lidar_cfg, self._rng)
         self._skew = lidar_cfg.motion_skew
-        self.odometry = WheelOdometry(TURTLEBOT3_WAFFLE)
+        self.odometry = WheelOdometry(TURTLEBOT3_WAFFLE, odometry_error(
+            self.config.odometry_error, self.config.seed))
         self._kinematics = KinematicsRecorder()
         self._clearance: np.ndarray | None = None
+        if self.config.dynamics == "grid":
+            raise UserInputError("dynamics 'grid' runs without MuJoCo: build the world with "
+                                 "mjexplore.sim.world.make_world(scene, config).")
         if self.config.dynamics == "kinematic":
-            self._clearance = self._wall_clearance()
+            self._clearance = wall_clearance(self.scene.ground_truth)
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -200,24 +212,6 @@ class Simulator:
                          self.data.qvel[self._qvel0 + 5]])
 
     @property
-    def odom_pose(self) -> np.ndarray:
-        """Wheel-odometry (x, y, yaw) of ``base_link`` in the ``odom`` frame.
-
-        The ``odom`` frame coincides with the start pose at reset (``map -> odom`` is the
-        start pose); it drifts from the truth with wheel slip.
-        """
-        return self.odometry.pose.copy()
-
-    @property
-    def odom_origin(self) -> np.ndarray:
-        """Pose of the ``odom`` frame in the ``map`` frame (the pose at reset)."""
-        return self._start.copy()
-
-    @property
-    def latest_scan(self) -> LaserScan:
-        return self._scan
-
-    @property
     def is_upright(self) -> bool:
         """False if the base is tilted more than 30 degrees (tipped over)."""
         return bool(self.data.xmat[self._base][8] > UPRIGHT_COS)
@@ -229,25 +223,6 @@ class Simulator:
         d = self.data
         return bool(d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number > 0 or
                     not np.isfinite(d.qpos).all() or not np.isfinite(d.qvel).all())
-
-    @property
-    def in_collision(self) -> bool:
-        return self._in_contact
-
-    @property
-    def command_applied(self) -> np.ndarray:
-        """(v, omega) set-point, after the acceleration limiter, reached at the end of the
-        current sample period."""
-        return np.array(self._cmd)
-
-    def kinematics(self) -> KinematicsLog:
-        """Velocity and acceleration samples since reset."""
-        return self._kinematics.log()
-
-    @property
-    def kinematics_rows(self) -> np.ndarray:
-        """The raw kinematics samples so far (a view, no copy): columns t, v, omega, ..."""
-        return self._kinematics.rows
 
     def warnings(self) -> dict[str, int]:
         """MuJoCo warnings raised since reset, by kind (empty when none)."""
@@ -285,22 +260,6 @@ class Simulator:
         self._scan = self.lidar.scan(d, 0.0)
         return self._scan
 
-    def command(self, linear: float, angular: float) -> None:
-        """Sets the velocity target (m/s, rad/s), clipped to the profile's limits.
-
-        Speed and yaw rate are clipped to their limits, then both are scaled down together
-        where a wheel would turn faster than the profile's wheel speed limit. The applied
-        command approaches the target no faster than the profile's acceleration limits,
-        updated every sample period.
-        """
-        p = self.profile
-        self._target = limit_wheel_speeds(
-            min(max(float(linear), -p.max_linear_speed), p.max_linear_speed),
-            min(max(float(angular), -p.max_angular_speed), p.max_angular_speed),
-            p.max_wheel_speed)
-        if self._steps % self._sample_every == 0:
-            self._ramp()
-
     def step(self, duration: float) -> list[LaserScan]:
         """Advances simulated time by ``duration`` seconds (rounded to physics steps).
 
@@ -332,75 +291,29 @@ class Simulator:
     # ------------------------------------------------------------------ internals
     # These run every sample period: plain floats, no small numpy arrays.
 
-    def _wall_clearance(self) -> np.ndarray:
-        """Distance (m) from each ground-truth cell centre to the nearest wall surface.
-
-        Every cell that is not free blocks, unknown ones too: the MJCF makes them walls. A
-        wall cell's surface lies half a cell nearer than its centre.
-        """
-        from scipy.ndimage import distance_transform_edt
-
-        gt = self.scene.ground_truth
-        if gt is None:
-            raise UserInputError("kinematic dynamics needs the scene's ground-truth map "
-                                 "(map.yaml beside scene.xml): regenerate the scene.")
-        return (distance_transform_edt(gt.free) - 0.5) * gt.resolution
-
     def _move_kinematic(self, stop: int) -> None:
         """Moves the base from step ``self._steps`` to ``stop`` along the commanded unicycle
         path (the wheel set-points ramp linearly over each sample period)."""
         d = self.data
-        dt = self.model.opt.timestep
-        every = self._sample_every
-        f0 = (self._steps % every) / every
-        f1 = f0 + (stop - self._steps) / every
-        (v0, w0), (v1, w1) = self._cmd_base, self._cmd
-        a = 0.5 * (f0 + f1)
-        v, w = v0 + (v1 - v0) * a, w0 + (w1 - w0) * a
-        duration = (stop - self._steps) * dt
+        v, w = mean_ramp_twist(self._cmd_base, self._cmd, self._steps, stop,
+                               self._sample_every)
+        duration = (stop - self._steps) * self.model.opt.timestep
         q = d.qpos
         i = self._qpos0
         x, y = float(q[i]), float(q[i + 1])
         yaw = math.atan2(2.0 * (q[i + 3] * q[i + 6] + q[i + 4] * q[i + 5]),
                          1.0 - 2.0 * (q[i + 5] ** 2 + q[i + 6] ** 2))
-        mid = yaw + 0.5 * w * duration
-        nx = x + v * duration * math.cos(mid)
-        ny = y + v * duration * math.sin(mid)
-        nyaw = yaw + w * duration
-        gt = self.scene.ground_truth
-        cx = nx + BODY_CENTRE_X * math.cos(nyaw)
-        cy = ny + BODY_CENTRE_X * math.sin(nyaw)
-        col = int((cx - gt.origin[0]) / gt.resolution)
-        row = int((cy - gt.origin[1]) / gt.resolution)
-        rows, cols = self._clearance.shape
-        blocked = not (0 <= row < rows and 0 <= col < cols) or \
-            self._clearance[row, col] < BODY_RADIUS
-        self._kinematic_contact = blocked
-        if blocked:
-            nx, ny, nyaw, v, w = x, y, yaw, 0.0, 0.0
+        (nx, ny, nyaw), (v, w), (left, right), self._kinematic_contact = kinematic_step(
+            self._clearance, self.scene.ground_truth, (x, y, yaw), (v, w), duration)
         q[i:i + 7] = (nx, ny, self._z0, math.cos(nyaw / 2), 0.0, 0.0, math.sin(nyaw / 2))
-        half = TURTLEBOT3_WAFFLE.wheel_separation / 2
-        r = TURTLEBOT3_WAFFLE.wheel_radius
-        q[self._wheel_qpos[0]] += (v - w * half) / r * duration
-        q[self._wheel_qpos[1]] += (v + w * half) / r * duration
+        q[self._wheel_qpos[0]] += left
+        q[self._wheel_qpos[1]] += right
         j = self._qvel0
         d.qvel[j:j + 6] = (v * math.cos(nyaw), v * math.sin(nyaw), 0.0, 0.0, 0.0, w)
 
     def _ramp(self) -> None:
-        p = self.profile
-        period = self._sample_every * self.model.opt.timestep
-        dv = p.max_linear_accel * period
-        dw = p.max_angular_accel * period
-        v0, w0 = self._cmd_base
-        v = v0 + min(max(self._target[0] - v0, -dv), dv)
-        w = w0 + min(max(self._target[1] - w0, -dw), dw)
-        if limit_wheel_speeds(v, w, p.max_wheel_speed) != (v, w):
-            # Off the straight line to the target, a wheel can be too fast: step along that
-            # line instead (both ends are within the wheel limits, so all of it is).
-            ev, ew = self._target[0] - v0, self._target[1] - w0
-            f = min(1.0, dv / abs(ev) if ev else 1.0, dw / abs(ew) if ew else 1.0)
-            v, w = v0 + f * ev, w0 + f * ew
-        self._cmd = (v, w)
+        self._cmd = ramp_command(self._cmd_base, self._target, self.profile,
+                                 self._sample_every * self.model.opt.timestep)
         self._apply_cmd()
 
     def _apply_cmd(self) -> None:

@@ -1,0 +1,90 @@
+"""What every world a robot runs in shares: commands, and the state read back the same way.
+
+:class:`~mjexplore.sim.simulator.Simulator` (MuJoCo) and
+:class:`~mjexplore.sim.grid_world.GridWorld` subclass :class:`RobotWorld`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mjexplore.robot import MotionProfile
+from mjexplore.sim.kinematics import KinematicsLog, KinematicsRecorder
+from mjexplore.sim.lidar import LaserScan
+from mjexplore.sim.motion import limit_command
+from mjexplore.sim.odometry import WheelOdometry
+
+
+class RobotWorld:
+    """The command and state accessors of a world; subclasses step it.
+
+    Subclasses set ``profile``, ``odometry``, ``_kinematics`` (a
+    :class:`KinematicsRecorder`), ``_start`` (the pose at reset), and keep
+    ``_steps`` (physics steps since reset), ``_sample_every`` (physics steps per sample),
+    ``_target`` (the limited velocity target), ``_cmd`` (the set-point), ``_scan`` (the
+    latest scan) and ``_in_contact``; they define ``_ramp`` (the acceleration limiter's
+    step from ``_cmd_base`` to ``_target``).
+    """
+
+    profile: MotionProfile
+    _kinematics: KinematicsRecorder
+    _steps: int
+    _sample_every: int
+    _target: tuple[float, float]
+    _cmd: tuple[float, float]
+    _scan: LaserScan
+    _in_contact: bool
+    _start: np.ndarray
+    odometry: WheelOdometry
+
+    @property
+    def odom_pose(self) -> np.ndarray:
+        """Wheel-odometry (x, y, yaw) of ``base_link`` in the ``odom`` frame.
+
+        The ``odom`` frame coincides with the start pose at reset (``map -> odom`` is the
+        start pose); it drifts from the truth with wheel slip and the odometry's errors.
+        """
+        return self.odometry.pose.copy()
+
+    @property
+    def odom_origin(self) -> np.ndarray:
+        """Pose of the ``odom`` frame in the ``map`` frame (the pose at reset)."""
+        return self._start.copy()
+
+    @property
+    def latest_scan(self) -> LaserScan:
+        return self._scan
+
+    @property
+    def in_collision(self) -> bool:
+        return self._in_contact
+
+    @property
+    def command_applied(self) -> np.ndarray:
+        """(v, omega) set-point, after the acceleration limiter, reached at the end of the
+        current sample period."""
+        return np.array(self._cmd)
+
+    def kinematics(self) -> KinematicsLog:
+        """Velocity and acceleration samples since reset."""
+        return self._kinematics.log()
+
+    @property
+    def kinematics_rows(self) -> np.ndarray:
+        """The raw kinematics samples so far (a view, no copy): columns t, v, omega, ..."""
+        return self._kinematics.rows
+
+    def command(self, linear: float, angular: float) -> None:
+        """Sets the velocity target (m/s, rad/s), clipped to the profile's limits.
+
+        Speed and yaw rate are clipped to their limits, then both are scaled down together
+        where a wheel would turn faster than the profile's wheel speed limit. The applied
+        command approaches the target no faster than the profile's acceleration limits,
+        updated every sample period.
+        """
+        self._target = limit_command(self.profile, linear, angular)
+        if self._steps % self._sample_every == 0:
+            self._ramp()
+
+    def _ramp(self) -> None:
+        raise NotImplementedError
