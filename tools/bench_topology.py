@@ -38,14 +38,14 @@ from mjexplore.mapping.metrics import exploration_ratio, observable_ground_truth
 from mjexplore.mapping.occupancy import OccupancyMapper  # noqa: E402
 from mjexplore.navigation.wander import WanderController  # noqa: E402
 from mjexplore.scenes.canonical import resolve_scene  # noqa: E402
-from mjexplore.sim.simulator import Simulator  # noqa: E402
+from mjexplore.sim.simulator import SimConfig, Simulator  # noqa: E402
 from mjexplore.topology.pipeline import TopologyTracker  # noqa: E402
 
 cv2.setNumThreads(1)
 
 
-def record(scene: str, seconds: float, seed: int):
-    sim = Simulator(resolve_scene(scene))
+def record(scene: str, seconds: float, seed: int, config: SimConfig | None = None):
+    sim = Simulator(resolve_scene(scene), config)
     controller = WanderController(rng=np.random.default_rng(seed))
     scans = [sim.latest_scan]
     while sim.time < seconds - 1e-9:
