@@ -226,8 +226,9 @@ def _episode_config(args: argparse.Namespace):
         raise UserInputError(f"--target-ratio {args.target_ratio} must be in (0, 1].")
     lidar = _lidar_config(args, ideal_noise=0.01)
     return EpisodeConfig(max_time=args.max_time, target_ratio=args.target_ratio,
-                         mapping_pose=args.mapping_pose,
-                         sim=SimConfig(profile=args.profile, lidar=lidar))
+                         localization=args.localization,
+                         sim=SimConfig(profile=args.profile, lidar=lidar,
+                                       odometry_error=args.odometry_error))
 
 
 def cmd_explore(args: argparse.Namespace) -> int:
@@ -381,8 +382,15 @@ def _add_episode_args(p: argparse.ArgumentParser) -> None:
                    help="time cap in simulated seconds (1800)")
     p.add_argument("--target-ratio", type=float, default=0.985,
                    help="exploration ratio that ends the episode (0.985)")
-    p.add_argument("--mapping-pose", default="ground_truth", choices=["ground_truth", "odometry"],
-                   help="pose the mapper uses")
+    p.add_argument("--localization", default="ground_truth",
+                   choices=["ground_truth", "odometry", "scan_matching"],
+                   help="where the robot believes it is, for everything it does (mapping, "
+                        "navigation, goals): the true pose, wheel odometry, or odometry "
+                        "corrected by matching each scan against the map; metrics.json gets "
+                        "pose_error_rmse_m and pose_error_max_m")
+    p.add_argument("--odometry-error", default="none", choices=["none", "typical"],
+                   help="none (the model's exact wheel geometry) or typical (per-seed wheel "
+                        "radius and track width errors, wheel slip; see sim/odometry.py)")
     p.add_argument("--lidar-noise", type=float, default=None,
                    help="the ideal lidar's Gaussian range noise std in metres (0.01)")
     _add_lidar_model_arg(p)

@@ -29,8 +29,8 @@ def _two_rooms(tmp_path, gap_to_the_east: bool):
 
 
 def _config(**kwargs) -> EpisodeConfig:
-    return EpisodeConfig(sim=SimConfig(dynamics="kinematic"), start_jitter=(0.0, 0.0),
-                         **kwargs)
+    return EpisodeConfig(**{"sim": SimConfig(dynamics="kinematic"), "start_jitter": (0.0, 0.0),
+                            **kwargs})
 
 
 def _preload(episode: Episode, known: np.ndarray) -> None:
@@ -124,3 +124,26 @@ def test_reoffer_lifts_retryable_goals_until_their_attempts_run_out():
 def test_unknown_reason_is_refused(reason):
     with pytest.raises(ValueError, match="reason"):
         GoalBlacklist().add(np.zeros(2), reason, _grid())
+
+
+def test_the_robot_acts_on_its_estimate_and_the_metrics_say_how_far_off_it_was():
+    scene = resolve_scene("train_loop")
+    config = _config(localization="odometry", max_time=30.0,
+                     sim=SimConfig(dynamics="kinematic", odometry_error="typical"))
+    episode = Episode(scene, NearestFrontier(), 3, config)
+    m = episode.run().metrics
+    drift = np.hypot(*(episode.pose[:2] - episode.sim.pose[:2]))
+    assert drift > 0.005  # The estimate has drifted from the truth...
+    np.testing.assert_allclose(episode.visited[-1], episode.pose[:2], atol=0.3)  # ...and is
+    # what the robot used; the metrics report the error.
+    assert m["localization"] == "odometry"
+    assert 0 < m["pose_error_rmse_m"] <= m["pose_error_max_m"]
+    truth = Episode(scene, NearestFrontier(), 3, _config(max_time=30.0)).run().metrics
+    assert truth["pose_error_max_m"] == 0.0
+
+
+def test_unknown_localization_is_refused():
+    from mjexplore.errors import UserInputError
+
+    with pytest.raises(UserInputError, match="scan_matching"):
+        EpisodeConfig(localization="gps")

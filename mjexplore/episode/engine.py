@@ -38,21 +38,21 @@ from mjexplore.explorers.base import ExplorationState, Explorer
 from mjexplore.explorers.nearest import NearestFrontier
 from mjexplore.mapping.metrics import exploration_ratio, iou, observable_ground_truth
 from mjexplore.mapping.occupancy import MapperConfig, OccupancyMapper
+from mjexplore.mapping.scan_matching import ScanMatchingLocalizer, deskew_scan
 from mjexplore.maps import GridMap
 from mjexplore.navigation.blacklist import BlacklistConfig, GoalBlacklist
 from mjexplore.navigation.navigator import Navigator, NavigatorConfig, NavStatus
 from mjexplore.navigation.planner import Costmap, PlannerConfig
-from mjexplore.robot import TURTLEBOT3_WAFFLE
 from mjexplore.errors import UserInputError
 from mjexplore.scenes.scene import SceneFiles, check_start
 from mjexplore.episode.metrics import KnownCounter, episode_metrics
 from mjexplore.sim.kinematics import KinematicsLog
-from mjexplore.sim.odometry import odom_in_map
 from mjexplore.sim.simulator import SimConfig
 from mjexplore.sim.world import make_world
 from mjexplore.topology.frontiers import frontier_mask
 from mjexplore.topology.pipeline import TopologyConfig, TopologyTracker
 
+LOCALIZATIONS = ("ground_truth", "odometry", "scan_matching")
 END_REASONS = ("explored", "no_frontiers", "lingering", "tipped_over", "time_limit",
                "decision_limit", "physics_fault", "interrupted")
 
@@ -65,7 +65,14 @@ class EpisodeConfig:
         max_time: Time cap in simulated seconds.
         target_ratio: Exploration ratio at which the scene counts as explored.
         control_rate_hz: Navigator rate.
-        mapping_pose: 'ground_truth' or 'odometry': which pose the mapper uses.
+        localization: Where the robot believes it is: 'ground_truth', 'odometry' (wheel
+            odometry dead-reckoned from the start pose) or 'scan_matching' (odometry
+            corrected by matching each scan against the map). With anything but ground
+            truth, everything the robot does uses the estimate: mapping (scans posed at
+            their timestamps), navigation, goals, lingering and the explorer's state. The
+            exploration ratio is measured at the true pose (the same scans mapped where
+            they were really taken), so the episode ends on what was seen; IoU compares the
+            robot's own map with the ground truth, so distortion shows.
         sim: World settings (dynamics: physics, kinematic or grid; profile, lidar).
         navigator: Navigation settings (zeta, replanning, lingering).
         planner: Costmap settings.
@@ -83,7 +90,7 @@ class EpisodeConfig:
     max_time: float = 1800.0
     target_ratio: float = 0.985
     control_rate_hz: float = 10.0
-    mapping_pose: str = "ground_truth"
+    localization: str = "ground_truth"
     sim: SimConfig = dataclasses.field(default_factory=SimConfig)
     navigator: NavigatorConfig = dataclasses.field(default_factory=NavigatorConfig)
     planner: PlannerConfig = dataclasses.field(default_factory=PlannerConfig)
@@ -94,8 +101,9 @@ class EpisodeConfig:
     linger_strikes: int = 3
 
     def __post_init__(self) -> None:
-        if self.mapping_pose not in ("ground_truth", "odometry"):
-            raise ValueError("mapping_pose must be 'ground_truth' or 'odometry'")
+        if self.localization not in LOCALIZATIONS:
+            raise UserInputError(f"localization {self.localization!r} is unknown: use one of "
+                                 f"{', '.join(LOCALIZATIONS)}.")
         if not (self.max_time > 0 and self.control_rate_hz > 0):
             raise ValueError("max_time and control_rate_hz must be > 0")
         if not 0 < self.target_ratio <= 1:
@@ -181,6 +189,14 @@ class Episode:
         gt = scene.ground_truth
         self.sim.reset(self._jittered_start(scene, gt, np.random.default_rng(seed)))
         self.mapper = OccupancyMapper.like(gt, MapperConfig(resolution=gt.resolution))
+        # Without ground-truth localisation the robot maps where it believes it is, and a
+        # second mapper maps the same scans where they were taken: what was really seen.
+        self.localizer: ScanMatchingLocalizer | None = None
+        self._seen = self.mapper
+        if cfg.localization != "ground_truth":
+            self.localizer = ScanMatchingLocalizer(self.sim.pose, odom_pose=self.sim.odom_pose)
+            self._seen = OccupancyMapper.like(gt, MapperConfig(resolution=gt.resolution))
+        self._pose_errors: list[float] = []
         self.tracker = TopologyTracker(gt.shape, cfg.topology, gt)
         self.reference = observable_ground_truth(gt)
         self.counter = KnownCounter(self.reference)
@@ -224,24 +240,48 @@ class Episode:
             return (x, y, pose[2])
         return pose
 
-    def _sensor_pose(self, scan) -> np.ndarray | None:
-        if self.config.mapping_pose == "ground_truth":
-            return None
-        base = odom_in_map(self.sim.odom_origin, self.sim.odom_pose[None])[0]
-        ox, oy, _ = TURTLEBOT3_WAFFLE.scan_offset
-        c, s = math.cos(base[2]), math.sin(base[2])
-        return np.array([base[0] + c * ox - s * oy, base[1] + s * ox + c * oy, base[2]])
+    @property
+    def pose(self) -> np.ndarray:
+        """(x, y, yaw) of ``base_link`` in ``map`` as the robot believes it (the true pose
+        with ground-truth localisation)."""
+        return self.sim.pose if self.localizer is None else self.localizer.pose
+
+    def _localize(self, scan):
+        """Updates the pose estimate to the scan's stamp; the scan as the robot maps it
+        (deskewed when its beams were taken over time) and its sensor pose."""
+        loc = self.localizer
+        rows = self.sim.kinematics_rows
+        if len(rows) == 0:
+            odom, truth = self.sim.odom_pose, self.sim.pose
+        else:
+            recent = rows[-40:]
+            k = int(np.argmin(np.abs(recent[:, 0] - scan.stamp)))  # Scans fall on samples.
+            odom, truth = recent[k, 8:11], recent[k, 5:8]
+        loc.advance(odom)
+        if scan.time_increment != 0 and len(rows) > 1:
+            scan = deskew_scan(scan, trajectory=(rows[:, 0], rows[:, 8:11]))
+        if self.config.localization == "scan_matching":
+            loc.correct(scan, self.mapper.grid)
+        self._pose_errors.append(float(np.hypot(*(loc.pose[:2] - truth[:2]))))
+        return scan, loc.sensor_pose
 
     def _integrate(self, scan) -> None:
         if self.sim.physics_fault:
             return  # A broken state would map garbage; the episode ends at the next check.
         grid = self.mapper.grid
-        changed = self.mapper.integrate(scan, self._sensor_pose(scan))
+        seen = None
+        if self.localizer is not None:
+            seen = self._seen.integrate(scan)
+            scan, sensor_pose = self._localize(scan)
+            changed = self.mapper.integrate(scan, sensor_pose)
+        else:
+            changed = self.mapper.integrate(scan)
         self.tracker.observe(grid, changed)
         if self._costmap is not None:
             self._costmap.update(np.concatenate([changed[:, 0] * grid.shape[1] + changed[:, 1],
                                                  self.tracker.gvd.last_changed]))
-        ratio = self.counter.update(self.mapper.state, changed, grid.shape[1])
+        ratio = self.counter.update(self._seen.state, changed if seen is None else seen,
+                                    grid.shape[1])
         self.curve.append((scan.stamp, ratio))
         if self.observer is not None:
             self.observer.on_scan(self, scan)
@@ -270,7 +310,7 @@ class Episode:
         grid = self.mapper.grid
         cfg = self.config
         self.blacklist.forget_changed(grid)
-        state = ExplorationState(grid, self.sim.pose, self.sim.time, [], self.costmap(),
+        state = ExplorationState(grid, self.pose, self.sim.time, [], self.costmap(),
                                  np.array(self.visited).reshape(-1, 2),
                                  blacklist=self.blacklist.points(),
                                  ground_truth=self.scene.ground_truth,
@@ -302,7 +342,7 @@ class Episode:
         self.goals.append((self.sim.time, *self.goal))
         if self.observer is not None:
             self.observer.on_decision(self, state if state is not None else self.decision_state())
-        pose = self.sim.pose
+        pose = self.pose
         near = np.hypot(*(self.goal - pose[:2])) <= self.config.navigator.goal_tolerance
         if near and not getattr(self.explorer, "waypoint", False) and self._goal_still_open():
             self._give_up("seen_open")
@@ -404,7 +444,7 @@ class Episode:
             self.end_reason = "physics_fault"
         elif not sim.is_upright:
             self.end_reason = "tipped_over"
-        elif self._lingered(sim.pose, t):
+        elif self._lingered(self.pose, t):
             self.end_reason = "lingering"
         return self.end_reason is not None
 
@@ -432,7 +472,7 @@ class Episode:
         if self._decision_due:
             return True
         cfg = self.config
-        pose, t = self.sim.pose, self.sim.time
+        pose, t = self.pose, self.sim.time
         period = getattr(self.explorer, "replan_period", None)
         if period is not None and self.goal is not None and t - self._decided_at >= period:
             self._decision_due = True
@@ -454,12 +494,11 @@ class Episode:
             self._decision_due = True
         return self._decision_due
 
-
     def control(self) -> None:
         """One control period of navigation towards the current goal."""
         cfg = self.config
         sim = self.sim
-        pose = sim.pose
+        pose = self.pose
         v, w = self.navigator.update(pose, sim.time, self.costmap)
         if sim.in_collision:
             v, w = -0.5 * sim.profile.max_linear_speed, 0.0  # Recovery: back off the wall.
@@ -511,7 +550,12 @@ class Episode:
         log = self.sim.kinematics()
         metrics = episode_metrics(curve, log, iou(grid, self.reference),
                                   self.sim.collisions, self.end_reason or "running")
-        metrics["exploration_ratio_check"] = round(exploration_ratio(grid, self.reference), 5)
+        metrics["exploration_ratio_check"] = round(
+            exploration_ratio(self._seen.grid, self.reference), 5)
+        errors = np.array(self._pose_errors or [0.0])
+        metrics["localization"] = self.config.localization
+        metrics["pose_error_rmse_m"] = round(float(np.sqrt(np.mean(errors ** 2))), 4)
+        metrics["pose_error_max_m"] = round(float(errors.max()), 4)
         metrics["decisions"] = len(self.goals)
         metrics["fallbacks"] = self.fallbacks
         metrics["reoffers"] = self.reoffers

@@ -101,12 +101,12 @@ class ScanFrames:
         sim = episode.sim
         x, y, yaw = (float(v) for v in sim.pose)
         dx, dy, dyaw = (float(v) for v in sim.odom_pose)
-        if episode.config.mapping_pose == "ground_truth":
+        if episode.localizer is None:
             oyaw = yaw - dyaw
             c, s = math.cos(oyaw), math.sin(oyaw)
             map_odom = (x - (c * dx - s * dy), y - (s * dx + c * dy), oyaw)
-        else:  # The map is built from odometry: it is the robot's whole estimate.
-            map_odom = tuple(float(v) for v in sim.odom_origin)
+        else:  # The map is built at the estimate: map -> odom is the localiser's.
+            map_odom = tuple(float(v) for v in episode.localizer.map_to_odom(sim.odom_pose))
         v, w = (float(u) for u in sim.velocity)
         return cls(t, map_odom, (dx, dy, dyaw), (x, y, yaw), (v, w))
 
