@@ -12,7 +12,10 @@ of one observation, which re-encodes the raw episodic memory: the episode's last
 Then one round of training/gvn.yaml as ``mjexplore train`` runs it, starting from the
 shipped weights: one rollout (n_steps decisions on each of n_envs worker envs) and PPO's
 update on it (n_epochs over shuffled minibatches: forward, backward and optimizer steps),
-each timed per collected decision. Prints one JSON line.
+each timed per collected decision; in the grid world (``train_decisions_per_s``) and, in
+the same run, in the kinematic world training/gvn.yaml names
+(``train_decisions_per_s_kinematic``; ``grid_over_kinematic`` their ratio, issue 16's
+target 6, with train_decisions_per_s >= 100). Prints one JSON line.
 
 Target (issue 5): topology + policy at most 8 ms per decision; ARiADNE's own environment
 spends about 390 ms per decision on this machine. Target (issue 16): the update at most
@@ -90,9 +93,10 @@ def run(job: tuple[str, str, float]) -> dict:
             "policy": c["policy"], "training_forward": c["training_forward"]}
 
 
-def ppo_round() -> dict[str, float]:
-    """One rollout and one PPO update of training/gvn.yaml from the shipped weights: wall
-    seconds of each and the decisions collected."""
+def ppo_round(dynamics: str) -> dict[str, float]:
+    """One rollout and one PPO update of training/gvn.yaml from the shipped weights, its
+    episodes in the world ``dynamics`` names: wall seconds of each and the decisions
+    collected."""
     import torch
     from stable_baselines3.common.callbacks import BaseCallback
 
@@ -101,6 +105,9 @@ def ppo_round() -> dict[str, float]:
     from mjexplore.training import load_train_config, make_model, make_vec_env
 
     config = load_train_config(DEFAULT_WEIGHTS.parent / "gvn.yaml")
+    episode = config.env.episode
+    config = dataclasses.replace(config, env=dataclasses.replace(config.env, episode=(
+        dataclasses.replace(episode, sim=dataclasses.replace(episode.sim, dynamics=dynamics)))))
     torch.set_num_threads(config.torch_threads)
     marks: dict[str, float] = {}
 
@@ -164,12 +171,16 @@ def main() -> None:
                        speedup_vs_ariadne=round(ARIADNE_MS_PER_DECISION / (topo + pol), 1))
         out[f"{mode}_bench_wall_s"] = round(wall, 1)
     t = time.perf_counter()
-    ppo = ppo_round()
+    kinematic = ppo_round("kinematic")
+    ppo = ppo_round("grid")
     n, rollout, update = ppo["decisions"], ppo["rollout_s"], ppo["update_s"]
+    kin_rate = kinematic["decisions"] / (kinematic["rollout_s"] + kinematic["update_s"])
     out.update(rollout_ms_per_decision=round(rollout / n * 1e3, 2),
                update_ms_per_decision=round(update / n * 1e3, 2), update_target_ms=10.0,
                update_share_of_training=round(update / (rollout + update), 3),
                train_decisions_per_s=round(n / (rollout + update), 2),
+               train_decisions_per_s_kinematic=round(kin_rate, 2),
+               grid_over_kinematic=round(n / (rollout + update) / kin_rate, 2),
                ppo_bench_wall_s=round(time.perf_counter() - t, 1))
     out["decisions"] = "GVN policy, seed 0, " + ",".join(scenes)
     print(json.dumps(out))
