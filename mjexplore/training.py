@@ -29,7 +29,8 @@ import torch
 import yaml
 
 from mjexplore.config import load_yaml_config, to_dict
-from mjexplore.envs.exploration import EnvConfig, ExplorationEnv
+from mjexplore.envs.exploration import (EnvConfig, ExplorationEnv, ProceduralScenes,
+                                        heldout_scenes)
 from mjexplore.errors import UserInputError
 from mjexplore.episode import EpisodeConfig
 from mjexplore.io.atomic import write_bytes_atomic, write_text_atomic
@@ -92,19 +93,50 @@ class PolicyConfig:
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class EvalConfig:
-    """Periodic evaluation on held-out scenes (deterministic policy, main process).
+    """Periodic evaluation on held-out scenes (deterministic policy, main process); the best
+    evaluated weights are kept (model selection).
+
+    Select on held-out generated layouts (``procedural``), never on a scene results are
+    reported on (the paper's evaluation scenes, the lobby, Explore-Bench, ARiADNE): a
+    warning says so when ``scenes`` names one.
 
     Attributes:
-        scenes: Held-out scenes (never trained on).
+        scenes: Held-out scenes (never trained on), used when ``procedural`` is None.
+        procedural: If set, ``layouts`` generated layouts of these families and sizes whose
+            generator seeds training never draws (see :func:`heldout_scenes`), the same
+            at every evaluation.
+        layouts: How many held-out layouts.
         every: Evaluate every this many decision steps (0: never).
         episode: Episode settings of the evaluation (full physics by default).
-        seed: Seed of the evaluation episodes.
+        seed: Seed of the evaluation episodes and of the held-out layouts' draw.
     """
 
     scenes: tuple[str, ...] = ("loop_with_corridor",)
+    procedural: ProceduralScenes | None = None
+    layouts: int = 8
     every: int = 4096
     episode: EpisodeConfig = dataclasses.field(default_factory=EpisodeConfig)
     seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.layouts < 1:
+            raise ValueError("eval.layouts must be >= 1")
+        if self.procedural is None and self.every:
+            from mjexplore.scenes.canonical import canonical_names
+
+            reported = set(canonical_names("eval")) | set(canonical_names("real"))
+            named = [s for s in self.scenes if s in reported or any(
+                t in str(s).lower() for t in ("explore_bench", "ariadne"))]
+            if named:
+                log.warning("model selection on %s, where results are reported, biases them: "
+                            "set eval.procedural to select on held-out generated layouts",
+                            ", ".join(named))
+
+    def scene_list(self) -> tuple[str, ...]:
+        """The scenes evaluated: ``scenes``, or the held-out layouts' folders."""
+        if self.procedural is None:
+            return self.scenes
+        return heldout_scenes(self.procedural, self.layouts, self.seed)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -287,7 +319,7 @@ def _policy_kwargs(config: TrainConfig) -> dict[str, Any]:
 def evaluate_policy_episodes(policy, config: TrainConfig) -> list[dict[str, Any]]:
     """Runs the policy deterministically on the held-out scenes; their episode metrics."""
     results = []
-    for scene in config.eval.scenes:
+    for scene in config.eval.scene_list():
         env_cfg = dataclasses.replace(config.env, scenes=(scene,), procedural=None,
                                       episode=config.eval.episode)
         env = ExplorationEnv(env_cfg)

@@ -19,7 +19,8 @@ import torch
 from gymnasium import spaces
 
 from mjexplore.config import from_dict, to_dict
-from mjexplore.envs import ENV_IDS, EnvConfig, ExplorationEnv, ObservationConfig, TerMemory
+from mjexplore.envs import (ENV_IDS, EnvConfig, ExplorationEnv, ObservationConfig,
+                            RewardConfig, TerMemory)
 from mjexplore.envs.observation import observation_space, structured
 from mjexplore.errors import UserInputError
 from mjexplore.episode import Episode, EpisodeConfig
@@ -340,7 +341,8 @@ def test_check_env_for_every_registered_id(env_id, tmp_path):
 
 
 def test_env_is_deterministic_and_reports_reward_terms():
-    config = EnvConfig(scenes=("train_loop",), episode=FAST, max_decisions=6)
+    config = EnvConfig(scenes=("train_loop",), episode=FAST, max_decisions=6,
+                       reward=RewardConfig(kind="paper"))
 
     def rollout():
         env = ExplorationEnv(config)
@@ -403,7 +405,8 @@ def test_the_last_allowed_decision_is_driven_before_the_limit_ends_the_episode()
 
 
 def test_invalid_action_is_a_no_op_with_the_step_cost():
-    env = ExplorationEnv(EnvConfig(scenes=("train_loop",), episode=FAST))
+    env = ExplorationEnv(EnvConfig(scenes=("train_loop",), episode=FAST,
+                                   reward=RewardConfig(kind="paper")))
     obs, info = env.reset(seed=0)
     padding = int(np.flatnonzero(obs["node_mask"] == 0)[0])
     t0 = info["sim_time"]

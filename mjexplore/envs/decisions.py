@@ -23,8 +23,10 @@ import cv2
 import numpy as np
 from gymnasium import spaces
 
-from mjexplore.envs.observation import ObservationConfig, TerMemory, observation_space, ter_arrays
+from mjexplore.envs.observation import (ObservationConfig, TerMemory, observation_space,
+                                        path_features, ter_arrays)
 from mjexplore.explorers.base import ExplorationState
+from mjexplore.topology.pipeline import TopologyConfig
 from mjexplore.topology.ter import FRONTIER_FLAG, PaddedTer, TerConfig
 
 GRID_CHANNELS = ("free", "occupied", "unknown", "robot", "trajectory")
@@ -47,15 +49,22 @@ class TerDecisions:
     """TER-node decisions (see the module docstring).
 
     Args:
-        config: Observation layout (N_max, K, epsilon).
+        config: Observation layout (N_max, K, epsilon, feature set).
         valid_actions: 'frontiers' (invalid action masking) or 'all_nodes'.
+        topology: TER settings to build the TER with (information gain kind and window,
+            D_gain, link candidates), as a policy was trained with; None builds it with the
+            episode's own tracker settings. Frontiers and the GVD are the episode's either
+            way.
     """
 
-    def __init__(self, config: ObservationConfig, valid_actions: str = "frontiers") -> None:
+    def __init__(self, config: ObservationConfig, valid_actions: str = "frontiers",
+                 topology: TopologyConfig | None = None) -> None:
         self.config = config
         self.valid_actions = valid_actions
-        self.ter_config = TerConfig(max_nodes=config.max_nodes,
-                                    max_neighbours=config.max_neighbours)
+        self.topology = topology
+        ter = topology.ter if topology is not None else TerConfig()
+        self.ter_config = dataclasses.replace(ter, max_nodes=config.max_nodes,
+                                              max_neighbours=config.max_neighbours)
         self.observation_space = observation_space(config)
         self.action_space = spaces.Discrete(config.max_nodes)
         self.memory = TerMemory(config)
@@ -64,13 +73,29 @@ class TerDecisions:
     def reset(self) -> None:
         self.memory.reset()
         self.padded: PaddedTer | None = None  # The TER of the current decision...
-        self.current: dict[str, np.ndarray] | None = None  # ...as observation arrays.
+        self.current: dict[str, np.ndarray] | None = None  # ...as observation arrays...
+        self.pose: np.ndarray | None = None  # ...and the robot's map pose then.
         self.mask = np.zeros(self.config.max_nodes, bool)
+
+    def _extra_features(self, padded: PaddedTer, state: ExplorationState) -> np.ndarray:
+        """The v2 node features [path, unreachable, blacklisted] (N, 3) of a padded TER:
+        one Dijkstra from the robot over the costmap per decision."""
+        real = padded.node_mask > 0
+        extra = np.zeros((len(real), 3), np.float32)
+        if real.any():
+            grid = state.grid
+            positions = padded.node_positions[real]
+            distances = state.costmap.distances_from(state.pose[:2])
+            half = int(round(self.config.path_radius / grid.resolution))
+            cells = np.clip(grid.world_to_cell(positions), 0, np.array(grid.shape) - 1)
+            extra[real] = path_features(distances, cells, state.allowed(positions), half)
+        return extra
 
     def prepare(self, state: ExplorationState) -> bool:
         """Builds the observation and mask; False when no valid frontier is left (the
         observation is still that of ``state``, the mask then empty)."""
-        ter, _, _ = state.extras["tracker"].ter(state.grid, state.pose)
+        tracker = state.extras["tracker"]
+        ter, _, _ = tracker.ter(state.grid, state.pose, self.topology)
         state.extras["ter"] = ter
         padded = ter.padded(self.ter_config)
         mask = ter_action_mask(padded, state, "frontiers")
@@ -78,7 +103,9 @@ class TerDecisions:
         if valid and self.valid_actions == "all_nodes":
             mask = ter_action_mask(padded, state, "all_nodes")
         self.padded, self.mask = padded, mask
-        self.current = ter_arrays(padded)
+        extra = self._extra_features(padded, state) if self.config.features == "v2" else None
+        self.current = ter_arrays(padded, extra)
+        self.pose = np.asarray(state.pose, float).copy()
         return valid
 
     def observation(self) -> dict[str, np.ndarray]:
@@ -87,7 +114,7 @@ class TerDecisions:
                              for k, v in self.observation_space.spaces.items()
                              if not k.startswith("memory")}
             self.current["neighbours"][:] = -1.0
-        return self.memory.observation(self.current)
+        return self.memory.observation(self.current, self.pose)
 
     def action_positions(self) -> np.ndarray:
         """(N_max, 2) map-frame positions (m) of the actions: the nodes (padding at 0)."""
@@ -98,7 +125,7 @@ class TerDecisions:
         p = self.padded
         if p is None or not 0 <= action < len(p.node_mask) or p.node_mask[action] <= 0:
             return None
-        self.memory.remember(self.current, action)
+        self.memory.remember(self.current, action, self.pose)
         waypoint = bool(p.node_features[action, 5] != FRONTIER_FLAG)
         return p.node_positions[action].astype(float), waypoint
 

@@ -26,14 +26,43 @@ TRAIN_FAMILIES = ("office", "maze", "loop", "corridor", "rooms", "loop+rooms",
                   "corridor+rooms", "maze+loop")
 
 
+REWARD_KINDS = ("time", "paper")
+# Ends short of the target that the time reward charges for: the map is left unfinished.
+SHORT_ENDS = ("no_frontiers", "lingering", "tipped_over", "time_limit", "physics_fault")
+
+
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class RewardConfig:
-    """Reward of paper Eq. 16-18, per decision step.
+    """The reward per decision step: 'time' (default) or 'paper'.
 
-    r_t = scale * (b1 dG_info - b2 dL_path + b3 r_Acc - b4), with dG_info the area of the
-    observable ground truth first seen during the step (m^2), dL_path the true path
-    driven during it (m), r_Acc the change of Eq. 18's accuracy (cells of the map whose
-    class equals the ground truth's) in m^2, and b4 paid once per step.
+    **time** measures what the evaluation measures, the time to explore. In seconds'
+    worth, scaled by ``time_scale``:
+
+    r_t = time_scale * (-dt - decision_s + gain_s_per_m2 dG_info
+                        + completion_s [explored] - shortfall_s u [ended short])
+
+    with dt the simulated seconds the step took (the drive to the chosen node), dG_info the
+    area of the observable ground truth first seen during it (m^2), and u = max(0, 1 -
+    ratio / target) the share of the map left unexplored when the episode ends short of
+    the target (``no_frontiers``, ``lingering``, ``tipped_over``, ``time_limit``,
+    ``physics_fault``; not at ``decision_limit``, an artificial cut PPO bootstraps over).
+    The undiscounted return is -time_scale (T + decision_s N - gain_s_per_m2 G + ...): an
+    episode that explores the same map in less time, with the same decisions, returns
+    more. A refused or blacklisted goal costs the time it wastes, and ``decision_s`` on
+    top, since a goal given up at once costs no simulated time. The default scale makes a
+    200 s episode return about -2 (PPO's value targets near unit scale); the gain term is a
+    small shaping (about 10 % of the return on the training layouts: 0.1 s per m^2 seen),
+    the completion bonus is worth 100 s and leaving the whole map unexplored 1000 s.
+
+    Time enters the reward rather than the discount: SB3 discounts per step, and a step
+    here lasts 1 to 60 s. Train with ``ppo.gamma`` near 1 (0.995 in training/gvn_v2.yaml)
+    so that the discount per decision does not hide the time cost of late decisions.
+
+    **paper** is Eq. 16-18 of the EMExplorer paper, per decision step:
+
+    r_t = scale * (b1 dG_info - b2 dL_path + b3 r_Acc - b4), with dL_path the true path
+    driven during the step (m), r_Acc the change of Eq. 18's accuracy (cells of the map
+    whose class equals the ground truth's) in m^2, and b4 paid once per step.
 
     The paper writes G_info and L_path as totals "before time step t". Paying totals at
     every step would pay the same area again at every later step (so stalling after a
@@ -42,15 +71,37 @@ class RewardConfig:
     b3 Acc - b4 N_T of the whole episode, which is what Eq. 16 asks to trade off.
 
     Attributes:
-        b1, b2, b3, b4: The weights (paper: 1.0, 0.6, 0.5, 0.3).
-        scale: Factor on the whole reward (keeps PPO's value targets near unit scale).
+        kind: 'time' or 'paper'.
+        b1, b2, b3, b4: The paper's weights (paper: 1.0, 0.6, 0.5, 0.3).
+        scale: Factor on the whole paper reward (keeps PPO's value targets near unit
+            scale).
+        time_scale: Reward per second of the time reward.
+        decision_s: Seconds' worth charged per decision.
+        gain_s_per_m2: Seconds' worth paid per m^2 of the map first seen.
+        completion_s: Seconds' worth paid when the episode reaches the target ratio.
+        shortfall_s: Seconds' worth charged for the whole map left unexplored at a short
+            end (times the unexplored share).
     """
 
+    kind: str = "time"
     b1: float = 1.0
     b2: float = 0.6
     b3: float = 0.5
     b4: float = 0.3
     scale: float = 0.1
+    time_scale: float = 0.01
+    decision_s: float = 1.0
+    gain_s_per_m2: float = 0.1
+    completion_s: float = 100.0
+    shortfall_s: float = 1000.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in REWARD_KINDS:
+            raise ValueError(f"reward.kind must be one of {', '.join(REWARD_KINDS)}, not "
+                             f"{self.kind!r}")
+        if self.time_scale <= 0 or min(self.decision_s, self.gain_s_per_m2, self.completion_s,
+                                       self.shortfall_s) < 0:
+            raise ValueError("reward.time_scale must be > 0 and the seconds' worths >= 0")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -80,9 +131,9 @@ class EnvConfig:
         episode: Episode settings (physics or kinematic dynamics, limits).
         decisions: 'ter' (TER nodes, the GVN) or 'grid' (map image and coarse goal cells,
             the CNN baseline); see :mod:`mjexplore.envs.decisions`.
-        observation: TER observation layout (N_max, K, epsilon).
+        observation: TER observation layout (N_max, K, epsilon, feature set).
         grid: Grid decision space (image size, action cells).
-        reward: Reward weights.
+        reward: Reward kind ('time' or 'paper') and weights.
         valid_actions: 'frontiers' (invalid action masking: frontier nodes that are not
             blacklisted) or 'all_nodes' (every TER node; the paper's "without IAM").
         max_decisions: Decisions after which an episode is truncated.
@@ -109,6 +160,51 @@ class EnvConfig:
             raise UserInputError("the env needs scenes: give 'scenes' or 'procedural'.")
         if self.max_decisions < 1:
             raise UserInputError(f"max_decisions must be >= 1, not {self.max_decisions}.")
+
+
+# Generator seeds of held-out layouts start here: the training stream draws its seeds
+# below 2**31 - 1 (see :func:`procedural_scene`), so the two never share a layout.
+HELDOUT_SEED_BASE = 2**31
+
+
+def procedural_scene(proc: ProceduralScenes, rng: np.random.Generator,
+                     seed: int | None = None) -> Path:
+    """A generated layout's scene folder (written once into the cache, then reused).
+
+    Family and size are drawn from ``rng``; the generator seed too, in [0, 2**31 - 1),
+    unless ``seed`` is given. A draw whose size the family cannot fill is drawn again.
+
+    Raises:
+        UserInputError: No family fits the configured sizes.
+    """
+    from mjexplore.scenes.generate import generate_scene
+    from mjexplore.scenes.scene import write_scene
+
+    root = Path(proc.cache_dir or Path(tempfile.gettempdir()) / "mjexplore-train")
+    for _ in range(20):
+        family = proc.families[int(rng.integers(len(proc.families)))]
+        width = round(float(rng.uniform(*proc.width)), 1)
+        height = round(float(rng.uniform(*proc.height)), 1)
+        drawn = int(rng.integers(2**31 - 1))
+        layout_seed = drawn if seed is None else seed
+        folder = root / f"{family.replace('+', '-')}_{width:g}x{height:g}_s{layout_seed}"
+        if (folder / "scene.xml").is_file():
+            return folder
+        try:
+            write_scene(generate_scene(family, width, height, layout_seed), folder)
+        except UserInputError:
+            continue  # A size this family cannot fill; draw again.
+        return folder
+    raise UserInputError("procedural scenes: no family fits the configured sizes; widen "
+                         "'width'/'height'.")
+
+
+def heldout_scenes(proc: ProceduralScenes, count: int, seed: int = 0) -> tuple[str, ...]:
+    """Scene folders of ``count`` generated layouts of ``proc``'s families and sizes that
+    training never draws (generator seeds from :data:`HELDOUT_SEED_BASE`): a fixed
+    validation set for model selection, the same for every call with these arguments."""
+    rng = np.random.default_rng(seed)
+    return tuple(str(procedural_scene(proc, rng, HELDOUT_SEED_BASE + i)) for i in range(count))
 
 
 class NodeGoals:
@@ -148,18 +244,24 @@ class ExplorationEnv(gym.Env):
     the valid ones (frontier nodes, not blacklisted, under invalid action masking; every
     real node with ``valid_actions='all_nodes'``). A frontier node becomes a frontier goal,
     another node a waypoint. A padding slot is an invalid action: nothing moves and the
-    step costs b4 (``info['invalid_action']``).
+    step costs one decision (``decision_s``; b4 with the paper reward;
+    ``info['invalid_action']``).
 
     ## Observation Space
 
     A ``Dict`` of float32 boxes: the padded TER (node features, neighbour indices, node
-    mask) and the raw inputs of the episodic memory of the last epsilon decisions; see
-    :mod:`mjexplore.envs.observation`.
+    mask) and the raw inputs of the episodic memory of the last epsilon decisions; the
+    ``v2`` feature set adds path cost, reachability and blacklist flags per node and the
+    memory's poses; see :mod:`mjexplore.envs.observation`.
 
     ## Rewards
 
-    Paper Eq. 16-18 as per-step increments; see :class:`RewardConfig`. ``info`` holds each
-    term (``gain_m2``, ``path_m``, ``accuracy_m2``, ``steps``) and the weighted reward.
+    ``time`` (default): minus the simulated seconds the step took and a per-decision
+    charge, a small bonus per m^2 seen, a completion bonus when explored and a charge for
+    the share left unexplored when the episode ends short. ``paper``: Eq. 16-18 as
+    per-step increments. See :class:`RewardConfig`. ``info`` holds each term
+    (``gain_m2``, ``path_m``, ``accuracy_m2``, ``steps``, ``dt_s``; ``completion_s`` and
+    ``shortfall_s`` for ``time``) and the weighted reward.
 
     ## Starting State
 
@@ -181,7 +283,9 @@ class ExplorationEnv(gym.Env):
 
     ## Version History
 
-    * v0: initial version.
+    * v0: initial version. The time reward and the v2 features came later as options
+      (``reward.kind``, ``observation.features``); ``reward.kind`` defaults to ``time``,
+      set ``paper`` for the original reward.
     """
 
     metadata = {"render_modes": []}
@@ -217,25 +321,7 @@ class ExplorationEnv(gym.Env):
             if name not in self._scene_cache:
                 self._scene_cache[name] = resolve_scene(name)
             return self._scene_cache[name]
-        from mjexplore.scenes.generate import generate_scene
-        from mjexplore.scenes.scene import write_scene
-
-        root = Path(proc.cache_dir or Path(tempfile.gettempdir()) / "mjexplore-train")
-        for _ in range(20):
-            family = proc.families[int(rng.integers(len(proc.families)))]
-            width = round(float(rng.uniform(*proc.width)), 1)
-            height = round(float(rng.uniform(*proc.height)), 1)
-            seed = int(rng.integers(2**31 - 1))
-            folder = root / f"{family.replace('+', '-')}_{width:g}x{height:g}_s{seed}"
-            if (folder / "scene.xml").is_file():
-                return load_scene_files(folder)
-            try:
-                write_scene(generate_scene(family, width, height, seed), folder)
-            except UserInputError:
-                continue  # A size this family cannot fill; draw again.
-            return load_scene_files(folder)
-        raise UserInputError("procedural scenes: no family fits the configured sizes; widen "
-                             "'width'/'height'.")
+        return load_scene_files(procedural_scene(proc, rng))
 
     # ------------------------------------------------------------------ decisions
 
@@ -266,11 +352,12 @@ class ExplorationEnv(gym.Env):
     def _observation(self) -> dict[str, np.ndarray]:
         return self.decisions.observation()
 
-    def _progress(self) -> tuple[int, int, int]:
-        """(observable cells known, accuracy in cells, kinematics rows) now."""
+    def _progress(self) -> tuple[int, int, int, float]:
+        """(observable cells known, accuracy in cells, kinematics rows, simulated time in
+        seconds) now."""
         ep = self.episode
         return (ep.counter.count, accuracy(ep.mapper.grid, ep.reference),
-                len(ep.sim.kinematics_rows))
+                len(ep.sim.kinematics_rows), float(ep.sim.time))
 
     def _info(self) -> dict[str, Any]:
         ep = self.episode
@@ -289,6 +376,7 @@ class ExplorationEnv(gym.Env):
                                self._episode_config)
         self.decisions.reset()
         self._decisions = 0
+        self._end_paid = False
         self._prepare_decision()
         self._before = self._progress()
         return self._observation(), self._info()
@@ -307,19 +395,31 @@ class ExplorationEnv(gym.Env):
             self._decisions += 1
             if self._prepare_decision() and self._decisions >= self.config.max_decisions:
                 ep.end_reason = "decision_limit"
-        known0, acc0, row0 = self._before
-        known1, acc1, row1 = self._before = self._progress()
+        known0, acc0, row0, t0 = self._before
+        known1, acc1, row1, t1 = self._before = self._progress()
         cell_area = ep.mapper.grid.resolution ** 2
         xy = ep.sim.kinematics_rows[max(row0 - 1, 0):row1, 5:7]
         path = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum()) if len(xy) > 1 else 0.0
         gain = (known1 - known0) * cell_area
         acc = (acc1 - acc0) * cell_area
-        reward = cfg.scale * (cfg.b1 * gain - cfg.b2 * path + cfg.b3 * acc - cfg.b4)
+        terms = {"gain_m2": gain, "path_m": path, "accuracy_m2": acc, "steps": 1,
+                 "dt_s": t1 - t0}
+        if cfg.kind == "paper":
+            reward = cfg.scale * (cfg.b1 * gain - cfg.b2 * path + cfg.b3 * acc - cfg.b4)
+        else:
+            end = None if self._end_paid else ep.end_reason  # Charged once.
+            self._end_paid = self._end_paid or end is not None
+            ratio = float(ep.curve[-1][1])
+            target = ep.config.target_ratio
+            terms["completion_s"] = cfg.completion_s if end == "explored" else 0.0
+            terms["shortfall_s"] = (cfg.shortfall_s * max(0.0, 1.0 - ratio / target)
+                                    if end in SHORT_ENDS else 0.0)
+            reward = cfg.time_scale * (-(t1 - t0) - cfg.decision_s + cfg.gain_s_per_m2 * gain
+                                       + terms["completion_s"] - terms["shortfall_s"])
         terminated = ep.end_reason in TERMINAL_REASONS
         truncated = ep.end_reason is not None and not terminated
         info = self._info()
-        info.update(gain_m2=gain, path_m=path, accuracy_m2=acc, steps=1,
-                    invalid_action=invalid, reward=reward)
+        info.update(terms, invalid_action=invalid, reward=reward)
         if terminated or truncated:
             info["episode_metrics"] = ep.result().metrics
         return self._observation(), float(reward), bool(terminated), bool(truncated), info

@@ -8,26 +8,47 @@ carries the *raw* inputs instead — each remembered decision's padded TER and i
 node — and the policy re-encodes them with its current weights at every forward pass.
 At deployment the weights are fixed, so re-encoding and caching give the same numbers.
 
+Two feature sets (``ObservationConfig.features``); a policy is trained on one and its
+weights record which:
+
+* ``v1``: the paper's node features, F = 6.
+* ``v2``: F = 9, the v1 features and three more per node: the path cost from the robot
+  along the known map (what nearest-frontier ranks by), a flag for nodes no path reaches,
+  and a flag for nodes at a given-up (blacklisted) goal; and ``memory_pose``, the pose
+  each remembered TER was stored at, in the current robot frame, so that the policy can
+  place old TERs (whose node positions are relative to the robot of their time).
+
 Layout (N = ``max_nodes``, K = ``max_neighbours``, E = ``memory_length``; all float32 and
 flat, row-major: SB3 takes only 1-D vectors and images as plain observations):
 
-* ``node_features`` (N 6): per node [px, py, G_info, phi_diff, D, flag] of the TER (see
-  :mod:`mjexplore.topology.ter`; metres, radians, gain a share in [0, 1]); zero for
-  padding.
+* ``node_features`` (N F): per node [px, py, G_info, phi_diff, D, flag] of the TER (see
+  :mod:`mjexplore.topology.ter`; metres, radians, gain a share in [0, 1]), then for v2
+  [path, unreachable, blacklisted]: path cost in metres (Costmap.distances_from, wall
+  penalty included; the least over the cells within ``path_radius`` of the node, as
+  nearest-frontier reads a goal; 0 when unreachable), unreachable in {0, 1}, blacklisted in
+  {0, 1}; zero for padding.
 * ``neighbours`` (N K): per node its neighbour node indices, -1 for an empty slot.
 * ``node_mask`` (N): 1 for real nodes.
-* ``memory_node_features`` (E N 6), ``memory_neighbours`` (E N K), ``memory_node_mask``
+* ``memory_node_features`` (E N F), ``memory_neighbours`` (E N K), ``memory_node_mask``
   (E N): the TERs of the last E decisions, oldest first; slots before the episode's first
   decision are all zero (neighbours -1).
 * ``memory_choice`` (E): index of the node chosen at each remembered decision.
 * ``memory_mask`` (E): 1 for slots holding a decision.
+* ``memory_pose`` (E 3), v2 only: (dx, dy, dyaw) of the robot pose each remembered TER was
+  built at, in the current ``base_link`` frame (metres, radians in [-pi, pi)); a node at
+  (px, py) of that TER lies at R(dyaw) (px, py) + (dx, dy) from the robot now. Zero for
+  empty slots.
 
-:func:`structured` restores the (N, 6), (N, K), ... shapes.
+Edge lengths are not carried: a TER edge is the straight segment between its nodes, so its
+length is the distance between the nodes' (px, py), which the network computes.
+
+:func:`structured` restores the (N, F), (N, K), ... shapes.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 from gymnasium import spaces
@@ -35,8 +56,12 @@ from gymnasium import spaces
 from mjexplore.topology.ter import NUM_FEATURES, PaddedTer
 
 # Bounds of the node features (finite, as SB3 wants): positions and distances in metres,
-# gain a share in [0, 1], bearing in radians, flag in {-1, 0, 1}.
+# gain a share in [0, 1], bearing in radians, flags in {-1, 0, 1}.
 FEATURE_BOUND = 1.0e4
+FEATURE_SETS = ("v1", "v2")
+# Node features per feature set: v2 adds path cost, unreachable and blacklisted.
+NODE_FEATURES = {"v1": NUM_FEATURES, "v2": NUM_FEATURES + 3}
+PATH, UNREACHABLE, BLACKLISTED = NUM_FEATURES, NUM_FEATURES + 1, NUM_FEATURES + 2
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -47,37 +72,102 @@ class ObservationConfig:
         max_nodes: N_max, TER nodes per observation (the action space size).
         max_neighbours: K, neighbour slots per node.
         memory_length: epsilon, decisions kept in the episodic memory (paper: 10).
+        features: 'v1' (the paper's node features) or 'v2' (with path cost, reachability,
+            blacklist flags and memory poses); see the module docstring.
+        path_radius: v2: a node's path cost is the least over the cells within this
+            distance of it (metres; the reach nearest-frontier gives a goal).
     """
 
     max_nodes: int = 256
     max_neighbours: int = 8
     memory_length: int = 10
+    features: str = "v1"
+    path_radius: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.features not in FEATURE_SETS:
+            raise ValueError(f"observation.features must be one of {', '.join(FEATURE_SETS)}, "
+                             f"not {self.features!r}")
+        if self.max_nodes < 2 or self.max_neighbours < 1 or self.memory_length < 1:
+            raise ValueError("observation sizes: max_nodes >= 2, max_neighbours and "
+                             "memory_length >= 1")
+        if self.path_radius < 0:
+            raise ValueError("observation.path_radius must be >= 0")
+
+    @property
+    def num_features(self) -> int:
+        """F, node features per node."""
+        return NODE_FEATURES[self.features]
 
 
 def observation_space(config: ObservationConfig) -> spaces.Dict:
     """The Dict space of :class:`TerMemory` observations."""
     n, k, e = config.max_nodes, config.max_neighbours, config.memory_length
+    f = config.num_features
     feat = dict(low=-FEATURE_BOUND, high=FEATURE_BOUND, dtype=np.float32)
     index = dict(low=-1.0, high=float(n - 1), dtype=np.float32)
     unit = dict(low=0.0, high=1.0, dtype=np.float32)
-    return spaces.Dict({
-        "node_features": spaces.Box(shape=(n * NUM_FEATURES,), **feat),
+    space = {
+        "node_features": spaces.Box(shape=(n * f,), **feat),
         "neighbours": spaces.Box(shape=(n * k,), **index),
         "node_mask": spaces.Box(shape=(n,), **unit),
-        "memory_node_features": spaces.Box(shape=(e * n * NUM_FEATURES,), **feat),
+        "memory_node_features": spaces.Box(shape=(e * n * f,), **feat),
         "memory_neighbours": spaces.Box(shape=(e * n * k,), **index),
         "memory_node_mask": spaces.Box(shape=(e * n,), **unit),
         "memory_choice": spaces.Box(low=0.0, high=float(n - 1), shape=(e,), dtype=np.float32),
         "memory_mask": spaces.Box(shape=(e,), **unit),
-    })
+    }
+    if config.features == "v2":
+        space["memory_pose"] = spaces.Box(shape=(e * 3,), **feat)
+    return spaces.Dict(space)
 
 
-def ter_arrays(padded: PaddedTer) -> dict[str, np.ndarray]:
-    """The current-TER part of an observation."""
+def ter_arrays(padded: PaddedTer, extra: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """The current-TER part of an observation; ``extra`` (N, 3) are the v2 node features
+    [path, unreachable, blacklisted] (see :func:`path_features`), None for v1."""
     neighbours = np.where(padded.neighbour_mask > 0, padded.neighbours, -1).astype(np.float32)
-    return {"node_features": np.clip(padded.node_features, -FEATURE_BOUND, FEATURE_BOUND),
+    features = padded.node_features
+    if extra is not None:
+        features = np.concatenate([features, extra.astype(np.float32)], axis=1)
+    return {"node_features": np.clip(features, -FEATURE_BOUND, FEATURE_BOUND),
             "neighbours": neighbours,
             "node_mask": padded.node_mask.astype(np.float32)}
+
+
+def window_min(values: np.ndarray, cells: np.ndarray, half: int) -> np.ndarray:
+    """The least of ``values`` (rows, cols) in the (2 half + 1)-cell square around each
+    (row, col) of ``cells`` (k, 2), the square clipped to the grid."""
+    rows, cols = values.shape
+    offsets = np.arange(-half, half + 1)
+    r = np.clip(cells[:, 0, None] + offsets, 0, rows - 1)  # (k, w)
+    c = np.clip(cells[:, 1, None] + offsets, 0, cols - 1)
+    return values[r[:, :, None], c[:, None, :]].reshape(len(cells), -1).min(axis=1)
+
+
+def path_features(distances: np.ndarray, cells: np.ndarray, allowed: np.ndarray,
+                  half: int) -> np.ndarray:
+    """The v2 node features [path, unreachable, blacklisted] (k, 3).
+
+    Args:
+        distances: (rows, cols) path cost from the robot, metres, inf where unreachable
+            (``Costmap.distances_from``).
+        cells: (k, 2) (row, col) cells of the nodes.
+        allowed: (k,) False for nodes at a blacklisted goal.
+        half: Window half-side in cells (the path radius).
+    """
+    path = window_min(distances, np.asarray(cells, np.int64).reshape(-1, 2), half)
+    reachable = np.isfinite(path)
+    return np.column_stack([np.where(reachable, path, 0.0), ~reachable,
+                            ~np.asarray(allowed, bool)]).astype(np.float32)
+
+
+def poses_in_frame(reference: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """Poses (k, 3) (x, y, yaw, one frame) expressed in the frame of the pose
+    ``reference`` (3,) of that frame: (dx, dy, dyaw), metres and radians in [-pi, pi)."""
+    c, s = math.cos(reference[2]), math.sin(reference[2])
+    dx, dy = poses[:, 0] - reference[0], poses[:, 1] - reference[1]
+    dyaw = (poses[:, 2] - reference[2] + math.pi) % (2 * math.pi) - math.pi
+    return np.column_stack([c * dx + s * dy, -s * dx + c * dy, dyaw])
 
 
 class TerMemory:
@@ -90,11 +180,12 @@ class TerMemory:
     def __init__(self, config: ObservationConfig) -> None:
         self.config = config
         n, k, e = config.max_nodes, config.max_neighbours, config.memory_length
-        self._features = np.zeros((e, n, NUM_FEATURES), np.float32)
+        self._features = np.zeros((e, n, config.num_features), np.float32)
         self._neighbours = np.full((e, n, k), -1.0, np.float32)
         self._node_mask = np.zeros((e, n), np.float32)
         self._choice = np.zeros(e, np.float32)
         self._mask = np.zeros(e, np.float32)
+        self._pose = np.zeros((e, 3))  # map frame, as stored
 
     def reset(self) -> None:
         """Forgets every decision (a new episode)."""
@@ -103,38 +194,55 @@ class TerMemory:
         self._node_mask[:] = 0.0
         self._choice[:] = 0.0
         self._mask[:] = 0.0
+        self._pose[:] = 0.0
 
-    def observation(self, current: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """The full observation for the current TER arrays (from :func:`ter_arrays`)."""
-        return {**{k: v.reshape(-1).copy() for k, v in current.items()},
-                "memory_node_features": self._features.reshape(-1).copy(),
-                "memory_neighbours": self._neighbours.reshape(-1).copy(),
-                "memory_node_mask": self._node_mask.reshape(-1).copy(),
-                "memory_choice": self._choice.copy(),
-                "memory_mask": self._mask.copy()}
+    def observation(self, current: dict[str, np.ndarray],
+                    pose: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """The full observation for the current TER arrays (from :func:`ter_arrays`) and,
+        for v2, the robot's pose (x, y, yaw) in the ``map`` frame now (None: unknown, the
+        memory poses read zero)."""
+        obs = {**{k: v.reshape(-1).copy() for k, v in current.items()},
+               "memory_node_features": self._features.reshape(-1).copy(),
+               "memory_neighbours": self._neighbours.reshape(-1).copy(),
+               "memory_node_mask": self._node_mask.reshape(-1).copy(),
+               "memory_choice": self._choice.copy(),
+               "memory_mask": self._mask.copy()}
+        if self.config.features == "v2":
+            relative = np.zeros_like(self._pose)
+            if pose is not None:
+                relative = poses_in_frame(np.asarray(pose, float), self._pose)
+                relative[self._mask == 0] = 0.0
+            obs["memory_pose"] = np.clip(relative, -FEATURE_BOUND, FEATURE_BOUND).astype(
+                np.float32).reshape(-1)
+        return obs
 
-    def remember(self, current: dict[str, np.ndarray], choice: int) -> None:
-        """Appends a decision (the TER arrays, from :func:`ter_arrays`, it was made on and
-        the node chosen), dropping the oldest when full."""
+    def remember(self, current: dict[str, np.ndarray], choice: int,
+                 pose: np.ndarray | None = None) -> None:
+        """Appends a decision (the TER arrays, from :func:`ter_arrays`, it was made on, the
+        node chosen and the robot's ``map`` pose then), dropping the oldest when full."""
         for buf in (self._features, self._neighbours, self._node_mask, self._choice,
-                    self._mask):
+                    self._mask, self._pose):
             buf[:-1] = buf[1:]
         self._features[-1] = current["node_features"].reshape(self._features.shape[1:])
         self._neighbours[-1] = current["neighbours"].reshape(self._neighbours.shape[1:])
         self._node_mask[-1] = current["node_mask"]
         self._choice[-1] = float(choice)
         self._mask[-1] = 1.0
+        self._pose[-1] = 0.0 if pose is None else np.asarray(pose, float)[:3]
 
 
 def structured(obs: dict, batch_dims: int = 1) -> dict:
     """Reshapes flat observation arrays or tensors (with ``batch_dims`` leading axes) to
-    (..., N, 6), (..., N, K), (..., N), (..., E, N, 6), (..., E, N, K), (..., E, N),
-    (..., E), (..., E)."""
+    (..., N, F), (..., N, K), (..., N), (..., E, N, F), (..., E, N, K), (..., E, N),
+    (..., E), (..., E) and, for v2, (..., E, 3)."""
     lead = tuple(obs["node_mask"].shape[:batch_dims])
     n = obs["node_mask"].shape[-1]
     e = obs["memory_mask"].shape[-1]
     k = obs["neighbours"].shape[-1] // n
-    shapes = {"node_features": (n, NUM_FEATURES), "neighbours": (n, k), "node_mask": (n,),
-              "memory_node_features": (e, n, NUM_FEATURES), "memory_neighbours": (e, n, k),
+    f = obs["node_features"].shape[-1] // n
+    shapes = {"node_features": (n, f), "neighbours": (n, k), "node_mask": (n,),
+              "memory_node_features": (e, n, f), "memory_neighbours": (e, n, k),
               "memory_node_mask": (e, n), "memory_choice": (e,), "memory_mask": (e,)}
+    if "memory_pose" in obs:
+        shapes["memory_pose"] = (e, 3)
     return {key: obs[key].reshape(*lead, *shape) for key, shape in shapes.items()}

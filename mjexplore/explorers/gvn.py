@@ -5,9 +5,14 @@ vertex of the robot's component, or the robot, sees it), it answers None and the
 takes the nearest frontier (counted in ``fallbacks`` of metrics.json), so that the episode
 does not end with open frontiers.
 
-The policy's episodic memory is kept here as encoded fragments: with fixed weights,
-encoding each decision's TER once and caching its fragment gives the same numbers as
-re-encoding the raw memory at every decision (as training does), at a tenth of the cost.
+The policy's episodic memory of a ``v1`` policy is kept here as encoded fragments: with
+fixed weights, encoding each decision's TER once and caching its fragment gives the same
+numbers as re-encoding the raw memory at every decision (as training does), at a tenth of
+the cost. A ``v2`` policy's fragments depend on where the robot is now (the memory's poses
+are relative to it), so it runs the policy on the full observation, as in training.
+
+The observation is built as the policy was trained: its weights file names the feature set
+and the topology settings (information gain kind, D_gain, ...) of its training episodes.
 """
 
 from __future__ import annotations
@@ -43,7 +48,8 @@ class GvnExplorer:
         self.policy, meta = load_policy(policy or DEFAULT_WEIGHTS, expected_kind="gvn")
         self.gvn = self.policy.features_extractor.gvn
         obs = meta["decisions"].config
-        self.decisions = TerDecisions(obs, "frontiers" if masking else "all_nodes")
+        self.decisions = TerDecisions(obs, "frontiers" if masking else "all_nodes",
+                                      meta["decisions"].topology)
         self.ter_config = self.decisions.ter_config
         self.memory_length = obs.memory_length
         self.masking = masking
@@ -84,20 +90,27 @@ class GvnExplorer:
             # them) are not nodes: the episode's fallback takes the nearest one.
             self.waypoint = False
             return None
-        logits, r = self.logits(d.current)
+        if self.gvn.config.features == "v1":
+            logits, r = self.logits(d.current)
+        else:
+            t = {k: torch.as_tensor(v)[None] for k, v in d.observation().items()}
+            with torch.no_grad():
+                logits = self.policy.mlp_extractor.forward_actor(
+                    self.policy.extract_features(t))[0]
         masked = torch.where(torch.as_tensor(d.mask), logits, torch.tensor(-1e8))
         if self.deterministic:
             action = int(torch.argmax(masked))
         else:
             p = torch.softmax(masked.double(), 0).numpy()
             action = int(self.rng.choice(len(p), p=p / p.sum()))
-        with torch.no_grad():
-            n = r.shape[1]
-            frag = self.gvn.fragments(r[0], torch.arange(n),
-                                      torch.as_tensor(d.current["node_mask"][:n])[None],
-                                      torch.tensor([action]))
-        self._fragments = torch.cat([self._fragments[:, 1:], frag[:, None]], 1)
-        self._memory_mask = torch.cat([self._memory_mask[:, 1:], torch.ones(1, 1)], 1)
+        if self.gvn.config.features == "v1":
+            with torch.no_grad():
+                n = r.shape[1]
+                frag = self.gvn.fragments(r[0], torch.arange(n),
+                                          torch.as_tensor(d.current["node_mask"][:n])[None],
+                                          torch.tensor([action]))
+            self._fragments = torch.cat([self._fragments[:, 1:], frag[:, None]], 1)
+            self._memory_mask = torch.cat([self._memory_mask[:, 1:], torch.ones(1, 1)], 1)
         goal, self.waypoint = d.act(action)
         return goal
 

@@ -19,6 +19,19 @@ Pipeline for one decision (paper Fig. 3), B observations of N TER nodes:
 
 The paper models the policy as a Gaussian; with one TER node per action the natural and
 here used form is a categorical distribution over node logits (masked, Eq. 14-15).
+
+The ``v2`` network (for the ``v2`` observation, see :mod:`mjexplore.envs.observation`)
+changes three things and keeps the rest:
+
+* E_S passes messages filtered by edge length: node i gets W_s g_i + sum_b W_b (mean over
+  its neighbours j of phi_b(l_ij) g_j), phi_b Gaussians of the edge's length l_ij (the
+  distance between the nodes, computed from their features), so each channel can weigh a
+  0.3 m hop and a 5 m one differently (three GCN hops of the paper reach about 6 m).
+* Each memory fragment also gets where the remembered TER was stored: the stored pose in
+  the current robot frame and the chosen node's position in the current frame.
+* After E_S, ``attention_layers`` pre-norm transformer layers attend over all nodes of
+  the current TER and the memory summary h^M (one token), so every node sees the whole
+  graph whatever its hop distance.
 """
 
 from __future__ import annotations
@@ -33,8 +46,15 @@ from torch.nn import functional as F
 from mjexplore.envs.observation import structured
 from mjexplore.topology.ter import NUM_FEATURES
 
-# Fixed input scaling of [px, py, G_info, phi_diff, D, flag]: metres / 10, radians / pi.
+# Fixed input scaling of [px, py, G_info, phi_diff, D, flag]: metres / 10, radians / pi;
+# v2 adds [path, unreachable, blacklisted]: metres / 10, flags as they are.
 FEATURE_SCALE = (0.1, 0.1, 1.0, 1.0 / torch.pi, 0.1, 1.0)
+FEATURE_SCALE_V2 = FEATURE_SCALE + (0.1, 1.0, 1.0)
+METRES_SCALE = 0.1
+POSE_FEATURES = 6  # v2 memory: the stored pose (dx, dy, cos, sin) and the chosen node (x, y)
+# v2 edge-length basis: Gaussian centres and widths in metres (TER edges: GVD sides of up to
+# 2 m, links to frontiers and the robot of up to the lidar's range).
+LENGTH_BASIS = ((0.5, 1.5, 3.0, 6.0), (0.5, 1.0, 1.5, 3.0))
 # Nodes whose features, with the node count, sort graphs before the full comparison in
 # distinct_graphs (the robot and the nearest frontiers: they differ between decisions).
 KEY_NODES = 4
@@ -50,12 +70,27 @@ class GvnConfig:
         tcn_kernel: TCN kernel size K.
         tcn_dilations: Dilation d_l of each TCN layer (receptive field 1 + (K-1) sum d_l,
             which must cover epsilon).
+        features: The observation's feature set, 'v1' (the paper's network) or 'v2'
+            (edge-gated messages, posed memory, global attention; module docstring).
+        attention_layers: v2: transformer layers over the current TER's nodes.
+        attention_heads: v2: heads per attention layer (must divide ``hidden``).
     """
 
     hidden: int = 64
     gcn_layers: int = 3
     tcn_kernel: int = 3
     tcn_dilations: tuple[int, ...] = (1, 2, 4)
+    features: str = "v1"
+    attention_layers: int = 1
+    attention_heads: int = 4
+
+    def __post_init__(self) -> None:
+        if self.features not in ("v1", "v2"):
+            raise ValueError(f"features must be 'v1' or 'v2', not {self.features!r}")
+        if self.features == "v2" and (self.attention_layers < 1 or self.attention_heads < 1
+                                      or self.hidden % self.attention_heads):
+            raise ValueError("v2 needs attention_layers >= 1 and attention_heads >= 1 "
+                             "dividing hidden")
 
 
 def real_positions(real_rows: torch.Tensor, size: int) -> torch.Tensor:
@@ -193,10 +228,125 @@ class SpatialEncoder(nn.Module):
 
     def forward(self, features: torch.Tensor, neighbours: torch.Tensor,
                 node_mask: torch.Tensor) -> torch.Tensor:
-        """(M, N, 6), (M, N, K), (M, N) -> node embeddings (M, N, d), zero on padding."""
+        """(M, N, F), (M, N, K), (M, N) -> node embeddings (M, N, d), zero on padding."""
         m, n, _ = features.shape
         h, real_rows = self.rows(features, neighbours, node_mask)
         return h.new_zeros(m * n, h.shape[-1]).index_copy(0, real_rows, h).view(m, n, -1)
+
+
+class LengthConv(nn.Module):
+    """One v2 message-passing layer before its activation: W_s g_i + sum_b W_b m_ib, with
+    m_ib = mean over i's neighbours j of phi_b(l_ij) g_j, l_ij the edge length and phi_b
+    Gaussians of it (:data:`LENGTH_BASIS`): a continuous filter of the edge length, so
+    that each output channel has its own learned response to short and long edges."""
+
+    def __init__(self, in_features: int, out_features: int) -> None:
+        super().__init__()
+        self.self_weight = nn.Linear(in_features, out_features)
+        self.neighbour_weight = nn.Linear(len(LENGTH_BASIS[0]) * in_features, out_features,
+                                          bias=False)
+        self.register_buffer("centres", torch.tensor(LENGTH_BASIS[0]), persistent=False)
+        self.register_buffer("widths", torch.tensor(LENGTH_BASIS[1]), persistent=False)
+
+    def forward(self, h: torch.Tensor, target: torch.Tensor,
+                lengths: torch.Tensor) -> torch.Tensor:
+        """(R, in) node rows, (R, K) 1-based neighbour rows (0: no neighbour), (R, K) edge
+        lengths in metres -> (R, out)."""
+        r = len(target)
+        edge = (target > 0).to(h.dtype)
+        neighbours = torch.cat([h.new_zeros(1, h.shape[-1]), h])[target]  # (R, K, in)
+        basis = torch.exp(-((lengths[..., None] - self.centres) / self.widths).square())
+        basis = basis * (edge / edge.sum(1, keepdim=True).clamp(min=1.0))[..., None]
+        messages = torch.einsum("rkb,rki->rbi", basis, neighbours).reshape(r, -1)
+        return self.self_weight(h) + self.neighbour_weight(messages)
+
+
+class EdgeSpatialEncoder(SpatialEncoder):
+    """v2 E_S: G^{l+1} = ReLU(LengthConv(G^l)) + G^l (a linear projection on the first
+    skip); :class:`SpatialEncoder`'s interface and ``forward``.
+
+    Written with gathers only, and with no tensor filled with a value that depends on the
+    data (a real node's row is a running count), so that it exports to ONNX as it is.
+    """
+
+    def __init__(self, config: GvnConfig, num_features: int) -> None:
+        nn.Module.__init__(self)  # Not SpatialEncoder's layers.
+        d = config.hidden
+        self.register_buffer("scale", torch.tensor(FEATURE_SCALE_V2[:num_features]),
+                             persistent=False)
+        self.layers = nn.ModuleList(LengthConv(num_features if i == 0 else d, d)
+                                    for i in range(config.gcn_layers))
+        self.input_skip = nn.Linear(num_features, d, bias=False)
+
+    def rows(self, features: torch.Tensor, neighbours: torch.Tensor,
+             node_mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(M, N, F), (M, N, K), (M, N) -> embeddings (R, d) of the R real nodes and their
+        flat indices (R,) (graph * N + node, ascending)."""
+        m, n, k = neighbours.shape
+        real = node_mask.reshape(m * n) > 0
+        real_rows = real.nonzero().squeeze(1)
+        # 1-based place of each slot among the real rows, 0 for padding.
+        place = torch.where(real, real.long().cumsum(0), torch.zeros((), dtype=torch.long))
+        slots = neighbours.reshape(m * n, k).index_select(0, real_rows).long()
+        target = place[((real_rows // n)[:, None] * n + slots.clamp(min=0)).reshape(-1)]
+        target = torch.where(slots >= 0, target.reshape(-1, k),
+                             torch.zeros((), dtype=torch.long))
+        raw = features.reshape(m * n, -1).index_select(0, real_rows)
+        xy = raw[:, :2]
+        lengths = torch.linalg.vector_norm(
+            xy[:, None] - torch.cat([xy.new_zeros(1, 2), xy])[target], dim=-1)
+        h = raw * self.scale
+        for i, layer in enumerate(self.layers):
+            skip = self.input_skip(h) if i == 0 else h
+            h = F.relu(layer(h, target, lengths)) + skip
+        return h, real_rows
+
+
+
+class GlobalAttention(nn.Module):
+    """A pre-norm transformer encoder layer over a padded set of tokens (no positional
+    encoding: nodes carry their positions in their features)."""
+
+    def __init__(self, d: int, heads: int) -> None:
+        super().__init__()
+        self.heads = heads
+        self.norm1 = nn.LayerNorm(d)
+        self.qkv = nn.Linear(d, 3 * d)
+        self.out = nn.Linear(d, d)
+        self.norm2 = nn.LayerNorm(d)
+        self.feedforward = nn.Sequential(nn.Linear(d, 2 * d), nn.ReLU(), nn.Linear(2 * d, d))
+
+    def forward(self, x: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+        """(B, T, d) tokens, (B, T) bool True for real tokens (at least one per row) ->
+        (B, T, d); padding tokens attend but are attended by none."""
+        b, t, d = x.shape
+        q, k, v = (y.view(b, t, self.heads, d // self.heads).transpose(1, 2)
+                   for y in self.qkv(self.norm1(x)).chunk(3, -1))
+        attended = F.scaled_dot_product_attention(q, k, v, attn_mask=valid[:, None, None, :])
+        x = x + self.out(attended.transpose(1, 2).reshape(b, t, d))
+        return x + self.feedforward(self.norm2(x))
+
+
+def memory_pose_features(memory_pose: torch.Tensor, memory_features: torch.Tensor,
+                         choice: torch.Tensor) -> torch.Tensor:
+    """The v2 fragments' place inputs (..., E, 6): the stored pose in the current robot
+    frame (dx, dy scaled, cos dyaw, sin dyaw) and the chosen node's position in the current
+    frame (scaled).
+
+    Args:
+        memory_pose: (..., E, 3) (dx, dy, dyaw) of the stored poses in the current frame.
+        memory_features: (..., E, N, F) the remembered TERs' node features.
+        choice: (..., E) the node chosen on each.
+    """
+    n = memory_features.shape[-2]
+    index = choice.long().clamp(0, n - 1)[..., None, None].expand(
+        *choice.shape, 1, 2)
+    px, py = torch.gather(memory_features[..., :2], -2, index)[..., 0, :].unbind(-1)
+    dx, dy, dyaw = memory_pose.unbind(-1)
+    c, s = torch.cos(dyaw), torch.sin(dyaw)
+    return torch.stack([dx * METRES_SCALE, dy * METRES_SCALE, c, s,
+                        (c * px - s * py + dx) * METRES_SCALE,
+                        (s * px + c * py + dy) * METRES_SCALE], -1)
 
 
 class CausalConv(nn.Module):
@@ -238,22 +388,35 @@ class GVN(nn.Module):
 
     ``forward`` takes the observation dict (batched torch tensors) and returns the node
     features z (B, N, d) and a graph summary (B, 2d) for the critic.
+
+    Args:
+        config: Sizes and the feature set ('v1': the paper's network; 'v2': see the module
+            docstring).
+        num_features: F, node features per node of the observation (6 for v1, 9 for v2).
     """
 
-    def __init__(self, config: GvnConfig | None = None) -> None:
+    def __init__(self, config: GvnConfig | None = None, num_features: int | None = None) -> None:
         super().__init__()
         self.config = config = config or GvnConfig()
         d = config.hidden
-        self.spatial = SpatialEncoder(config)
-        self.fragment = nn.Linear(2 * d, d)
+        if config.features == "v1":
+            self.spatial = SpatialEncoder(config)
+            self.fragment = nn.Linear(2 * d, d)
+        else:
+            self.spatial = EdgeSpatialEncoder(config, num_features or len(FEATURE_SCALE_V2))
+            self.fragment = nn.Linear(2 * d + POSE_FEATURES, d)
+            self.global_attention = nn.ModuleList(
+                GlobalAttention(d, config.attention_heads)
+                for _ in range(config.attention_layers))
         self.temporal = TemporalEncoder(config)
         self.attention = nn.Linear(d, 1)
         self.aggregator = nn.Sequential(nn.Linear(2 * d, d), nn.ReLU(), nn.Linear(d, d), nn.ReLU())
 
     def fragments(self, rows: torch.Tensor, real_rows: torch.Tensor, node_mask: torch.Tensor,
-                  choice: torch.Tensor, graph: torch.Tensor | None = None) -> torch.Tensor:
+                  choice: torch.Tensor, graph: torch.Tensor | None = None,
+                  place: torch.Tensor | None = None) -> torch.Tensor:
         """Memory fragments (F, d): the mean node embedding of a remembered TER beside the
-        embedding of the node chosen on it.
+        embedding of the node chosen on it (and, v2, where it was stored).
 
         Args:
             rows: (R, d) embeddings of the real nodes of M TERs (:meth:`SpatialEncoder.rows`).
@@ -262,6 +425,7 @@ class GVN(nn.Module):
             choice: (F,) the node chosen on each remembered TER (a padding node gives zeros).
             graph: (F,) which of the M TERs each fragment is of (default: fragment i of TER
                 i, F = M).
+            place: v2: (F, 6) :func:`memory_pose_features` of each fragment.
         """
         m, n = node_mask.shape
         d = rows.shape[-1]
@@ -272,7 +436,8 @@ class GVN(nn.Module):
         chosen_flat = graph * n + choice.long().clamp(0, n - 1)
         chosen = torch.cat([rows, rows.new_zeros(1, d)])[real_positions(real_rows, m * n)
                                                          [chosen_flat]]
-        return self.fragment(torch.cat([mean[graph], chosen], -1))
+        inputs = [mean[graph], chosen] if place is None else [mean[graph], chosen, place]
+        return self.fragment(torch.cat(inputs, -1))
 
     def memory_from_fragments(self, fragments: torch.Tensor,
                               memory_mask: torch.Tensor) -> torch.Tensor:
@@ -305,9 +470,13 @@ class GVN(nn.Module):
         # A current TER's real nodes are those of its distinct copy (equal arrays).
         copy_rows = inverse[:, 0][current_rows // n] * n + current_rows % n
         current = rows[real_positions(real_rows, len(keep) * n)[copy_rows]]
+        place = None
+        if self.config.features == "v2":
+            place = memory_pose_features(obs["memory_pose"], obs["memory_node_features"],
+                                         obs["memory_choice"]).reshape(b * e, -1)
         fragments = self.fragments(rows, real_rows, node_mask,
                                    obs["memory_choice"].reshape(b * e),
-                                   graph=inverse[:, 1:].reshape(b * e))
+                                   graph=inverse[:, 1:].reshape(b * e), place=place)
         return current, current_rows, fragments.view(b, e, -1)
 
     def node_outputs(self, r: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
@@ -348,9 +517,39 @@ class GVN(nn.Module):
         dense = rows.new_zeros(b * n, d).index_copy(0, real_rows, z).view(b, n, d)
         return dense, torch.cat([mean, pooled_max], -1)
 
+    def attend_dense(self, r: torch.Tensor, valid: torch.Tensor,
+                     h: torch.Tensor) -> torch.Tensor:
+        """v2: the global attention layers over node embeddings r (B, W, d) (``valid`` (B, W)
+        True for real nodes) and the memory summary h (B, d) as a token of its own
+        -> (B, W, d)."""
+        tokens = torch.cat([h[:, None], r], 1)
+        valid = torch.cat([torch.ones_like(valid[:, :1]), valid], 1)
+        for layer in self.global_attention:
+            tokens = layer(tokens, valid)
+        return tokens[:, 1:]
+
+    def attend(self, rows: torch.Tensor, real_rows: torch.Tensor, node_mask: torch.Tensor,
+               h: torch.Tensor) -> torch.Tensor:
+        """:meth:`attend_dense` for rows (R, d) at flat indices real_rows (R,) (sample * N +
+        node) of a batch with node_mask (B, N) -> rows (R, d).
+
+        The dense arrays are cut after the last real node of the batch (padding trails the
+        real nodes in a padded TER, so this drops most of it).
+        """
+        b, n = node_mask.shape
+        sample, node = real_rows // n, real_rows % n
+        width = int(node.max()) + 1 if len(node) else 0
+        dense = rows.new_zeros(b, width, rows.shape[-1])
+        dense[sample, node] = rows
+        valid = torch.zeros(b, width, dtype=torch.bool, device=rows.device)
+        valid[sample, node] = True
+        return self.attend_dense(dense, valid, h)[sample, node]
+
     def forward(self, obs: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
         """Batched flat observations (see :mod:`mjexplore.envs.observation`) -> (z, pooled)."""
         obs = structured(obs)
         rows, real_rows, fragments = self.encode(obs)
-        return self.fuse_rows(rows, real_rows, obs["node_mask"],
-                              self.memory_from_fragments(fragments, obs["memory_mask"]))
+        h = self.memory_from_fragments(fragments, obs["memory_mask"])
+        if self.config.features == "v2":
+            rows = self.attend(rows, real_rows, obs["node_mask"], h)
+        return self.fuse_rows(rows, real_rows, obs["node_mask"], h)

@@ -34,7 +34,7 @@ from torch.nn import functional as F
 
 from mjexplore.errors import UserInputError
 from mjexplore.io.atomic import write_bytes_atomic
-from mjexplore.policies.gvn import GVN, SpatialEncoder, masked_mean
+from mjexplore.policies.gvn import GVN, SpatialEncoder, masked_mean, memory_pose_features
 from mjexplore.policies.weights import load_policy
 from mjexplore.topology.ter import NUM_FEATURES
 
@@ -85,28 +85,63 @@ def spatial_gather(encoder: SpatialEncoder, features: torch.Tensor, neighbours: 
     return h.new_zeros(m * n, h.shape[-1]).index_copy(0, real_rows, h).reshape(m, n, -1)
 
 
-def gvn_features(gvn: GVN, obs: dict[str, torch.Tensor]) -> torch.Tensor:
-    """The :class:`~mjexplore.policies.sb3.GvnExtractor` features [z (N d), pooled (2 d)]
-    of batched flat observations, computed with :func:`spatial_gather`."""
+def _all_ters(obs: dict[str, torch.Tensor], f: int) -> tuple[torch.Tensor, ...]:
+    """The current TER and the E remembered ones of B observations, as one batch of
+    B (E + 1) graphs: features (., N, f), neighbours (., N, K), node mask (., N)."""
     b, n = obs["node_mask"].shape
     e = obs["memory_mask"].shape[-1]
     k = obs["neighbours"].shape[-1] // n
-    # The current TER and the E remembered ones go through the encoder as one batch.
-    features = torch.cat([obs["node_features"].reshape(b, 1, n, NUM_FEATURES),
-                          obs["memory_node_features"].reshape(b, e, n, NUM_FEATURES)], 1)
+    features = torch.cat([obs["node_features"].reshape(b, 1, n, f),
+                          obs["memory_node_features"].reshape(b, e, n, f)], 1)
     neighbours = torch.cat([obs["neighbours"].reshape(b, 1, n, k),
                             obs["memory_neighbours"].reshape(b, e, n, k)], 1)
     node_mask = torch.cat([obs["node_mask"].reshape(b, 1, n),
                            obs["memory_node_mask"].reshape(b, e, n)], 1)
-    r = spatial_gather(gvn.spatial, features.reshape(b * (e + 1), n, NUM_FEATURES),
-                       neighbours.reshape(b * (e + 1), n, k),
-                       node_mask.reshape(b * (e + 1), n)).reshape(b, e + 1, n, -1)
-    d = r.shape[-1]
+    return (features.reshape(b * (e + 1), n, f), neighbours.reshape(b * (e + 1), n, k),
+            node_mask.reshape(b * (e + 1), n))
+
+
+def _remembered(r: torch.Tensor, obs: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:
+    """The fragments' mean node embedding and chosen node's embedding (B E, d) of the
+    remembered TERs, from the embeddings r (B, E + 1, N, d) of :func:`_all_ters`."""
+    b, _, n, d = r.shape
+    e = obs["memory_mask"].shape[-1]
     remembered = r[:, 1:].reshape(b * e, n, d)
     choice = obs["memory_choice"].reshape(b * e).long().clamp(0, n - 1)
     chosen = torch.gather(remembered, 1, choice[:, None, None].expand(b * e, 1, d))[:, 0]
-    mean = masked_mean(remembered, obs["memory_node_mask"].reshape(b * e, n))
-    fragments = gvn.fragment(torch.cat([mean, chosen], -1)).reshape(b, e, d)
+    return masked_mean(remembered, obs["memory_node_mask"].reshape(b * e, n)), chosen
+
+
+def gvn_v2_features(gvn: GVN, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+    """:func:`gvn_features` of a v2 network: its encoder exports as it is; every TER of the
+    batch is encoded (no search for repeated ones) and attention runs over all N slots
+    (padding masked) rather than up to the batch's last real node."""
+    b, n = obs["node_mask"].shape
+    e = obs["memory_mask"].shape[-1]
+    f = obs["node_features"].shape[-1] // n
+    r = gvn.spatial(*_all_ters(obs, f)).reshape(b, e + 1, n, -1)
+    mean, chosen = _remembered(r, obs)
+    place = memory_pose_features(obs["memory_pose"].reshape(b, e, 3),
+                                 obs["memory_node_features"].reshape(b, e, n, f),
+                                 obs["memory_choice"].reshape(b, e)).reshape(b * e, -1)
+    fragments = gvn.fragment(torch.cat([mean, chosen, place], -1)).reshape(b, e, -1)
+    h = gvn.memory_from_fragments(fragments, obs["memory_mask"])
+    attended = gvn.attend_dense(r[:, 0], obs["node_mask"] > 0, h)
+    z, pooled = gvn.fuse(attended, obs["node_mask"], h)
+    return torch.cat([z.flatten(1), pooled], -1)
+
+
+def gvn_features(gvn: GVN, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+    """The :class:`~mjexplore.policies.sb3.GvnExtractor` features [z (N d), pooled (2 d)]
+    of batched flat observations, computed with :func:`spatial_gather` (v1) or
+    :func:`gvn_v2_features`."""
+    if gvn.config.features == "v2":
+        return gvn_v2_features(gvn, obs)
+    b, n = obs["node_mask"].shape
+    e = obs["memory_mask"].shape[-1]
+    r = spatial_gather(gvn.spatial, *_all_ters(obs, NUM_FEATURES)).reshape(b, e + 1, n, -1)
+    mean, chosen = _remembered(r, obs)
+    fragments = gvn.fragment(torch.cat([mean, chosen], -1)).reshape(b, e, -1)
     z, pooled = gvn.fuse(r[:, 0], obs["node_mask"], gvn.memory_from_fragments(
         fragments, obs["memory_mask"]))
     return torch.cat([z.flatten(1), pooled], -1)
@@ -273,13 +308,14 @@ def record_decisions(weights: str | os.PathLike, count: int, scene: str = "train
     Returns:
         (observation arrays, each (D, ...), action masks (D, A)), D <= ``count``.
     """
-    from mjexplore.envs import EnvConfig, ExplorationEnv, GridConfig, ObservationConfig
+    from mjexplore.envs import EnvConfig, ExplorationEnv
     from mjexplore.episode import EpisodeConfig
     from mjexplore.sim.simulator import SimConfig
 
     policy, meta = load_policy(weights)
-    layout = ({"observation": ObservationConfig(**meta["layout"])} if meta["kind"] == "gvn"
-              else {"decisions": "grid", "grid": GridConfig(**meta["layout"])})
+    config = meta["decisions"].config
+    layout = ({"observation": config} if meta["kind"] == "gvn"
+              else {"decisions": "grid", "grid": config})
     env = ExplorationEnv(EnvConfig(scenes=(scene,), max_decisions=count, **layout,
                                    episode=EpisodeConfig(sim=SimConfig(dynamics="kinematic"))))
     observations, masks = [], []
@@ -297,4 +333,4 @@ def record_decisions(weights: str | os.PathLike, count: int, scene: str = "train
 
 
 __all__ = ["ExportedActor", "FORMAT", "MASKED_LOGIT", "OnnxActor", "export_onnx",
-           "gvn_features", "record_decisions", "spatial_gather", "torch_actor_logits"]
+           "gvn_features", "gvn_v2_features", "record_decisions", "spatial_gather", "torch_actor_logits"]

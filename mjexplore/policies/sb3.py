@@ -36,15 +36,24 @@ MASKING_MODES = ("iam", "naive", "none")
 
 
 class GvnExtractor(BaseFeaturesExtractor):
-    """Observation dict -> flat [z (N d), pooled (2 d)] features."""
+    """Observation dict -> flat [z (N d), pooled (2 d)] features.
+
+    The network's feature set follows the observation's: a ``memory_pose`` entry means the
+    ``v2`` observation, and so the v2 network.
+    """
 
     def __init__(self, observation_space: spaces.Dict, hidden: int = 64, gcn_layers: int = 3,
-                 tcn_kernel: int = 3, tcn_dilations: tuple[int, ...] = (1, 2, 4)) -> None:
+                 tcn_kernel: int = 3, tcn_dilations: tuple[int, ...] = (1, 2, 4),
+                 attention_layers: int = 1, attention_heads: int = 4) -> None:
         n = observation_space["node_mask"].shape[0]
         super().__init__(observation_space, features_dim=n * hidden + 2 * hidden)
         self.num_nodes = n
+        features = "v2" if "memory_pose" in observation_space.spaces else "v1"
         self.gvn = GVN(GvnConfig(hidden=hidden, gcn_layers=gcn_layers, tcn_kernel=tcn_kernel,
-                                 tcn_dilations=tuple(tcn_dilations)))
+                                 tcn_dilations=tuple(tcn_dilations), features=features,
+                                 attention_layers=attention_layers,
+                                 attention_heads=attention_heads),
+                       num_features=observation_space["node_features"].shape[0] // n)
 
     def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
         z, pooled = self.gvn(observations)
@@ -79,26 +88,37 @@ class GvnHeads(nn.Module):
 class GvnPolicy(MaskableActorCriticPolicy):
     """MaskablePPO policy with the GVN.
 
+    The actor's last layer starts orthogonal with gain ``actor_gain`` (0.01, the gain SB3
+    gives its own action head) and zero bias, so the initial policy is near uniform over
+    the valid nodes; SB3's ``ortho_init`` would give it sqrt(2) as part of the MLP trunk.
+
     Args:
         masking: 'iam', 'naive' or 'none' (see the module docstring).
-        hidden, gcn_layers, tcn_kernel, tcn_dilations: :class:`GvnConfig` sizes.
+        hidden, gcn_layers, tcn_kernel, tcn_dilations, attention_layers, attention_heads:
+            :class:`GvnConfig` sizes (attention: v2 observations only).
+        actor_gain: Initial gain of the logit layer (applied with ``ortho_init``).
         Other arguments as ``MaskableActorCriticPolicy``.
     """
 
     def __init__(self, observation_space: spaces.Dict, action_space: spaces.Discrete,
                  lr_schedule, masking: str = "iam", hidden: int = 64, gcn_layers: int = 3,
                  tcn_kernel: int = 3, tcn_dilations: tuple[int, ...] = (1, 2, 4),
-                 **kwargs: Any) -> None:
+                 attention_layers: int = 1, attention_heads: int = 4,
+                 actor_gain: float = 0.01, **kwargs: Any) -> None:
         if masking not in MASKING_MODES:
             raise ValueError(f"masking must be one of {MASKING_MODES}, not {masking!r}")
         self.masking = masking
         self.hidden = hidden
+        self.actor_gain = actor_gain
         kwargs.setdefault("features_extractor_class", GvnExtractor)
         kwargs.setdefault("features_extractor_kwargs", dict(
             hidden=hidden, gcn_layers=gcn_layers, tcn_kernel=tcn_kernel,
-            tcn_dilations=tuple(tcn_dilations)))
+            tcn_dilations=tuple(tcn_dilations), attention_layers=attention_layers,
+            attention_heads=attention_heads))
         self._gvn_kwargs = dict(masking=masking, hidden=hidden, gcn_layers=gcn_layers,
-                                tcn_kernel=tcn_kernel, tcn_dilations=tuple(tcn_dilations))
+                                tcn_kernel=tcn_kernel, tcn_dilations=tuple(tcn_dilations),
+                                attention_layers=attention_layers,
+                                attention_heads=attention_heads, actor_gain=actor_gain)
         super().__init__(observation_space, action_space, lr_schedule, **kwargs)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
@@ -113,6 +133,10 @@ class GvnPolicy(MaskableActorCriticPolicy):
         super()._build(lr_schedule)
         # The actor's logits come out of GvnHeads already (one per node).
         self.action_net = nn.Identity()
+        if self.ortho_init:
+            logit_layer = self.mlp_extractor.actor[-1]
+            nn.init.orthogonal_(logit_layer.weight, gain=self.actor_gain)
+            nn.init.zeros_(logit_layer.bias)
         self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1),
                                               **self.optimizer_kwargs)
 

@@ -108,14 +108,24 @@ class TopologyTracker:
         return build_graph(self.gvd.voronoi & free, self.gvd.distance2, free, grid.resolution,
                            self.config.graph)
 
-    def ter(self, grid: GridMap, robot_pose: np.ndarray) -> tuple[Ter, list, np.ndarray]:
+    def ter(self, grid: GridMap, robot_pose: np.ndarray,
+            config: TopologyConfig | None = None) -> tuple[Ter, list, np.ndarray]:
         """Builds the TER for a decision.
+
+        Args:
+            grid: The map.
+            robot_pose: (x, y, yaw) in the ``map`` frame.
+            config: Settings of the TER's information gain and assembly (``gain``,
+                ``gain_radius``, ``ter``) when they differ from the tracker's, e.g. those a
+                policy was trained with; frontiers and the GVD stay the tracker's.
 
         Returns:
             (ter, frontiers, gains): the TER, the frontiers found and their information
             gain (as configured).
         """
-        cfg = self.config
+        cfg = config or self.config
+        if cfg.gain == "ground_truth" and self.ground_truth is None:
+            raise ValueError("ground-truth information gain needs the ground truth map")
         free = grid.free
         frontiers = self.frontiers(grid, free)
         if cfg.gain == "ground_truth":

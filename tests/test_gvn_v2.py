@@ -1,0 +1,486 @@
+"""Issue 17, learning stack: the time reward, the v2 observation and network, the logit
+layer's initial gain, held-out model selection, and the shipped v1 weights unchanged."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from gymnasium import spaces
+
+from mjexplore.envs import EnvConfig, ExplorationEnv, ObservationConfig, RewardConfig, TerMemory
+from mjexplore.envs.exploration import HELDOUT_SEED_BASE, ProceduralScenes, heldout_scenes
+from mjexplore.envs.observation import (BLACKLISTED, PATH, UNREACHABLE, observation_space,
+                                        poses_in_frame)
+from mjexplore.episode import EpisodeConfig
+from mjexplore.navigation.navigator import NavigatorConfig
+from mjexplore.policies.gvn import memory_pose_features
+from mjexplore.policies.sb3 import GvnPolicy
+from mjexplore.sim.simulator import SimConfig
+
+REPO = Path(__file__).resolve().parents[1]
+FAST = EpisodeConfig(sim=SimConfig(dynamics="kinematic"),
+                     navigator=NavigatorConfig(replan_rate_hz=0.5, replan_when_blocked=True))
+V2 = ObservationConfig(features="v2")
+SMALL_V2 = ObservationConfig(max_nodes=12, max_neighbours=3, memory_length=4, features="v2")
+
+
+def _tree(rng: np.random.Generator, n: int, k: int, real: int) -> np.ndarray:
+    """(n, k) neighbour slots of a random tree over the first ``real`` nodes (symmetric,
+    at most k per node), -1 elsewhere."""
+    neigh = np.full((n, k), -1.0, np.float32)
+    fill = np.zeros(n, int)
+    for i in range(1, real):
+        j = int(rng.integers(0, i))
+        if fill[i] < k and fill[j] < k:
+            neigh[i, fill[i]], neigh[j, fill[j]] = j, i
+            fill[i] += 1
+            fill[j] += 1
+    return neigh
+
+
+def _random_obs(config: ObservationConfig, batch: int, rng: np.random.Generator,
+                valid: bool = False):
+    """Random well-formed observations (symmetric neighbour lists, node positions in the
+    first two features); with ``valid`` also a mask of random frontier-like nodes."""
+    n, k, e, f = (config.max_nodes, config.max_neighbours, config.memory_length,
+                  config.num_features)
+
+    def graph():
+        real = int(rng.integers(3, n + 1))
+        neigh = _tree(rng, n, k, real)
+        feats = np.zeros((n, f), np.float32)
+        feats[:real] = rng.normal(size=(real, f)) * 3.0
+        mask = np.zeros(n, np.float32)
+        mask[:real] = 1
+        return {"node_features": feats, "neighbours": neigh, "node_mask": mask}, real
+
+    out, masks = [], []
+    for _ in range(batch):
+        memory = TerMemory(config)
+        for _ in range(int(rng.integers(0, e + 2))):
+            g, real = graph()
+            memory.remember(g, int(rng.integers(real)), rng.normal(size=3))
+        g, real = graph()
+        out.append(memory.observation(g, rng.normal(size=3)))
+        m = np.zeros(n, bool)
+        m[rng.choice(real, size=max(1, real // 2), replace=False)] = True
+        masks.append(m)
+    obs = {key: torch.as_tensor(np.stack([o[key] for o in out])) for key in out[0]}
+    return (obs, torch.as_tensor(np.stack(masks))) if valid else obs
+
+
+def _policy(config: ObservationConfig, **kw) -> GvnPolicy:
+    torch.manual_seed(0)
+    return GvnPolicy(observation_space(config), spaces.Discrete(config.max_nodes),
+                     lambda _: 1e-3, hidden=16, **kw)
+
+
+# ----------------------------------------------------------------------------- reward
+
+
+def _episode(config: EnvConfig, pick) -> tuple[float, float, list[dict]]:
+    """(return, exploration time, infos) of one episode choosing ``pick(obs, mask)``."""
+    env = ExplorationEnv(config)
+    obs, info = env.reset(seed=0)
+    start, total, infos = info["sim_time"], 0.0, []
+    while True:
+        obs, r, term, trunc, info = env.step(pick(obs, env.action_masks()))
+        total += r
+        infos.append(info)
+        if term or trunc:
+            assert sum(i["dt_s"] for i in infos) == pytest.approx(info["sim_time"] - start)
+            return total, info["sim_time"], infos
+
+
+def test_time_reward_pays_the_faster_episode_more():
+    config = EnvConfig(scenes=("train_loop",), episode=FAST, observation=V2)
+
+    def nearest(obs, mask):  # Least path cost, as nearest-frontier.
+        path = obs["node_features"].reshape(V2.max_nodes, -1)[:, PATH]
+        return int(np.flatnonzero(mask)[np.argmin(path[mask])])
+
+    def farthest(obs, mask):  # Most path cost: back and forth across the map.
+        path = obs["node_features"].reshape(V2.max_nodes, -1)[:, PATH]
+        return int(np.flatnonzero(mask)[np.argmax(path[mask])])
+
+    fast, fast_time, fast_infos = _episode(config, nearest)
+    slow, slow_time, slow_infos = _episode(config, farthest)
+    assert fast_infos[-1]["end_reason"] == "explored"
+    assert fast_time < slow_time and fast > slow
+    # The return is the episode's time and decisions in seconds' worth, scaled.
+    cfg = config.reward
+    for infos, ret in ((fast_infos, fast), (slow_infos, slow)):
+        seconds = sum(-i["dt_s"] - cfg.decision_s + cfg.gain_s_per_m2 * i["gain_m2"]
+                      + i["completion_s"] - i["shortfall_s"] for i in infos)
+        assert ret == pytest.approx(cfg.time_scale * seconds)
+    assert fast_infos[-1]["completion_s"] == cfg.completion_s
+    # The paper reward is the same episode's four terms.
+    paper = dataclasses.replace(config, reward=RewardConfig(kind="paper"))
+    _, paper_time, paper_infos = _episode(paper, nearest)
+    assert paper_time == fast_time
+    assert "completion_s" not in paper_infos[-1]
+
+
+def test_time_reward_charges_a_short_end_and_a_wasted_decision():
+    env = ExplorationEnv(EnvConfig(scenes=("train_loop",), observation=V2,
+                                   episode=dataclasses.replace(FAST, max_time=10.0)))
+    obs, _ = env.reset(seed=0)
+    cfg = env.config.reward
+    padding = int(np.flatnonzero(obs["node_mask"] == 0)[0])
+    _, reward, *_, info = env.step(padding)
+    assert info["invalid_action"] and reward == pytest.approx(-cfg.time_scale * cfg.decision_s)
+    done = False
+    while not done:
+        _, reward, term, trunc, info = env.step(int(np.flatnonzero(env.action_masks())[0]))
+        done = term or trunc
+    assert info["end_reason"] == "time_limit"
+    unexplored = 1.0 - info["exploration_ratio"] / FAST.target_ratio
+    assert info["shortfall_s"] == pytest.approx(cfg.shortfall_s * unexplored)
+    assert info["shortfall_s"] > 100.0  # Far from explored after 10 s.
+
+
+# ----------------------------------------------------------------------------- observation
+
+
+def _env_v2(seed: int = 1, steps: int = 2) -> tuple[ExplorationEnv, dict]:
+    env = ExplorationEnv(EnvConfig(scenes=("train_loop",), episode=FAST, observation=V2))
+    obs, _ = env.reset(seed=seed)
+    for _ in range(steps):
+        obs, *_ = env.step(int(np.flatnonzero(env.action_masks())[0]))
+    return env, obs
+
+
+def test_v2_env_passes_the_env_checkers():
+    import warnings
+
+    from gymnasium.utils.env_checker import check_env as gym_check
+    from stable_baselines3.common.env_checker import check_env as sb3_check
+
+    env = ExplorationEnv(EnvConfig(scenes=("train_loop",), episode=FAST, observation=V2,
+                                   max_decisions=4))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        gym_check(env, skip_render_check=True)
+        sb3_check(env, warn=True)
+    assert not caught, [str(w.message) for w in caught]
+    assert env.observation_space["node_features"].shape == (V2.max_nodes * 9,)
+
+
+def test_path_feature_is_the_costmap_distance_at_the_node():
+    env, obs = _env_v2()
+    state = env.episode.decision_state()
+    features = obs["node_features"].reshape(V2.max_nodes, -1)
+    real = obs["node_mask"] > 0
+    distances = state.costmap.distances_from(state.pose[:2])
+    grid = state.grid
+    half = round(V2.path_radius / grid.resolution)
+    expected = []
+    for xy in env.decisions.padded.node_positions[real]:
+        r, c = grid.world_to_cell(xy)
+        expected.append(distances[max(r - half, 0):r + half + 1,
+                                  max(c - half, 0):c + half + 1].min())
+    expected = np.array(expected)
+    reachable = np.isfinite(expected)
+    assert reachable.sum() > 10 and np.ptp(expected[reachable]) > 3.0
+    np.testing.assert_allclose(features[real, PATH][reachable], expected[reachable],
+                               rtol=1e-6)
+    np.testing.assert_array_equal(features[real, UNREACHABLE], ~reachable)
+    assert np.all(features[real, PATH][~reachable] == 0)
+    assert np.all(features[~real] == 0)
+    robot = features[real, 5] == 0  # flag: the robot node
+    assert features[real, PATH][robot] == pytest.approx(0.0, abs=0.1)
+
+
+def test_blacklist_flag_marks_the_nodes_at_a_given_up_goal():
+    env, obs = _env_v2(steps=1)
+    features = obs["node_features"].reshape(V2.max_nodes, -1)
+    assert not features[:, BLACKLISTED].any()
+    valid = np.flatnonzero(env.action_masks())
+    node = int(valid[0])
+    ep = env.episode
+    goal = env.decisions.padded.node_positions[node].astype(float)
+    ep.blacklist.add(goal, "no_path", ep.mapper.grid)
+    env.decisions.prepare(ep.decision_state())
+    features = env.decisions.observation()["node_features"].reshape(V2.max_nodes, -1)
+    positions = env.decisions.padded.node_positions
+    real = env.decisions.padded.node_mask > 0
+    near = np.linalg.norm(positions - goal, axis=1) <= ep.config.blacklist.radius
+    assert features[node, BLACKLISTED] == 1.0 and not env.action_masks()[node]
+    np.testing.assert_array_equal(features[real, BLACKLISTED] > 0, near[real])
+
+
+def test_memory_pose_places_an_old_ter_in_the_current_frame():
+    # Stored at A = (1, 2, pi/2) with the chosen node 1 m ahead: at (1, 3) in the map.
+    # Now at B = (3, 3, pi): A lies 2 m ahead and 1 m to the left, turned -pi/2, and the
+    # node 2 m straight ahead.
+    memory = TerMemory(SMALL_V2)
+    n, k = SMALL_V2.max_nodes, SMALL_V2.max_neighbours
+    features = np.zeros((n, SMALL_V2.num_features), np.float32)
+    features[:2, :2] = [[0.0, 0.0], [1.0, 0.0]]
+    current = {"node_features": features, "neighbours": np.full((n, k), -1.0, np.float32),
+               "node_mask": (np.arange(n) < 2).astype(np.float32)}
+    memory.remember(current, 1, np.array([1.0, 2.0, math.pi / 2]))
+    obs = memory.observation(current, np.array([3.0, 3.0, math.pi]))
+    pose = obs["memory_pose"].reshape(-1, 3)
+    np.testing.assert_allclose(pose[-1], [2.0, 1.0, -math.pi / 2], atol=1e-6)
+    assert not pose[:-1].any()  # Empty slots.
+    np.testing.assert_allclose(poses_in_frame(np.array([3.0, 3.0, math.pi]),
+                                              np.array([[3.0, 3.0, math.pi]])), 0, atol=1e-12)
+    place = memory_pose_features(torch.as_tensor(pose),
+                                 torch.as_tensor(obs["memory_node_features"]).view(
+                                     SMALL_V2.memory_length, n, -1),
+                                 torch.as_tensor(obs["memory_choice"]))[-1]
+    np.testing.assert_allclose(place.numpy(), [0.2, 0.1, 0.0, -1.0, 0.2, 0.0], atol=1e-6)
+
+
+def test_memory_pose_follows_the_robot_in_the_env():
+    env, obs = _env_v2(steps=3)
+    assert obs["memory_mask"][-3:].all()
+    stored = env.decisions.memory._pose[-3:]
+    now = env.episode.sim.pose
+    np.testing.assert_allclose(obs["memory_pose"].reshape(-1, 3)[-3:],
+                               poses_in_frame(now, stored), atol=1e-5)
+    assert np.linalg.norm(stored[-1, :2] - stored[0, :2]) > 0.5  # The robot moved.
+
+
+# ----------------------------------------------------------------------------- network
+
+
+def _permute(obs: dict[str, torch.Tensor], sigma: np.ndarray,
+             n: int) -> dict[str, torch.Tensor]:
+    """Observation 0 of a batch with its current TER's node i moved to slot sigma[i]."""
+    out = {k: v[:1].clone() for k, v in obs.items()}
+    f = obs["node_features"].shape[-1] // n
+    feats = obs["node_features"][0].view(n, f)
+    neigh = obs["neighbours"][0].view(n, -1)
+    mask = obs["node_mask"][0]
+    s = torch.as_tensor(sigma)
+    new_feats, new_neigh, new_mask = (torch.zeros_like(feats), torch.full_like(neigh, -1.0),
+                                      torch.zeros_like(mask))
+    new_feats[s] = feats
+    new_mask[s] = mask
+    new_neigh[s] = torch.where(neigh >= 0, s[neigh.long().clamp(min=0)].float(), -1.0)
+    out["node_features"] = new_feats.reshape(1, -1)
+    out["neighbours"] = new_neigh.reshape(1, -1)
+    out["node_mask"] = new_mask[None]
+    return out
+
+
+def test_v2_network_is_permutation_equivariant_over_nodes():
+    policy = _policy(SMALL_V2)
+    obs = _random_obs(SMALL_V2, 3, np.random.default_rng(5))
+    n = SMALL_V2.max_nodes
+    sigma = np.random.default_rng(1).permutation(n)  # Padding moves between real nodes too.
+    permuted = _permute(obs, sigma, n)
+    first = {k: v[:1] for k, v in obs.items()}
+    with torch.no_grad():
+        logits = policy.mlp_extractor.forward_actor(policy.extract_features(first))[0]
+        moved = policy.mlp_extractor.forward_actor(policy.extract_features(permuted))[0]
+        values = policy.predict_values(first), policy.predict_values(permuted)
+    real = obs["node_mask"][0] > 0
+    torch.testing.assert_close(moved[torch.as_tensor(sigma)][real], logits[real],
+                               atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(*values, atol=1e-5, rtol=1e-5)
+    # Not trivially equivariant: the logits differ between nodes.
+    assert logits[real].std() > 1e-4
+
+
+def test_v2_uses_edge_lengths_and_global_attention():
+    from mjexplore.policies.gvn import LengthConv
+
+    policy = _policy(SMALL_V2)
+    gvn = policy.features_extractor.gvn
+    assert len(gvn.global_attention) == 1
+    obs = _random_obs(SMALL_V2, 1, np.random.default_rng(2))
+    n = SMALL_V2.max_nodes
+    # Without a single edge, a node still sees the others through attention.
+    cut = {**obs, "neighbours": torch.full_like(obs["neighbours"], -1.0)}
+    changed = cut["node_features"].view(n, -1).clone()
+    changed[0, 2] += 5.0  # Node 0's gain only.
+    last = int(obs["node_mask"][0].sum()) - 1
+    with torch.no_grad():
+        z1 = gvn(cut)[0][0, last]
+        z2 = gvn({**cut, "node_features": changed.reshape(1, -1)})[0][0, last]
+    assert not torch.allclose(z1, z2)
+    # A message depends on its edge's length; a node without edges gets none.
+    torch.manual_seed(0)
+    layer = LengthConv(4, 8)
+    h = torch.randn(3, 4)
+    target = torch.tensor([[2, 0], [1, 0], [0, 0]])  # 1-based rows: 0-1 joined, 2 alone
+    lengths = torch.tensor([[0.5, 0.0], [0.5, 0.0], [0.0, 0.0]])  # metres
+    with torch.no_grad():
+        near, far = layer(h, target, lengths), layer(h, target, lengths * 12)
+    assert not torch.allclose(near[:2], far[:2]) and torch.equal(near[2], far[2])
+    torch.testing.assert_close(near[2], layer.self_weight(h[2]).detach())
+
+
+@pytest.mark.parametrize("config", [ObservationConfig(max_nodes=40, max_neighbours=4,
+                                                      memory_length=4), SMALL_V2])
+def test_initial_policy_is_near_uniform_over_valid_actions(config):
+    obs, masks = _random_obs(config, 8, np.random.default_rng(3), valid=True)
+    for gain, near in ((0.01, True), (2.0, False)):
+        policy = _policy(config, actor_gain=gain)
+        with torch.no_grad():
+            entropy = policy.get_distribution(obs, action_masks=masks.numpy()).entropy()
+        uniform = torch.log(masks.sum(-1).float())
+        gap = (uniform - entropy).max()
+        assert (gap < 0.01) == near, (gain, gap)
+
+
+# ----------------------------------------------------------------------------- weights
+
+
+def _fixed_v1_observation(config: ObservationConfig, seed: int = 7):
+    """A fixed, plausible v1 observation (robot-relative positions, bearings, distances)."""
+    rng = np.random.default_rng(seed)
+    n, k = config.max_nodes, config.max_neighbours
+
+    def graph(real):
+        neigh = _tree(rng, n, k, real)
+        f = np.zeros((n, 6), np.float32)
+        xy = rng.uniform(-12, 12, size=(real, 2))
+        f[:real, 0:2] = xy
+        f[:real, 2] = rng.uniform(0, 0.3, real)
+        f[:real, 3] = np.arctan2(xy[:, 1], xy[:, 0])
+        f[:real, 4] = np.hypot(xy[:, 0], xy[:, 1])
+        f[:real, 5] = rng.choice([-1.0, 1.0], real)
+        f[0, :] = 0.0
+        m = np.zeros(n, np.float32)
+        m[:real] = 1
+        return {"node_features": f, "neighbours": neigh, "node_mask": m}
+
+    memory = TerMemory(config)
+    for _ in range(4):
+        real = int(rng.integers(20, 60))
+        memory.remember(graph(real), int(rng.integers(1, real)))
+    g = graph(40)
+    return memory.observation(g), g["node_features"][:, 5] > 0
+
+
+# The shipped policy's outputs on that observation, recorded before the v2 changes.
+SHIPPED_LOGITS = [-1.359203, -3.382669, -3.323225, -0.796995, -1.524618, -2.30529, -2.13642,
+                  -2.47008, -2.310459, -1.353965, -3.789926, -0.682625, -2.502233, -3.090309,
+                  -3.49041, -2.524861, -1.847081, -2.776411, -1.347314, -1.224076, -0.949937,
+                  -1.299935, -2.683147, -1.920696, -0.68606, -1.796088, -2.68649, 0.059171,
+                  -2.803336, -0.555511, -0.838037, -2.223403, -2.628601, -1.786726, -1.437892,
+                  -2.841162, -1.750083, -2.138264, -1.559806, -0.032814]
+SHIPPED_VALUE = 4.723474979400635
+SHIPPED_ACTION = 27
+
+
+@pytest.mark.skipif(not (REPO / "training" / "gvn_policy.safetensors").is_file(),
+                    reason="no shipped GVN weights")
+def test_shipped_v1_weights_load_and_act_as_before():
+    from mjexplore.policies.weights import load_policy
+
+    policy, meta = load_policy(REPO / "training" / "gvn_policy.safetensors", "gvn")
+    assert meta["decisions"].config.features == "v1" and meta["decisions"].topology is None
+    assert "memory_pose" not in meta["decisions"].observation_space.spaces
+    obs, mask = _fixed_v1_observation(meta["decisions"].config)
+    t = {k: torch.as_tensor(v)[None] for k, v in obs.items()}
+    with torch.no_grad():
+        logits = policy.mlp_extractor.forward_actor(policy.extract_features(t))[0]
+        value = float(policy.predict_values(t)[0, 0])
+    np.testing.assert_allclose(logits[:40].numpy(), SHIPPED_LOGITS, atol=2e-5)
+    assert value == pytest.approx(SHIPPED_VALUE, abs=2e-5)
+    action, _ = policy.predict(obs, deterministic=True, action_masks=mask)
+    assert int(action) == SHIPPED_ACTION
+    for path in sorted((REPO / "training").glob("*.safetensors")):
+        load_policy(path)  # Every shipped policy still loads.
+
+
+def test_v2_weights_carry_their_features_and_topology(tmp_path):
+    from mjexplore.explorers.gvn import GvnExplorer
+    from mjexplore.episode import Episode
+    from mjexplore.policies.registry import layout_of
+    from mjexplore.policies.weights import load_policy, save_policy_weights
+    from mjexplore.scenes.canonical import resolve_scene
+    from mjexplore.topology.pipeline import TopologyConfig
+    from mjexplore.topology.ter import TerConfig
+
+    topology = TopologyConfig(gain_radius=1.5, ter=TerConfig(gain_radius=3.0))
+    env_config = EnvConfig(scenes=("train_loop",), observation=ObservationConfig(
+        max_nodes=64, max_neighbours=4, memory_length=3, features="v2"),
+        episode=dataclasses.replace(FAST, topology=topology))
+    config = env_config.observation
+    policy = _policy(config)
+    path = tmp_path / "v2.safetensors"
+    save_policy_weights(path, policy, "gvn", {"masking": "iam", "hidden": 16},
+                        layout_of("gvn", env_config))
+    loaded, meta = load_policy(path, "gvn")
+    decisions = meta["decisions"]
+    assert decisions.config == config and decisions.topology == topology
+    assert loaded.features_extractor.gvn.config.features == "v2"
+    obs, masks = _random_obs(config, 2, np.random.default_rng(0), valid=True)
+    with torch.no_grad():
+        torch.testing.assert_close(policy.predict_values(obs), loaded.predict_values(obs))
+    # The explorer builds v2 observations with the stored settings and picks valid nodes.
+    explorer = GvnExplorer(path)
+    assert explorer.decisions.topology == topology
+    chosen = []
+    original = explorer.decisions.act
+
+    def act(action):
+        assert explorer.decisions.mask[action]
+        chosen.append(action)
+        return original(action)
+
+    explorer.decisions.act = act
+    Episode(resolve_scene("train_loop"), explorer, 0,
+            dataclasses.replace(FAST, max_time=40.0)).run()
+    assert len(chosen) >= 2
+    assert explorer.decisions.memory._mask.sum() == min(len(chosen), config.memory_length)
+
+
+# ----------------------------------------------------------------------------- selection
+
+
+def test_model_selection_uses_held_out_layouts(tmp_path, caplog):
+    from mjexplore.config import from_dict, to_dict
+    from mjexplore.training import EvalConfig, TrainConfig, load_train_config
+
+    proc = ProceduralScenes(families=("loop", "rooms"), width=(12.0, 14.0),
+                            height=(10.0, 12.0), cache_dir=str(tmp_path))
+    first = heldout_scenes(proc, 2, seed=0)
+    assert heldout_scenes(proc, 2, seed=0) == first and len(set(first)) == 2
+    seeds = [int(Path(s).name.rsplit("_s", 1)[1]) for s in first]
+    assert all(s >= HELDOUT_SEED_BASE for s in seeds)  # Training draws below 2**31 - 1.
+    assert EvalConfig(procedural=proc, layouts=2).scene_list() == first
+    with caplog.at_level(logging.WARNING, logger="mjexplore.training"):
+        EvalConfig(scenes=("office",))
+    assert "office" in caplog.text and "eval.procedural" in caplog.text
+    v2 = load_train_config(REPO / "training" / "gvn_v2.yaml")
+    assert from_dict(TrainConfig, to_dict(v2)) == v2
+    assert v2.eval.procedural is not None and v2.env.reward.kind == "time"
+    assert v2.env.observation.features == "v2"
+    assert max(v2.env.procedural.width) >= 40 and max(v2.env.procedural.height) >= 25
+    shipped = load_train_config(REPO / "training" / "gvn.yaml")
+    assert shipped.env.reward.kind == "paper" and shipped.env.observation.features == "v1"
+
+
+@pytest.mark.slow  # An export takes 5-20 s on 2 cores.
+def test_v2_actor_exports_to_onnx_with_torchs_logits(tmp_path):
+    from mjexplore.policies.onnx_export import (OnnxActor, export_onnx, record_decisions,
+                                                torch_actor_logits)
+    from mjexplore.policies.registry import layout_of
+    from mjexplore.policies.weights import load_policy, save_policy_weights
+
+    config = ObservationConfig(max_nodes=128, max_neighbours=8, memory_length=4,
+                               features="v2")
+    weights, model = tmp_path / "v2.safetensors", tmp_path / "v2.onnx"
+    save_policy_weights(weights, _policy(config, actor_gain=1.0), "gvn",
+                        {"masking": "iam", "hidden": 16, "actor_gain": 1.0},
+                        layout_of("gvn", EnvConfig(scenes=("train_loop",), observation=config)))
+    export_onnx(weights, model)
+    obs, masks = record_decisions(weights, 6, "train_loop")
+    assert "memory_pose" in obs and obs["memory_mask"][-1].sum() >= 3
+    expected = torch_actor_logits(load_policy(weights)[0], obs, masks).numpy()
+    logits, actions = OnnxActor(model)(obs, masks)
+    np.testing.assert_allclose(logits, expected, atol=1e-4, rtol=0)
+    assert actions.tolist() == expected.argmax(1).tolist()
