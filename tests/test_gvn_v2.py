@@ -484,3 +484,26 @@ def test_v2_actor_exports_to_onnx_with_torchs_logits(tmp_path):
     logits, actions = OnnxActor(model)(obs, masks)
     np.testing.assert_allclose(logits, expected, atol=1e-4, rtol=0)
     assert actions.tolist() == expected.argmax(1).tolist()
+
+
+@pytest.mark.parametrize("masking", ["iam", "naive"])
+def test_a_critic_with_its_own_encoder_saves_loads_and_acts(tmp_path, masking):
+    from mjexplore.policies.weights import load_policy, save_policy_weights
+
+    config = ObservationConfig(max_nodes=16, max_neighbours=3, memory_length=3, features="v2")
+    policy = _policy(config, masking=masking, share_features_extractor=False)
+    assert policy.pi_features_extractor is not policy.vf_features_extractor
+    obs, masks = _random_obs(config, 3, np.random.default_rng(1), valid=True)
+    obs_t = {k: torch.as_tensor(v) for k, v in obs.items()}
+    with torch.no_grad():
+        actions, values, _ = policy(obs_t, deterministic=True, action_masks=masks)
+    path = tmp_path / "separate.safetensors"
+    save_policy_weights(path, policy, "gvn", {"masking": masking, "hidden": 16,
+                                              "share_features_extractor": False},
+                        {**dataclasses.asdict(config)})
+    loaded, _ = load_policy(path, "gvn")
+    assert not loaded.share_features_extractor
+    with torch.no_grad():
+        again, values_again, _ = loaded(obs_t, deterministic=True, action_masks=masks)
+    torch.testing.assert_close(values, values_again)
+    assert torch.equal(actions, again)

@@ -147,7 +147,11 @@ class GvnPolicy(MaskableActorCriticPolicy):
         if self.masking != "naive":
             return super().forward(obs, deterministic, action_masks)
         features = self.extract_features(obs)
-        latent_pi, latent_vf = self.mlp_extractor(features)
+        if self.share_features_extractor:
+            latent_pi, latent_vf = self.mlp_extractor(features)
+        else:
+            latent_pi = self.mlp_extractor.forward_actor(features[0])
+            latent_vf = self.mlp_extractor.forward_critic(features[1])
         values = self.value_net(latent_vf)
         distribution = self._get_action_dist_from_latent(latent_pi)
         if action_masks is not None:
