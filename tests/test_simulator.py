@@ -152,3 +152,21 @@ def test_kinematic_mode_stops_at_unknown_ground_truth(tmp_path):
     front = sim.pose[0] + BODY_CENTRE_X + BODY_RADIUS  # The body circle's leading edge.
     assert 3.9 <= front <= 4.0 + 1e-6
     assert sim.in_collision
+
+
+def test_a_body_touching_a_wall_may_move_away_from_it_but_not_nearer():
+    from mjexplore.maps import FREE, OCCUPIED, GridMap
+    from mjexplore.sim.motion import BODY_RADIUS, body_clearance, kinematic_step, wall_clearance
+
+    data = np.full((40, 40), FREE, np.int8)
+    data[:, :5] = OCCUPIED  # A wall along x = 0.25 m.
+    gt = GridMap(data, 0.05)
+    clearance = wall_clearance(gt)
+    # Facing +x with the body closer to the wall than its radius (as a grid cell's
+    # quantisation can leave it): forward takes it away, backward nearer.
+    pose = (0.25 + BODY_RADIUS - 0.03 + 0.064, 1.0, 0.0)
+    assert body_clearance(clearance, gt, *pose) < BODY_RADIUS
+    moved, _, _, refused = kinematic_step(clearance, gt, pose, (0.5, 0.0), 0.1)
+    assert not refused and moved[0] > pose[0]
+    _, _, _, refused = kinematic_step(clearance, gt, pose, (-0.5, 0.0), 0.1)
+    assert refused

@@ -219,6 +219,8 @@ class Episode:
         self.reoffers = 0
         self.blacklist = GoalBlacklist(cfg.blacklist)
         self._linger_strikes = 0
+        self._stuck = 0  # Control periods since the robot got stuck (0: it is not).
+        self._stuck_at = np.zeros(2)
         self._strike_at: np.ndarray | None = None
         self.curve: list[tuple[float, float]] = []
         self.goals: list[tuple[float, float, float]] = []
@@ -500,8 +502,19 @@ class Episode:
         sim = self.sim
         pose = self.pose
         v, w = self.navigator.update(pose, sim.time, self.costmap)
-        if sim.in_collision:
-            v, w = -0.5 * sim.profile.max_linear_speed, 0.0  # Recovery: back off the wall.
+        # Stuck: collided, and not yet 0.25 m away from where it first did.
+        if self._stuck and np.hypot(*(pose[:2] - self._stuck_at)) > 0.25:
+            self._stuck = 0
+        if sim.in_collision or self._stuck:
+            if not self._stuck:
+                self._stuck_at = pose[:2].copy()
+            self._stuck += 1
+            # Recovery, two seconds each in turn until the robot is out: back off the
+            # wall, the navigator's own command, turn one way, turn the other (a wedge
+            # may let the body out one way only).
+            p = sim.profile
+            v, w = ((-0.5 * p.max_linear_speed, 0.0), (v, w), (0.0, p.max_angular_speed),
+                    (0.0, -p.max_angular_speed))[(self._stuck - 1) // 20 % 4]
         sim.command(v, w)
         for scan in sim.step(1.0 / cfg.control_rate_hz):
             self._integrate(scan)

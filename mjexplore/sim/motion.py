@@ -78,17 +78,25 @@ def wall_clearance(ground_truth: GridMap | None) -> np.ndarray:
     return clearance(ground_truth.free, ground_truth.resolution)
 
 
-def body_blocked(wall_clearance: np.ndarray, ground_truth: GridMap, x: float, y: float,
-                 yaw: float) -> bool:
-    """Whether the body's bounding circle at pose (x, y, yaw) reaches into a wall (or off
-    the map), given :func:`wall_clearance` of ``ground_truth``."""
+def body_clearance(wall_clearance: np.ndarray, ground_truth: GridMap, x: float, y: float,
+                   yaw: float) -> float:
+    """Distance from the body's centre at pose (x, y, yaw) to the nearest wall surface, in
+    metres (-inf off the map), given :func:`wall_clearance` of ``ground_truth``."""
     cx = x + BODY_CENTRE_X * math.cos(yaw)
     cy = y + BODY_CENTRE_X * math.sin(yaw)
     col = math.floor((cx - ground_truth.origin[0]) / ground_truth.resolution)
     row = math.floor((cy - ground_truth.origin[1]) / ground_truth.resolution)
     rows, cols = wall_clearance.shape
-    return not (0 <= row < rows and 0 <= col < cols) or \
-        bool(wall_clearance[row, col] < BODY_RADIUS)
+    if not (0 <= row < rows and 0 <= col < cols):
+        return -math.inf
+    return float(wall_clearance[row, col])
+
+
+def body_blocked(wall_clearance: np.ndarray, ground_truth: GridMap, x: float, y: float,
+                 yaw: float) -> bool:
+    """Whether the body's bounding circle at pose (x, y, yaw) reaches into a wall (or off
+    the map), given :func:`wall_clearance` of ``ground_truth``."""
+    return body_clearance(wall_clearance, ground_truth, x, y, yaw) < BODY_RADIUS
 
 
 def unicycle_move(x: float, y: float, yaw: float, v: float, w: float, duration: float,
@@ -119,7 +127,11 @@ def kinematic_step(wall_clearance: np.ndarray, ground_truth: GridMap,
         move (so that it reads the truth), and whether the move was refused.
     """
     x, y, yaw, chord = unicycle_move(*pose, *twist, duration)
-    if body_blocked(wall_clearance, ground_truth, x, y, yaw):
+    after = body_clearance(wall_clearance, ground_truth, x, y, yaw)
+    # A move that reaches into a wall is refused, unless it takes the body no nearer to
+    # the walls than it is (on the clearance grid a body can sit where every small move
+    # but one sideways, which a differential drive cannot make, reads nearer).
+    if after < BODY_RADIUS and after < body_clearance(wall_clearance, ground_truth, *pose):
         return pose, (0.0, 0.0), (0.0, 0.0), True
     turn = (yaw - pose[2]) * TURTLEBOT3_WAFFLE.wheel_separation / 2
     r = TURTLEBOT3_WAFFLE.wheel_radius
