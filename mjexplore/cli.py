@@ -326,10 +326,20 @@ def cmd_bench(args: argparse.Namespace) -> int:
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
     if args.workers < 1 or args.seeds < 1:
         raise UserInputError("--workers and --seeds must be at least 1.")
-    run_sweep(scenes, explorers, list(range(args.seeds)), Path(args.out),
-              _episode_config(args), workers=args.workers, mcap=args.mcap,
-              command=args.command_line)
+    for flag, names in (("--scenes", scenes), ("--explorers", explorers)):
+        repeated = sorted({n for n in names if names.count(n) > 1})
+        if repeated:
+            raise UserInputError(f"{flag} names {', '.join(repeated)} more than once: each "
+                                 "would run twice into the same run folders; name each once.")
+    results = run_sweep(scenes, explorers, list(range(args.seeds)), Path(args.out),
+                        _episode_config(args), workers=args.workers, mcap=args.mcap,
+                        command=args.command_line)
     print((Path(args.out) / "results.md").read_text())
+    failed = [r for r in results if r.get("end_reason") in ("error", "interrupted")]
+    if failed:
+        print(f"{len(failed)} of {len(results)} episodes failed or were interrupted (listed "
+              "under the table); a re-run with the same --out retries them.", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -399,7 +399,7 @@ def test_v2_weights_carry_their_features_and_topology(tmp_path):
     from mjexplore.explorers.gvn import GvnExplorer
     from mjexplore.episode import Episode
     from mjexplore.policies.registry import layout_of
-    from mjexplore.policies.weights import load_policy, save_policy_weights
+    from mjexplore.policies.weights import load_policy, save_policy_weights, weights_sha256
     from mjexplore.scenes.canonical import resolve_scene
     from mjexplore.topology.pipeline import TopologyConfig
     from mjexplore.topology.ter import TerConfig
@@ -432,9 +432,10 @@ def test_v2_weights_carry_their_features_and_topology(tmp_path):
         return original(action)
 
     explorer.decisions.act = act
-    Episode(resolve_scene("train_loop"), explorer, 0,
-            dataclasses.replace(FAST, max_time=40.0)).run()
+    metrics = Episode(resolve_scene("train_loop"), explorer, 0,
+                      dataclasses.replace(FAST, max_time=40.0)).run().metrics
     assert len(chosen) >= 2
+    assert metrics["weights_sha256"] == weights_sha256(path)  # Each run names its weights.
     assert explorer.decisions.memory._mask.sum() == min(len(chosen), config.memory_length)
 
 

@@ -214,3 +214,15 @@ def test_heap_growth_bound_is_set_on_glibc():
     result = bound_heap_growth()
     if platform.libc_ver()[0] == "glibc":
         assert result
+
+
+def test_bench_exits_non_zero_when_an_episode_failed(tmp_path, monkeypatch):
+    from mjexplore.cli import main
+    from mjexplore.eval import sweep
+
+    def broken(folder, scene, explorer, seed, config, mcap):
+        raise FloatingPointError("solver diverged")
+
+    monkeypatch.setattr(sweep, "write_run", broken)
+    assert main(["bench", "--scenes", "train_loop", "--explorers", "nearest", "--seeds", "1",
+                 "--workers", "1", "--max-time", "5", "--out", str(tmp_path / "b")]) == 1

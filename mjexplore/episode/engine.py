@@ -573,6 +573,9 @@ class Episode:
         metrics["fallbacks"] = self.fallbacks
         metrics["reoffers"] = self.reoffers
         metrics["given_up"] = self.blacklist.reasons()
+        sha = getattr(self.explorer, "weights_sha256", None)  # A learned explorer's weights.
+        if sha is not None:
+            metrics["weights_sha256"] = sha
         return EpisodeResult(metrics, curve, log,
                              GridMap(grid.data.copy(), grid.resolution, grid.origin),
                              np.array(self.goals).reshape(-1, 3))

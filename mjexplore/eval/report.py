@@ -330,10 +330,17 @@ def build_report(data_dir: str | os.PathLike, out: str | os.PathLike,
         lines += [f"## {exp.title}", "", exp.about, "", "Sweep:", "", "```bash",
                   summary.get("command") or exp.command, "```", ""]
         policies = {m: rec for m, rec in (summary.get("policies") or {}).items() if rec}
+        used = summary.get("run_weights") or {}
         if policies:
             lines += ["Policies: " + ", ".join(
                 f"{m} trained for {rec['num_timesteps']:,} decision steps (weights sha256 "
                 f"`{rec['sha256']}`)" for m, rec in policies.items()) + ".", ""]
+            stale = {m: used[m] for m, rec in policies.items() if used.get(m) and
+                     used[m] != [rec["sha256"]]}
+            if stale:  # The runs name their weights: say so when they are not these.
+                lines += ["The runs used other weights than the shipped ones: " + ", ".join(
+                    f"{m} {', '.join(f'`{h}`' for h in hashes)}"
+                    for m, hashes in stale.items()) + ".", ""]
         lines += _section(exp.name, summary, groups, figures, rel)
         ran = {m for methods in groups.values() for m in methods}
         absent = tuple(m for m in exp.methods if m not in ran)

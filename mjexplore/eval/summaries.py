@@ -10,7 +10,6 @@ report regenerates in seconds from files in the repository, without re-running a
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import shutil
@@ -43,10 +42,10 @@ def _policy_record(path: Path) -> dict[str, Any] | None:
     """The weights' hash prefix and training steps (``None`` if the file is missing)."""
     if not path.is_file():
         return None
-    from mjexplore.policies.weights import read_policy_weights
+    from mjexplore.policies.weights import read_policy_weights, weights_sha256
 
     _, meta = read_policy_weights(path)
-    return {"sha256": hashlib.sha256(path.read_bytes()).hexdigest()[:16],
+    return {"sha256": weights_sha256(path),
             "num_timesteps": meta["provenance"].get("num_timesteps")}
 
 
@@ -140,6 +139,10 @@ def collect_sweep(sweep: str | os.PathLike, experiment: str, command: str | None
                "run_revisions": sorted(r for r in revisions if r),
                "policies": {m: _policy_record(REPO / POLICY_FILES[m]) for m in methods
                             if m in POLICY_FILES},
+               # The weights each learned method's runs really used, from their metrics.
+               "run_weights": {m: sorted({r["metrics"]["weights_sha256"] for r in runs
+                                          if r["method"] == m and "weights_sha256" in r["metrics"]})
+                               for m in methods},
                "episode": settings, "reference": _read_reference(reference), "runs": runs}
     if stills is not None:
         summary["stills"] = _copy_stills(folders, experiment, stills, media_dir)

@@ -25,9 +25,10 @@ class CnnExplorer:
 
     def __init__(self, policy: str | os.PathLike | None = None,
                  deterministic: bool = True) -> None:
-        from mjexplore.policies.weights import load_policy
+        from mjexplore.policies.weights import load_policy, weights_sha256
 
         self.policy, meta = load_policy(policy or DEFAULT_WEIGHTS, expected_kind="cnn")
+        self.weights_sha256 = weights_sha256(policy or DEFAULT_WEIGHTS)
         self.decisions = meta["decisions"]
         self.deterministic = deterministic
         self.reset(np.random.default_rng(0))

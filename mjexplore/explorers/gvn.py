@@ -43,9 +43,10 @@ class GvnExplorer:
 
     def __init__(self, policy: str | os.PathLike | None = None, masking: bool = True,
                  deterministic: bool = True) -> None:
-        from mjexplore.policies.weights import load_policy
+        from mjexplore.policies.weights import load_policy, weights_sha256
 
         self.policy, meta = load_policy(policy or DEFAULT_WEIGHTS, expected_kind="gvn")
+        self.weights_sha256 = weights_sha256(policy or DEFAULT_WEIGHTS)
         self.gvn = self.policy.features_extractor.gvn
         obs = meta["decisions"].config
         self.decisions = TerDecisions(obs, "frontiers" if masking else "all_nodes",

@@ -7,6 +7,7 @@ provenance (training config, git revision, steps). Loading one never runs code f
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from pathlib import Path
@@ -38,6 +39,12 @@ def save_policy_weights(path: str | os.PathLike, policy: torch.nn.Module, kind: 
             "layout": json.dumps(layout),
             "provenance": json.dumps(provenance or {}, default=str)}
     write_bytes_atomic(path, save(tensors, metadata=meta))
+
+
+def weights_sha256(path: str | os.PathLike) -> str:
+    """The first 16 hex digits of a weights file's sha256: what run folders and reports
+    name a policy by."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
 
 
 def read_policy_weights(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
