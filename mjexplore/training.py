@@ -28,11 +28,12 @@ import numpy as np
 import torch
 import yaml
 
-from mjexplore.config import load_yaml_config, to_dict
+from mjexplore.config import from_dict, load_yaml_config, to_dict
 from mjexplore.envs.exploration import (EnvConfig, ExplorationEnv, ProceduralScenes,
                                         heldout_scenes)
 from mjexplore.errors import UserInputError
 from mjexplore.episode import EpisodeConfig
+from mjexplore.imitation import ImitationConfig
 from mjexplore.io.atomic import write_bytes_atomic, write_text_atomic
 from mjexplore.io.provenance import git_revision
 from mjexplore.policies.registry import layout_of
@@ -152,6 +153,8 @@ class TrainConfig:
         policy: Network and masking.
         ppo: PPO hyperparameters.
         eval: Held-out evaluation.
+        imitation: Behaviour cloning of the ground-truth oracle before PPO (a fresh run's
+            warm start; see :mod:`mjexplore.imitation`).
         total_steps: Decision steps to train for (all envs together).
         n_envs: Environments, each in its own worker process when more than one.
         checkpoint_every: Checkpoint after at least this many steps since the last one.
@@ -165,6 +168,7 @@ class TrainConfig:
     policy: PolicyConfig = dataclasses.field(default_factory=PolicyConfig)
     ppo: PpoConfig = dataclasses.field(default_factory=PpoConfig)
     eval: EvalConfig = dataclasses.field(default_factory=EvalConfig)
+    imitation: ImitationConfig = dataclasses.field(default_factory=ImitationConfig)
     total_steps: int = 20000
     n_envs: int = 2
     checkpoint_every: int = 512
@@ -322,6 +326,20 @@ def _policy_kwargs(config: TrainConfig) -> dict[str, Any]:
     return kwargs
 
 
+def _warm_start(policy, config: TrainConfig, out: Path) -> None:
+    """Clones the oracle into ``policy`` (a fresh run only); the figures go to
+    ``imitation.json``."""
+    from mjexplore.imitation import clone, collect_expert_decisions
+
+    cfg = config.imitation
+    observations, masks, actions, stats = collect_expert_decisions(config.env, cfg.episodes,
+                                                                   cfg.seed)
+    fit = clone(policy, observations, masks, actions, cfg, seed=config.seed)
+    log.info("warm start: %d expert decisions, agreement %.3f", stats["decisions"],
+             fit["agreement"])
+    write_text_atomic(out / "imitation.json", json.dumps({**stats, **fit}, indent=2) + "\n")
+
+
 def evaluate_policy_episodes(policy, config: TrainConfig) -> list[dict[str, Any]]:
     """Runs the policy deterministically on the held-out scenes; their episode metrics."""
     results = []
@@ -383,7 +401,9 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
                              "without --resume to start.")
     state = load_checkpoint(latest) if latest is not None else None
     if state is not None:
-        saved = json.loads(state["config"])
+        # Settings added since the run started read as their defaults (which keep the
+        # behaviour the run had; a changed default is named explicitly in the configs).
+        saved = to_dict(from_dict(TrainConfig, json.loads(state["config"]), "saved config"))
         if ({k: v for k, v in saved.items() if k not in RESUMABLE_CHANGES}
                 != {k: v for k, v in to_dict(config).items() if k not in RESUMABLE_CHANGES}):
             raise UserInputError(f"the config differs from the one {str(out)!r} was trained with "
@@ -403,6 +423,8 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
         model.num_timesteps = done
         model._n_updates = int(state["n_updates"])
         log.info("resumed from %s at %d steps", latest, done)
+    elif config.imitation.episodes > 0:
+        _warm_start(model.policy, config, out)
 
     layout = layout_of(config.kind, config.env)
     provenance = {"git_revision": ckpt.revision, "config": to_dict(config)}
