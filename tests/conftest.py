@@ -49,3 +49,17 @@ def box_room(tmp_path_factory) -> tuple[Path, tuple[float, float, float, float]]
     write_scene(scene_from_grid(grid, "box_room", {"source": "test"},
                                 start=(1.0, 2.2, 0.0)), out)
     return out, interior
+
+
+def random_tree(rng: np.random.Generator, n: int, k: int, real: int) -> np.ndarray:
+    """(n, k) neighbour slots of a random tree over the first ``real`` nodes (symmetric,
+    at most k per node), -1 elsewhere: a well-formed TER adjacency for policy tests."""
+    neigh = np.full((n, k), -1.0, np.float32)
+    fill = np.zeros(n, int)
+    for i in range(1, real):
+        j = int(rng.integers(0, i))
+        if fill[i] < k and fill[j] < k:
+            neigh[i, fill[i]], neigh[j, fill[j]] = j, i
+            fill[i] += 1
+            fill[j] += 1
+    return neigh

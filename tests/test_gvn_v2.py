@@ -13,6 +13,8 @@ import pytest
 import torch
 from gymnasium import spaces
 
+from conftest import random_tree
+
 from mjexplore.envs import EnvConfig, ExplorationEnv, ObservationConfig, RewardConfig, TerMemory
 from mjexplore.envs.exploration import HELDOUT_SEED_BASE, ProceduralScenes, heldout_scenes
 from mjexplore.envs.observation import (BLACKLISTED, PATH, UNREACHABLE, observation_space,
@@ -30,20 +32,6 @@ V2 = ObservationConfig(features="v2")
 SMALL_V2 = ObservationConfig(max_nodes=12, max_neighbours=3, memory_length=4, features="v2")
 
 
-def _tree(rng: np.random.Generator, n: int, k: int, real: int) -> np.ndarray:
-    """(n, k) neighbour slots of a random tree over the first ``real`` nodes (symmetric,
-    at most k per node), -1 elsewhere."""
-    neigh = np.full((n, k), -1.0, np.float32)
-    fill = np.zeros(n, int)
-    for i in range(1, real):
-        j = int(rng.integers(0, i))
-        if fill[i] < k and fill[j] < k:
-            neigh[i, fill[i]], neigh[j, fill[j]] = j, i
-            fill[i] += 1
-            fill[j] += 1
-    return neigh
-
-
 def _random_obs(config: ObservationConfig, batch: int, rng: np.random.Generator,
                 valid: bool = False):
     """Random well-formed observations (symmetric neighbour lists, node positions in the
@@ -53,7 +41,7 @@ def _random_obs(config: ObservationConfig, batch: int, rng: np.random.Generator,
 
     def graph():
         real = int(rng.integers(3, n + 1))
-        neigh = _tree(rng, n, k, real)
+        neigh = random_tree(rng, n, k, real)
         feats = np.zeros((n, f), np.float32)
         feats[:real] = rng.normal(size=(real, f)) * 3.0
         mask = np.zeros(n, np.float32)
@@ -342,7 +330,7 @@ def _fixed_v1_observation(config: ObservationConfig, seed: int = 7):
     n, k = config.max_nodes, config.max_neighbours
 
     def graph(real):
-        neigh = _tree(rng, n, k, real)
+        neigh = random_tree(rng, n, k, real)
         f = np.zeros((n, 6), np.float32)
         xy = rng.uniform(-12, 12, size=(real, 2))
         f[:real, 0:2] = xy

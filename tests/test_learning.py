@@ -18,6 +18,8 @@ import pytest
 import torch
 from gymnasium import spaces
 
+from conftest import random_tree
+
 from mjexplore.config import from_dict, to_dict
 from mjexplore.envs import (ENV_IDS, EnvConfig, ExplorationEnv, ObservationConfig,
                             RewardConfig, TerMemory)
@@ -45,14 +47,7 @@ def _random_obs(config: ObservationConfig, batch: int, rng: np.random.Generator)
 
     def graph():
         real = int(rng.integers(3, n + 1))
-        neigh = np.full((n, k), -1.0, np.float32)
-        fill = np.zeros(n, int)
-        for i in range(1, real):
-            j = int(rng.integers(0, i))
-            if fill[i] < k and fill[j] < k:
-                neigh[i, fill[i]], neigh[j, fill[j]] = j, i
-                fill[i] += 1
-                fill[j] += 1
+        neigh = random_tree(rng, n, k, real)
         feats = np.zeros((n, 6), np.float32)
         feats[:real] = rng.normal(size=(real, 6))
         mask = np.zeros(n, np.float32)
