@@ -86,7 +86,8 @@ EXPERIMENTS = (
                "--seeds 5 --workers 2 --out runs/ablation"),
     Experiment("lobby_real", "Table 3 and Fig. 9: the real-robot setting",
                "The paper's robot experiment in simulation: the 17.5 x 4 m lobby with the real "
-               "profile (0.18 m/s, 5 m lidar, 5 Hz decisions), 5 runs per method.",
+               "profile (0.18 m/s, 1.8 rad/s, 5 m lidar; decisions event-driven, as everywhere), "
+               "5 runs per method.",
                ("nearest", "potential", "gvn"),
                "mjexplore bench --scenes lobby --explorers {explorers} --profile real --seeds 5 "
                "--workers 2 --out runs/lobby_real"),
