@@ -56,6 +56,12 @@ def layouts(count: int, sizes: list[str], seed: int) -> list[tuple[str, float, f
     return out
 
 
+def layout_label(layout: tuple[str, float, float, int]) -> str:
+    """How runs name a layout: 'family WxH seed S' (what ``mjexplore scene-gen`` takes)."""
+    family, width, height, seed = layout
+    return f"{family} {width:g}x{height:g} seed {seed}"
+
+
 def explore(job: tuple[tuple[str, float, float, int], str, float]) -> dict:
     """One episode of ``explorer`` on the layout; its end and ratio."""
     (family, width, height, seed), explorer, max_time = job
@@ -69,7 +75,7 @@ def explore(job: tuple[tuple[str, float, float, int], str, float]) -> dict:
     from mjexplore.sim.simulator import SimConfig
 
     torch.set_num_threads(1)
-    record = {"layout": f"{family} {width:g}x{height:g} seed {seed}", "explorer": explorer}
+    record = {"layout": layout_label((family, width, height, seed)), "explorer": explorer}
     try:
         scene = generate_scene(family, width, height, seed)
     except UserInputError as exc:  # A size too small for a family: no layout, no run.
@@ -108,7 +114,7 @@ def main() -> None:
                 results.append(r)
                 done.add((r["layout"], r["explorer"], r.get("max_time", args.max_time)))
     todo = [j for j in jobs
-            if (f"{j[0][0]} {j[0][1]:g}x{j[0][2]:g} seed {j[0][3]}", j[1], j[2]) not in done]
+            if (layout_label(j[0]), j[1], j[2]) not in done]
     revision = provenance.git_revision()
     with multiprocessing.get_context("spawn").Pool(args.workers) as pool:
         for r in pool.imap_unordered(explore, todo, chunksize=1):
@@ -117,7 +123,7 @@ def main() -> None:
                 args.out.parent.mkdir(parents=True, exist_ok=True)
                 with args.out.open("a") as f:  # One whole line per run: a kill loses none.
                     f.write(json.dumps({**r, "revision": revision}) + "\n")
-    wanted = {(f"{j[0][0]} {j[0][1]:g}x{j[0][2]:g} seed {j[0][3]}", j[1]) for j in jobs}
+    wanted = {(layout_label(j[0]), j[1]) for j in jobs}
     results = [r for r in results if (r["layout"], r["explorer"]) in wanted]
     ran = [r for r in results if r["end_reason"] != "no_layout"]
     premature: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)

@@ -209,12 +209,19 @@ class Costmap:
         """Flat index of the traversable cell within ``radius`` of ``xy`` nearest to
         ``start`` by path (the search's parents lead back to ``start``), or -1."""
         grid = self.grid
-        rows, cols = np.indices(grid.shape)
-        centre = grid.world_to_cell(np.asarray(xy, float))
-        disk = ((rows - centre[0]) ** 2 + (cols - centre[1]) ** 2 <=
-                (radius / grid.resolution) ** 2) & self.traversable
-        self._run(start, -1, np.ascontiguousarray(disk.reshape(-1)), 1)
-        reached = np.flatnonzero(disk.reshape(-1) & (self._stamp == -self._search_id))
+        r, c = grid.world_to_cell(np.asarray(xy, float))
+        k = int(math.ceil(radius / grid.resolution))
+        rows = slice(max(r - k, 0), min(r + k + 1, grid.shape[0]))
+        cols = slice(max(c - k, 0), min(c + k + 1, grid.shape[1]))
+        rr, cc = np.ogrid[rows, cols]
+        disk = np.zeros(grid.shape, bool)  # Only the window around xy can hold targets.
+        disk[rows, cols] = (((rr - r) ** 2 + (cc - c) ** 2 <= (radius / grid.resolution) ** 2)
+                            & self.traversable[rows, cols])
+        targets = np.flatnonzero(disk)
+        if len(targets) == 0:
+            return -1
+        self._run(start, -1, disk.reshape(-1), 1)
+        reached = targets[self._stamp[targets] == -self._search_id]
         return int(reached[np.argmin(self._dist[reached])]) if len(reached) else -1
 
     def distances_from(self, xy: np.ndarray, targets: np.ndarray | None = None,
