@@ -35,3 +35,12 @@ def test_a_sweep_started_again_skips_the_runs_it_has(tmp_path):
                                        timeout=300).stdout.strip().splitlines()[-1])
     assert out.read_text().splitlines() == lines  # Nothing ran again...
     assert second == first  # ...and the summary still covers the run.
+
+
+def test_the_time_cap_grows_with_the_layout():
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("stress_explorers", TOOL)
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    assert tool.time_cap(("maze", 12.0, 10.0, 1), 1800.0, 4.0) == 1800.0
+    assert tool.time_cap(("maze", 39.4, 22.0, 1), 1800.0, 4.0) == 3470.0

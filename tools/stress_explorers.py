@@ -1,9 +1,10 @@
 """Stress sweep: does any explorer stop before the map is explored? One JSON line.
 
 Draws ``--layouts`` generated layouts (every family and pair of families, several sizes,
-seeds from ``--seed``), explores each with every explorer in the kinematic world (the
-fastest faithful one: the same lidar, mapping, topology, navigation and explorers as in
-physics, without contact dynamics), and prints: runs, how many reached the target ratio,
+seeds from ``--seed``), explores each with every explorer in the grid world (the fastest
+faithful one: the same lidar beams, mapping, topology, navigation and explorers as in
+physics, without contact dynamics; it moves as the kinematic world does, ``--world
+kinematic``), and prints: runs, how many reached the target ratio,
 and the runs that ended before it, by explorer and end reason (``time_limit`` counts too:
 an explorer that never finishes is as wrong as one that stops). ``failures`` lists the
 first of those runs with their layout, so that one can be replayed with ``mjexplore
@@ -11,8 +12,14 @@ explore``. With ``--out FILE`` every finished run is appended to FILE (JSON line
 git revision) as it ends, and a sweep started again with the same FILE skips the runs
 already there: a sweep of hours survives being stopped, and the summary covers them all.
 
+The time cap grows with the layout: ``--max-time`` simulated seconds, or
+``--seconds-per-m2`` times the layout's area where that is longer (a 40 x 26 m layout has
+three times the corridors of a 20 x 17 m one; a cap fixed for the small ones would count
+a slow explorer on the large ones as one that stops).
+
 Usage: python tools/stress_explorers.py [--layouts 200] [--explorers nearest,...]
        [--sizes small,medium,large] [--workers 2] [--seed 0] [--out runs/stress.jsonl]
+       [--world grid] [--max-time 1800] [--seconds-per-m2 4]
 """
 
 from __future__ import annotations
@@ -62,9 +69,16 @@ def layout_label(layout: tuple[str, float, float, int]) -> str:
     return f"{family} {width:g}x{height:g} seed {seed}"
 
 
-def explore(job: tuple[tuple[str, float, float, int], str, float]) -> dict:
-    """One episode of ``explorer`` on the layout; its end and ratio."""
-    (family, width, height, seed), explorer, max_time = job
+def time_cap(layout: tuple[str, float, float, int], max_time: float,
+             seconds_per_m2: float) -> float:
+    """The layout's time cap in simulated seconds: ``max_time``, or ``seconds_per_m2``
+    times its area where that is longer."""
+    return max(max_time, round(seconds_per_m2 * layout[1] * layout[2], -1))
+
+
+def explore(job: tuple[tuple[str, float, float, int], str, float, str]) -> dict:
+    """One episode of ``explorer`` on the layout in ``world``; its end and ratio."""
+    (family, width, height, seed), explorer, max_time, world = job
     import torch
 
     from mjexplore.errors import UserInputError
@@ -80,13 +94,13 @@ def explore(job: tuple[tuple[str, float, float, int], str, float]) -> dict:
         scene = generate_scene(family, width, height, seed)
     except UserInputError as exc:  # A size too small for a family: no layout, no run.
         return {**record, "end_reason": "no_layout", "error": str(exc)}
-    config = EpisodeConfig(max_time=max_time, sim=SimConfig(dynamics="kinematic"))
+    config = EpisodeConfig(max_time=max_time, sim=SimConfig(dynamics=world))
     with tempfile.TemporaryDirectory() as tmp:
         files = load_scene_files(write_scene(scene, Path(tmp) / "scene"))
         m = Episode(files, make_explorer(explorer), seed % 1000, config).run().metrics
     return {**record, "end_reason": m["end_reason"], "exploration_ratio": m["exploration_ratio"],
             "exploration_time_s": m["exploration_time_s"], "fallbacks": m.get("fallbacks", 0),
-            "max_time": max_time}
+            "max_time": max_time, "world": world}
 
 
 def main() -> None:
@@ -94,7 +108,11 @@ def main() -> None:
     parser.add_argument("--layouts", type=int, default=200)
     parser.add_argument("--explorers", default=EXPLORERS)
     parser.add_argument("--sizes", default="small,medium,large")
-    parser.add_argument("--max-time", type=float, default=1800.0)
+    parser.add_argument("--max-time", type=float, default=1800.0,
+                        help="least time cap, simulated seconds")
+    parser.add_argument("--seconds-per-m2", type=float, default=4.0,
+                        help="time cap per square metre of layout, where longer")
+    parser.add_argument("--world", choices=("grid", "kinematic"), default="grid")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=None,
@@ -103,7 +121,8 @@ def main() -> None:
     sizes = args.sizes.split(",")
     if args.layouts < 1 or any(s not in SIZES for s in sizes):
         parser.error(f"--layouts must be >= 1 and --sizes a list of {', '.join(SIZES)}")
-    jobs = [(layout, explorer, args.max_time)
+    jobs = [(layout, explorer, time_cap(layout, args.max_time, args.seconds_per_m2),
+             args.world)
             for layout in layouts(args.layouts, sizes, args.seed)
             for explorer in args.explorers.split(",")]
     results, done = [], set()
@@ -112,9 +131,10 @@ def main() -> None:
             if line.strip():
                 r = json.loads(line)
                 results.append(r)
-                done.add((r["layout"], r["explorer"], r.get("max_time", args.max_time)))
+                done.add((r["layout"], r["explorer"], r.get("max_time", args.max_time),
+                          r.get("world", "kinematic")))
     todo = [j for j in jobs
-            if (layout_label(j[0]), j[1], j[2]) not in done]
+            if (layout_label(j[0]), j[1], j[2], j[3]) not in done]
     revision = provenance.git_revision()
     with multiprocessing.get_context("spawn").Pool(args.workers) as pool:
         for r in pool.imap_unordered(explore, todo, chunksize=1):

@@ -108,12 +108,15 @@ def _uncovered(ptr, idx, need, covered, i):
     return g
 
 
-@numba.njit(cache=True, parallel=True)
-def _greedy_cover(ptr, idx, need, allowed, selected, required, min_gain):
+@numba.njit(cache=True)
+def _greedy_cover(ptr, idx, need, allowed, selected, required, min_gain, upper):
     """Lazy greedy set cover: viewpoints (flagged in ``allowed``) are added to ``selected``
     in order of the most cells of ``need`` not yet covered, until ``required`` cells are
     covered or no viewpoint adds ``min_gain``. ``selected`` viewpoints count as chosen
-    already. Returns the added viewpoints in order and the number of cells covered."""
+    already; ``upper`` bounds each viewpoint's gain from above (e.g. its count of cells of
+    ``need``): gains are evaluated lazily, so the pick is the lowest-index viewpoint of
+    greatest gain, as with exact gains. Returns the added viewpoints in order and the
+    number of cells covered."""
     covered = np.zeros(len(need), np.bool_)
     total = 0
     for i in range(len(ptr) - 1):
@@ -123,10 +126,7 @@ def _greedy_cover(ptr, idx, need, allowed, selected, required, min_gain):
                 if need[k] and not covered[k]:
                     covered[k] = True
                     total += 1
-    bound = np.full(len(ptr) - 1, -1, np.int64)
-    for i in numba.prange(len(ptr) - 1):
-        if allowed[i] and not selected[i]:
-            bound[i] = _uncovered(ptr, idx, need, covered, i)
+    bound = np.where(allowed & ~selected, upper, -1)
     added = []
     while total < required:
         i = np.argmax(bound)
@@ -143,6 +143,32 @@ def _greedy_cover(ptr, idx, need, allowed, selected, required, min_gain):
         bound[i] = -1
         added.append(i)
     return added, total
+
+
+@numba.njit(cache=True)
+def _viewers(ptr, idx, cells):
+    """The transpose of the view lists: for each cell, the viewpoints that see it (CSR
+    ``out_ptr`` over ``cells`` cells, ``out_idx`` viewpoint indices, ascending)."""
+    out_ptr = np.zeros(cells + 1, np.int64)
+    for j in range(len(idx)):
+        out_ptr[idx[j] + 1] += 1
+    for k in range(cells):
+        out_ptr[k + 1] += out_ptr[k]
+    fill = out_ptr[:-1].copy()
+    out_idx = np.empty(len(idx), np.int32)
+    for i in range(len(ptr) - 1):
+        for j in range(ptr[i], ptr[i + 1]):
+            out_idx[fill[idx[j]]] = i
+            fill[idx[j]] += 1
+    return out_ptr, out_idx
+
+
+@numba.njit(cache=True)
+def _recount(viewer_ptr, viewer_idx, cells, delta, counts):
+    """Adds ``delta`` to the count of every viewpoint that sees each of ``cells``."""
+    for k in cells:
+        for j in range(viewer_ptr[k], viewer_ptr[k + 1]):
+            counts[viewer_idx[j]] += delta
 
 
 @numba.njit(cache=True)
@@ -188,7 +214,7 @@ class _Views:
 
     points: np.ndarray  # (n, 2) positions in the map frame, metres.
     ptr: np.ndarray  # (n + 1,) int64.
-    idx: np.ndarray  # (nnz,) int64.
+    idx: np.ndarray  # (nnz,) int32.
     observable: np.ndarray  # (cells,) bool: the reference's known cells.
 
 
@@ -266,8 +292,14 @@ class OracleExplorer:
             seen.append(buf[:n].copy())
         ptr = np.zeros(len(seen) + 1, np.int64)
         ptr[1:] = np.cumsum([len(s) for s in seen])
-        idx = np.concatenate(seen) if seen else np.zeros(0, np.int64)
+        idx = (np.concatenate(seen) if seen else np.zeros(0, np.int64)).astype(np.int32)
         self.views = _Views(gt.cell_to_world(cand).reshape(-1, 2), ptr, idx, observable)
+        # Each viewpoint's count of needed cells, kept up to date cell by cell as the map
+        # fills in (through the transposed lists): the cover's upper bounds without a pass
+        # over every list at every decision.
+        self._viewer_ptr, self._viewer_idx = _viewers(ptr, idx, gt.data.size)
+        self._need_count = np.diff(ptr)
+        self._needed = observable.copy()
         self._stamp, self._stamp_id = np.zeros(gt.data.size, np.int64), 0
         self._listed = int(observable.sum())  # Unknown cells when the lists were last cut.
         # The viewpoint standing for each node of the path graph (the nearest within one
@@ -288,6 +320,10 @@ class OracleExplorer:
         views = self.views
         unknown = state.grid.data.reshape(-1) < 0
         need = views.observable & unknown
+        for cells, delta in ((self._needed & ~need, -1), (need & ~self._needed, 1)):
+            _recount(self._viewer_ptr, self._viewer_idx, np.flatnonzero(cells), delta,
+                     self._need_count)
+        self._needed = need
         total = int(views.observable.sum())
         unseen = int(need.sum())
         if 4 * unseen <= 3 * self._listed:
@@ -312,7 +348,7 @@ class OracleExplorer:
         added = []
         if self._count(np.flatnonzero(kept).tolist(), need) < required:
             added, _ = _greedy_cover(views.ptr, views.idx, need, allowed, kept, required,
-                                     self.min_gain)
+                                     self.min_gain, self._need_count)
         plan = [i for i in self.plan if kept[i]] + list(added)
         if not plan:
             self.plan = []
