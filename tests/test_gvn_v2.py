@@ -496,3 +496,12 @@ def test_a_critic_with_its_own_encoder_saves_loads_and_acts(tmp_path, masking):
         again, values_again, _ = loaded(obs_t, deterministic=True, action_masks=masks)
     torch.testing.assert_close(values, values_again)
     assert torch.equal(actions, again)
+    # What the explorer and the ONNX check read: the actor's logits through its own encoder.
+    from mjexplore.policies.weights import actor_logits
+
+    with torch.no_grad():
+        logits = actor_logits(loaded, obs_t)
+        expected = loaded.get_distribution(obs_t).distribution.logits
+    masked = torch.where(torch.as_tensor(masks), logits, torch.tensor(-1e8))
+    assert torch.equal(masked.argmax(1), again)
+    torch.testing.assert_close(torch.log_softmax(logits, 1), expected)

@@ -26,6 +26,7 @@ import torch
 from mjexplore.envs.decisions import TerDecisions
 from mjexplore.errors import UserInputError
 from mjexplore.explorers.base import ExplorationState, register
+from mjexplore.policies.weights import actor_logits
 
 DEFAULT_WEIGHTS = Path(__file__).resolve().parents[2] / "training" / "gvn_policy.safetensors"
 
@@ -96,8 +97,7 @@ class GvnExplorer:
         else:
             t = {k: torch.as_tensor(v)[None] for k, v in d.observation().items()}
             with torch.no_grad():
-                logits = self.policy.mlp_extractor.forward_actor(
-                    self.policy.extract_features(t))[0]
+                logits = actor_logits(self.policy, t)[0]
         masked = torch.where(torch.as_tensor(d.mask), logits, torch.tensor(-1e8))
         if self.deterministic:
             action = int(torch.argmax(masked))

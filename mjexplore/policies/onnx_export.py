@@ -35,7 +35,7 @@ from torch.nn import functional as F
 from mjexplore.errors import UserInputError
 from mjexplore.io.atomic import write_bytes_atomic
 from mjexplore.policies.gvn import GVN, SpatialEncoder, masked_mean, memory_pose_features
-from mjexplore.policies.weights import load_policy
+from mjexplore.policies.weights import actor_logits, load_policy
 from mjexplore.topology.ter import NUM_FEATURES
 
 FORMAT = "mjexplore-policy-onnx-v1"
@@ -295,8 +295,7 @@ def torch_actor_logits(policy: nn.Module, obs: dict[str, np.ndarray],
     reference the export is checked against."""
     with torch.no_grad():
         tensors = {k: torch.as_tensor(v) for k, v in obs.items()}
-        features = policy.extract_features(tensors)
-        logits = policy.action_net(policy.mlp_extractor.forward_actor(features))
+        logits = actor_logits(policy, tensors)
     return torch.where(torch.as_tensor(action_mask), logits, torch.tensor(MASKED_LOGIT))
 
 

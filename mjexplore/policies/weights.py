@@ -120,3 +120,12 @@ def load_policy(path: str | os.PathLike, expected_kind: str | None = None):
                              f"({problem}); the file is damaged or from another version.")
     policy.set_training_mode(False)
     return policy, meta
+
+
+def actor_logits(policy: torch.nn.Module, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+    """The actor's unmasked logits (B, A) for a batch of observation tensors, whether the
+    critic shares the actor's encoder or has its own (``share_features_extractor``)."""
+    features = policy.extract_features(obs)
+    if not policy.share_features_extractor:
+        features = features[0]  # (actor's, critic's)
+    return policy.action_net(policy.mlp_extractor.forward_actor(features))
