@@ -103,14 +103,19 @@ def _integrate_scan(logodds, state, stamp, old_state, touched, scan_id, x0, y0, 
     is_hit = np.zeros(len(ranges), np.bool_)
     end_r = np.empty(len(ranges), np.int64)
     end_c = np.empty(len(ranges), np.int64)
+    cos_a = np.empty(len(ranges))  # Beam directions, computed once for both passes.
+    sin_a = np.empty(len(ranges))
+    for i in range(len(ranges)):
+        cos_a[i] = math.cos(angles[i])
+        sin_a[i] = math.sin(angles[i])
     # Pass 1: the return cells, marked so that pass 2 leaves them alone.
     for i in range(len(ranges)):
         r = ranges[i]
         # A return lies on the surface of the cell it hit: step a hair past it so that a
         # surface on a cell boundary maps into the wall cell, not the free one before it.
         length = r + 1e-3 if np.isfinite(r) else range_max
-        ex = x0 + length * math.cos(angles[i])
-        ey = y0 + length * math.sin(angles[i])
+        ex = x0 + length * cos_a[i]
+        ey = y0 + length * sin_a[i]
         end_c[i] = int(math.floor(ex))
         end_r[i] = int(math.floor(ey))
         if np.isfinite(r) and 0 <= end_r[i] < rows and 0 <= end_c[i] < cols:
@@ -126,14 +131,17 @@ def _integrate_scan(logodds, state, stamp, old_state, touched, scan_id, x0, y0, 
         if np.isnan(ranges[i]) or ranges[i] < 0:
             continue  # Too close (-inf) or invalid: says nothing about the space beyond.
         cx, cy, step_x, step_y, t_max_x, t_max_y, t_dx, t_dy = traversal_start(
-            x0, y0, math.cos(angles[i]), math.sin(angles[i]))
+            x0, y0, cos_a[i], sin_a[i])
+        ec, er = end_c[i], end_r[i]  # Locals: the loop's stores could alias the arrays.
         while True:
-            if cx == end_c[i] and cy == end_r[i]:
+            if cx == ec and cy == er:
                 break
             if not (0 <= cy < rows and 0 <= cx < cols):
                 break
             k = cy * cols + cx
-            if stamp[k] != -scan_id:
+            # A cell at the lower clamp stays there and keeps its state: a miss on it is a
+            # no-op, so it is not even listed as touched (most cells near the robot).
+            if logodds.flat[k] > l_min and stamp[k] != -scan_id:
                 if stamp[k] != scan_id:
                     stamp[k] = scan_id
                     old_state[k] = state.flat[k]

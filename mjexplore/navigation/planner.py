@@ -15,6 +15,7 @@ import math
 import numba
 import numpy as np
 
+from mjexplore.heap import grow as _heap_grow
 from mjexplore.heap import pop as _heap_pop
 from mjexplore.heap import push as _heap_push
 
@@ -67,9 +68,11 @@ def _search(cost, start, goal, rows, cols, heuristic_weight, dist, parent, stamp
     dist[start] = 0.0
     parent[start] = -1
     gr, gc = (goal // cols, goal % cols) if goal >= 0 else (0, 0)
-    keys, vals, size = _heap_push(keys, vals, size, 0.0, start)
+    size = _heap_push(keys, vals, size, 0.0, start)
     while size > 0:
         _, s, size = _heap_pop(keys, vals, size)
+        if size + 8 > len(keys):  # Room for this cell's neighbours.
+            keys, vals = _heap_grow(keys, vals, size, 8)
         if stamp[s] == -search_id:
             continue
         stamp[s] = -search_id
@@ -99,7 +102,7 @@ def _search(cost, start, goal, rows, cols, heuristic_weight, dist, parent, stamp
                 h = 0.0
                 if heuristic_weight > 0.0:
                     h = heuristic_weight * math.hypot(rr - gr, cc - gc)
-                keys, vals, size = _heap_push(keys, vals, size, d + h, y)
+                size = _heap_push(keys, vals, size, d + h, y)
     return keys, vals
 
 

@@ -38,38 +38,42 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from mjexplore.heap import grow as _heap_grow
 from mjexplore.heap import pop as _heap_pop
 from mjexplore.heap import push as _heap_push
 
 INF = np.int64(1) << np.int64(40)
 _DR = np.array([-1, -1, -1, 0, 0, 1, 1, 1], np.int64)
 _DC = np.array([-1, 0, 1, -1, 1, -1, 0, 1], np.int64)
+# Heap entries one step of :func:`_update` can push: 8 neighbours, each pushed and clearing
+# up to 8 of its own (:func:`_drop_unsupported`).
+_ROOM = 72
+
+# The helpers below are inlined into the kernels (numba ``inline="always"``): as calls they
+# cost reference-count updates on every array argument, more than the work they do. Cell
+# rows and columns are computed once per cell (integer division is slow) and distances from
+# them.
 
 
-@numba.njit(cache=True)
-def _sqdist(a, b, cols):
-    dr = a // cols - b // cols
-    dc = a % cols - b % cols
-    return dr * dr + dc * dc
-
-
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _supported(y, cols, rows, obst, to_raise):
     """True if a neighbour of ``y`` holds y's obstacle and is strictly closer to it."""
     o = obst[y]
-    dy = _sqdist(y, o, cols)
     r, c = y // cols, y % cols
+    orow, ocol = o // cols, o % cols
+    dy = (r - orow) * (r - orow) + (c - ocol) * (c - ocol)
     for k in range(8):
         rr, cc = r + _DR[k], c + _DC[k]
         if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
             continue
         z = rr * cols + cc
-        if obst[z] == o and not to_raise[z] and _sqdist(z, o, cols) < dy:
+        if obst[z] == o and not to_raise[z] and (
+                (rr - orow) * (rr - orow) + (cc - ocol) * (cc - ocol) < dy):
             return True
     return False
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _mark(c, stamp, stamp_id, changed, n_changed):
     """Lists cell ``c`` as changed (once per update)."""
     if stamp[c] != stamp_id:
@@ -79,34 +83,36 @@ def _mark(c, stamp, stamp_id, changed, n_changed):
     return n_changed
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _clear(c, lost, n, obst, dist2, to_raise, raise_obst, stamp, stamp_id, changed,
            n_changed, keys, vals, size):
-    """Forgets cell c's value (it referred to ``lost``) and queues it to raise."""
+    """Forgets cell c's value (it referred to ``lost``) and queues it to raise; returns
+    (heap size, n_changed)."""
     raise_obst[c] = lost
-    keys, vals, size = _heap_push(keys, vals, size, dist2[c] * n + c, c)
+    size = _heap_push(keys, vals, size, dist2[c] * n + c, c)
     obst[c] = -1
     dist2[c] = INF
     to_raise[c] = 1
-    return keys, vals, size, _mark(c, stamp, stamp_id, changed, n_changed)
+    return size, _mark(c, stamp, stamp_id, changed, n_changed)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _drop_unsupported(x, lost, rows, cols, occ, obst, dist2, to_raise, raise_obst, stamp,
                       stamp_id, changed, n_changed, keys, vals, size):
-    """Clears the neighbours of x that held ``lost`` and have no closer support left."""
+    """Clears the neighbours of x that held ``lost`` and have no closer support left;
+    returns (heap size, n_changed)."""
     n = rows * cols
+    xr, xc = x // cols, x % cols
     for k in range(8):
-        rr, cc = x // cols + _DR[k], x % cols + _DC[k]
+        rr, cc = xr + _DR[k], xc + _DC[k]
         if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
             continue
         y = rr * cols + cc
         if obst[y] == lost and not occ[y] and not to_raise[y] and not _supported(
                 y, cols, rows, obst, to_raise):
-            keys, vals, size, n_changed = _clear(y, lost, n, obst, dist2, to_raise,
-                                                 raise_obst, stamp, stamp_id, changed,
-                                                 n_changed, keys, vals, size)
-    return keys, vals, size, n_changed
+            size, n_changed = _clear(y, lost, n, obst, dist2, to_raise, raise_obst, stamp,
+                                     stamp_id, changed, n_changed, keys, vals, size)
+    return size, n_changed
 
 
 @numba.njit(cache=True)
@@ -120,6 +126,10 @@ def _update(rows, cols, occ, domain, obst, dist2, raise_obst, to_raise, stamp, s
     n = rows * cols
     size = 0
     n_changed = 0
+    # Room for what the changes push before the waves run (see _ROOM).
+    room = 9 * len(set_cells) + len(leave_cells) + 8 * len(enter_cells) + len(clear_cells)
+    if room > len(keys):
+        keys, vals = _heap_grow(keys, vals, size, room)
     for c in set_cells:
         if occ[c]:
             continue
@@ -130,35 +140,36 @@ def _update(rows, cols, occ, domain, obst, dist2, raise_obst, to_raise, stamp, s
         dist2[c] = 0
         to_raise[c] = 0
         n_changed = _mark(c, stamp, stamp_id, changed, n_changed)
-        keys, vals, size = _heap_push(keys, vals, size, c, c)
+        size = _heap_push(keys, vals, size, c, c)
         if old >= 0 and old != c:
-            keys, vals, size, n_changed = _drop_unsupported(
+            size, n_changed = _drop_unsupported(
                 c, old, rows, cols, occ, obst, dist2, to_raise, raise_obst, stamp, stamp_id,
                 changed, n_changed, keys, vals, size)
     for c in leave_cells:
         domain[c] = 0
         if obst[c] >= 0 and not occ[c]:
-            keys, vals, size, n_changed = _clear(c, obst[c], n, obst, dist2, to_raise,
-                                                 raise_obst, stamp, stamp_id, changed,
-                                                 n_changed, keys, vals, size)
+            size, n_changed = _clear(c, obst[c], n, obst, dist2, to_raise, raise_obst,
+                                     stamp, stamp_id, changed, n_changed, keys, vals, size)
     for c in enter_cells:
         domain[c] = 1
+        r0, c0 = c // cols, c % cols
         for k in range(8):  # Neighbours with a value spread it into the new cell.
-            rr, cc = c // cols + _DR[k], c % cols + _DC[k]
+            rr, cc = r0 + _DR[k], c0 + _DC[k]
             if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
                 continue
             y = rr * cols + cc
             if domain[y] and obst[y] >= 0 and not to_raise[y]:
-                keys, vals, size = _heap_push(keys, vals, size, dist2[y] * n + y, y)
+                size = _heap_push(keys, vals, size, dist2[y] * n + y, y)
     for c in clear_cells:
         if not occ[c]:
             continue
         occ[c] = 0
-        keys, vals, size, n_changed = _clear(c, c, n, obst, dist2, to_raise, raise_obst,
-                                             stamp, stamp_id, changed, n_changed, keys, vals,
-                                             size)
+        size, n_changed = _clear(c, c, n, obst, dist2, to_raise, raise_obst, stamp, stamp_id,
+                                 changed, n_changed, keys, vals, size)
     while size > 0:
         key, s, size = _heap_pop(keys, vals, size)
+        if size + _ROOM > len(keys):
+            keys, vals = _heap_grow(keys, vals, size, _ROOM)
         r0, c0 = s // cols, s % cols
         if to_raise[s]:
             lost = raise_obst[s]
@@ -172,17 +183,18 @@ def _update(rows, cols, occ, domain, obst, dist2, raise_obst, to_raise, stamp, s
                 o = obst[y]
                 if (not occ[o]) or (o == lost and not occ[y] and not _supported(
                         y, cols, rows, obst, to_raise)):
-                    keys, vals, size, n_changed = _clear(y, o, n, obst, dist2, to_raise,
-                                                         raise_obst, stamp, stamp_id,
-                                                         changed, n_changed, keys, vals, size)
+                    size, n_changed = _clear(y, o, n, obst, dist2, to_raise, raise_obst,
+                                             stamp, stamp_id, changed, n_changed, keys, vals,
+                                             size)
                 else:  # A valid neighbour: let it spread into the cleared cell.
-                    keys, vals, size = _heap_push(keys, vals, size, dist2[y] * n + y, y)
+                    size = _heap_push(keys, vals, size, dist2[y] * n + y, y)
             to_raise[s] = 0
             continue
         o = obst[s]
         if o < 0 or key != dist2[s] * n + s:
             continue  # Cleared, or a newer entry for this cell is queued.
         ds = dist2[s]
+        orow, ocol = o // cols, o % cols
         for k in range(8):
             rr, cc = r0 + _DR[k], c0 + _DC[k]
             if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
@@ -190,7 +202,7 @@ def _update(rows, cols, occ, domain, obst, dist2, raise_obst, to_raise, stamp, s
             y = rr * cols + cc
             if to_raise[y] or occ[y] or not domain[y]:
                 continue
-            d = _sqdist(y, o, cols)
+            d = (rr - orow) * (rr - orow) + (cc - ocol) * (cc - ocol)
             if d <= ds:
                 continue  # Obstacles spread outward only.
             old = obst[y]
@@ -198,15 +210,15 @@ def _update(rows, cols, occ, domain, obst, dist2, raise_obst, to_raise, stamp, s
                 obst[y] = o
                 dist2[y] = d
                 n_changed = _mark(y, stamp, stamp_id, changed, n_changed)
-                keys, vals, size = _heap_push(keys, vals, size, d * n + y, y)
+                size = _heap_push(keys, vals, size, d * n + y, y)
                 if old >= 0 and old != o:
-                    keys, vals, size, n_changed = _drop_unsupported(
+                    size, n_changed = _drop_unsupported(
                         y, old, rows, cols, occ, obst, dist2, to_raise, raise_obst, stamp,
                         stamp_id, changed, n_changed, keys, vals, size)
     return keys, vals, n_changed
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _is_voro(c, rows, cols, occ, obst, dist2):
     if occ[c] or obst[c] < 0 or dist2[c] <= 2:
         return False
@@ -224,16 +236,17 @@ def _is_voro(c, rows, cols, occ, obst, dist2):
         onr, onc = on // cols, on % cols
         if abs(onr - ocr) <= 1 and abs(onc - occ_) <= 1:
             continue  # Neighbouring obstacle cells are one obstacle.
-        stab_c = _sqdist(c, on, cols) - dist2[c]
-        stab_n = _sqdist(nb, oc, cols) - dist2[nb]
+        stab_c = (r0 - onr) * (r0 - onr) + (c0 - onc) * (c0 - onc) - dist2[c]
+        stab_n = (rr - ocr) * (rr - ocr) + (cc - occ_) * (cc - occ_) - dist2[nb]
         if 0 <= stab_c <= stab_n:
             return True
     return False
 
 
 @numba.njit(cache=True)
-def _refresh_voro(cells, rows, cols, occ, obst, dist2, voro):
-    """Recomputes the GVD flag of ``cells`` and their neighbours."""
+def _refresh_voro(cells, rows, cols, occ, obst, dist2, voro, seen, seen_id):
+    """Recomputes the GVD flag of ``cells`` and their neighbours, each once: ``seen`` is
+    set to ``seen_id`` on the cells done."""
     for c in cells:
         r0, c0 = c // cols, c % cols
         for k in range(-1, 8):
@@ -244,7 +257,9 @@ def _refresh_voro(cells, rows, cols, occ, obst, dist2, voro):
                 if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
                     continue
                 y = rr * cols + cc
-            voro[y] = _is_voro(y, rows, cols, occ, obst, dist2)
+            if seen[y] != seen_id:
+                seen[y] = seen_id
+                voro[y] = _is_voro(y, rows, cols, occ, obst, dist2)
 
 
 class DynamicGVD:
@@ -274,6 +289,7 @@ class DynamicGVD:
         self._stamp_id = 0
         self._changed = np.empty(n, np.int64)
         self._voro = np.zeros(n, np.bool_)
+        self._voro_stamp = np.zeros(n, np.int64)  # Cells whose flag an update refreshed.
         self.last_changed = self._changed[:0]  # Flat cells the last update changed.
         self._keys = np.empty(1024, np.int64)
         self._vals = np.empty(1024, np.int64)
@@ -347,6 +363,6 @@ class DynamicGVD:
             self._raise_obst, self._to_raise, self._stamp, self._stamp_id, self._changed,
             to_set, to_clear, enter, leave, self._keys, self._vals)
         _refresh_voro(self._changed[:n_changed], self.shape[0], self.shape[1], self._occ,
-                      self._obst, self._dist2, self._voro)
+                      self._obst, self._dist2, self._voro, self._voro_stamp, self._stamp_id)
         self.last_changed = self._changed[:n_changed]
         return int(n_changed)
