@@ -36,6 +36,7 @@ import numpy as np
 
 from mjexplore.explorers.base import ExplorationState, Explorer
 from mjexplore.explorers.nearest import NearestFrontier
+from mjexplore.mapping.localization import FusedLocalizer, LocalizerConfig
 from mjexplore.mapping.metrics import exploration_ratio, iou, observable_ground_truth
 from mjexplore.mapping.occupancy import MapperConfig, OccupancyMapper
 from mjexplore.mapping.scan_matching import ScanMatchingLocalizer, deskew_scan
@@ -191,10 +192,15 @@ class Episode:
         self.mapper = OccupancyMapper.like(gt, MapperConfig(resolution=gt.resolution))
         # Without ground-truth localisation the robot maps where it believes it is, and a
         # second mapper maps the same scans where they were taken: what was really seen.
-        self.localizer: ScanMatchingLocalizer | None = None
+        self.localizer: ScanMatchingLocalizer | FusedLocalizer | None = None
         self._seen = self.mapper
-        if cfg.localization != "ground_truth":
+        if cfg.localization == "scan_matching":
+            self.localizer = FusedLocalizer(
+                self.sim.pose, odom_pose=self.sim.odom_pose,
+                config=LocalizerConfig.for_lidar(self.sim.lidar.config))
+        elif cfg.localization != "ground_truth":
             self.localizer = ScanMatchingLocalizer(self.sim.pose, odom_pose=self.sim.odom_pose)
+        if self.localizer is not None:
             self._seen = OccupancyMapper.like(gt, MapperConfig(resolution=gt.resolution))
         self._pose_errors: list[float] = []
         self.tracker = TopologyTracker(gt.shape, cfg.topology, gt)
@@ -263,7 +269,7 @@ class Episode:
         if scan.time_increment != 0 and len(rows) > 1:
             scan = deskew_scan(scan, trajectory=(rows[:, 0], rows[:, 8:11]))
         if self.config.localization == "scan_matching":
-            loc.correct(scan, self.mapper.grid)
+            loc.correct(scan, self.mapper)
         self._pose_errors.append(float(np.hypot(*(loc.pose[:2] - truth[:2]))))
         return scan, loc.sensor_pose
 
