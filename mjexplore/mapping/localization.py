@@ -51,7 +51,8 @@ import numpy as np
 from mjexplore.errors import UserInputError
 from mjexplore.maps import GridMap, is_occupied
 from mjexplore.mapping.scan_matching import (ScanMatcherConfig, ScanMatchingLocalizer,
-                                             base_pose_of, match_scan, scan_points)
+                                             accumulate_normal_equations, base_pose_of,
+                                             match_scan, scan_points)
 from mjexplore.robot import TURTLEBOT3_WAFFLE, RobotGeometry
 from mjexplore.sim.lidar import LaserScan
 from mjexplore.sim.odometry import compose_pose, relative_pose, wrap_angle
@@ -182,11 +183,7 @@ def _field_system(dist, points, weights, x, y, yaw, x0, y0, res, gate):
         cost += 0.5 * wk * r * r
         gx = ((1 - fv) * (d01 - d00) + fv * (d11 - d10)) / res
         gy = ((1 - fu) * (d10 - d00) + fu * (d11 - d01)) / res
-        jac = (gx, gy, gy * ax - gx * ay)
-        for i in range(3):
-            grad[i] += wk * jac[i] * r
-            for j in range(3):
-                hess[i, j] += wk * jac[i] * jac[j]
+        accumulate_normal_equations(hess, grad, (gx, gy, gy * ax - gx * ay), wk, r)
     return cost, hess, grad, inside
 
 

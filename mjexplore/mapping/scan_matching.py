@@ -318,6 +318,16 @@ def _local_log_likelihoods(log_table, rows, cols, a, di, dj, k):
     return out
 
 
+@numba.njit(cache=True, inline="always")
+def accumulate_normal_equations(hess, grad, jac, weight, residual):
+    """Adds one weighted residual's terms to the Gauss-Newton system (3 x 3 ``hess``, 3
+    ``grad``) of a pose (x, y, yaw); ``jac``: the residual's derivatives, a 3-tuple."""
+    for i in range(3):
+        grad[i] += weight * jac[i] * residual
+        for j in range(3):
+            hess[i, j] += weight * jac[i] * jac[j]
+
+
 @numba.njit(cache=True)
 def _normal_equations(occupied, points, x, y, yaw, x0, y0, res, gate, huber, unit):
     """The refinement's loss and Gauss-Newton system at pose (x, y, yaw) of the sensor.
@@ -375,10 +385,7 @@ def _normal_equations(occupied, points, x, y, yaw, x0, y0, res, gate, huber, uni
             continue
         wgt = 1.0 if r <= huber else huber / r
         jac = (gx * unit[0], gy * unit[1], (gy * ax - gx * ay) * unit[2])
-        for i in range(3):
-            grad[i] += wgt * jac[i] * r
-            for j in range(3):
-                hess[i, j] += wgt * jac[i] * jac[j]
+        accumulate_normal_equations(hess, grad, jac, wgt, r)
     return loss, hess, grad, inside
 
 
