@@ -132,3 +132,14 @@ def test_bench_refuses_a_repeated_scene_or_explorer(tmp_path):
                  ["--scenes", "train_loop", "--explorers", "nearest,rrt,nearest"]):
         assert main(["bench", *flag, "--seeds", "1", "--out", str(tmp_path / "b")]) == 2
     assert not (tmp_path / "b").exists()
+
+
+def test_the_report_says_what_lingering_meant_for_the_runs_it_shows():
+    from mjexplore.eval.report import _other_ends
+
+    groups = {"maze": {"nearest": [{"metrics": {"end_reason": "lingering"}}]}}
+    nav = {"linger_time": 60.0, "linger_radius": 0.5}
+    old = _other_ends(groups, episode={"navigator": nav})
+    new = _other_ends(groups, episode={"navigator": nav, "linger_strikes": 3})
+    assert "lingering: 60 s within 0.5 m;" in old
+    assert "lingering: 3 goals in a row given up after 60 s within 0.5 m each;" in new

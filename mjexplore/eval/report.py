@@ -136,8 +136,18 @@ def _table(groups, rename=None) -> str:
     return markdown_table(header, rows)
 
 
-def _other_ends(groups, rename=None) -> str:
-    """The runs that ended before the target ratio, by end reason."""
+def _lingering_rule(episode: dict) -> str:
+    """What ``lingering`` meant under the runs' episode settings: since ``linger_strikes``
+    exists, that many goals in a row given up for lingering on one spot."""
+    nav = episode.get("navigator") or {}
+    spot = f"{nav.get('linger_time', 60.0):g} s within {nav.get('linger_radius', 0.5):g} m"
+    strikes = episode.get("linger_strikes")
+    return spot if strikes is None else f"{strikes} goals in a row given up after {spot} each"
+
+
+def _other_ends(groups, rename=None, episode: dict | None = None) -> str:
+    """The runs that ended before the target ratio, by end reason (``episode``: the
+    summary's episode settings, for what ``lingering`` meant)."""
     rename = rename or METHOD_LABELS
     parts = []
     for scene, methods in groups.items():
@@ -150,7 +160,8 @@ def _other_ends(groups, rename=None) -> str:
                 parts.append(f"{scene} / {rename.get(m, m)}: {counts}")
     if not parts:
         return "Every run reached the target ratio."
-    return ("Runs that ended before the target ratio (lingering: 60 s within 0.5 m; "
+    rule = _lingering_rule(episode or {})
+    return (f"Runs that ended before the target ratio (lingering: {rule}; "
             "no_frontiers: none left reachable; time_limit: the cap): " + "; ".join(parts) + ".")
 
 
@@ -370,9 +381,10 @@ def build_report(data_dir: str | os.PathLike, out: str | os.PathLike,
 def _section(name: str, summary, groups, figures: Path, rel: str) -> list[str]:
     if name == "ariadne":
         return [relative_table(groups), "", reference_table(summary), "",
-                _other_ends(groups), ""]
+                _other_ends(groups, episode=summary.get("episode")), ""]
     rename = ABLATION_NAMES if name == "ablation" else None
-    lines = [_table(groups, rename), "", _other_ends(groups, rename), ""]
+    lines = [_table(groups, rename), "", _other_ends(groups, rename, summary.get("episode")),
+             ""]
     if name == "table1":
         claims, faster = claims_table(groups)
         if faster:
