@@ -63,6 +63,27 @@ def test_a_frontier_behind_a_detour_is_reached_not_given_up(tmp_path):
     assert result.metrics["given_up"]["no_progress"] == 0  # ...and was never given up.
 
 
+def test_a_route_that_flips_between_two_ways_round_does_not_hold_the_goal(tmp_path):
+    # The replanned path to the goal flips between 3 m and 6 m every 2 s (two ways round an
+    # obstacle the map keeps changing its mind about): each flip to the longer one may
+    # restart the progress clock only so often, then the goal is given up.
+    # The goal: the pocket of the detour test, 34 m away by the only path (about 70 s).
+    episode = Episode(_two_rooms(tmp_path, gap_to_the_east=True), NearestFrontier(), 0,
+                      _config(max_time=400.0))
+    known = np.ones(episode.mapper.state.shape, bool)
+    known[90:138, 60:160] = False
+    _preload(episode, known)
+    assert episode.step() and episode.goal is not None
+    goal = episode.goal.copy()
+    episode.navigator.remaining_length = lambda pose: 3.0 if episode.sim.time % 4 < 2 else 6.0
+    while episode.step() and episode.sim.time < 300.0:
+        if not np.array_equal(episode.goal, goal):
+            break
+    assert episode.blacklist.reasons()["no_progress"] == 1
+    budget = (episode.config.longer_route_restarts + 1) * 4.0 + episode.config.progress_timeout
+    assert episode.sim.time < budget + 5.0
+
+
 def test_no_frontiers_fires_only_when_none_is_reachable(tmp_path):
     # Without the east opening the north room is seen through the slit only: its frontiers
     # cannot be reached, and the episode must end as no_frontiers (not at the time cap).

@@ -83,7 +83,10 @@ class EpisodeConfig:
             pose from the scene's (kept only where the robot fits), so that seeds differ.
         progress_timeout: A goal whose path has not become 0.25 m shorter for this many
             seconds is given up (a gap the costmap allows but the body does not pass); a
-            replanned path more than 1 m longer restarts the clock.
+            replanned path more than 1 m longer restarts the clock, up to
+            ``longer_route_restarts`` times per goal (a route that flips between two ways
+            around would otherwise hold the goal forever).
+        longer_route_restarts: See ``progress_timeout``.
         linger_strikes: Goals given up for lingering on one spot before the episode ends
             as ``lingering``.
     """
@@ -99,6 +102,7 @@ class EpisodeConfig:
     blacklist: BlacklistConfig = dataclasses.field(default_factory=BlacklistConfig)
     start_jitter: tuple[float, float] = (0.25, 0.3)
     progress_timeout: float = 20.0
+    longer_route_restarts: int = 3
     linger_strikes: int = 3
 
     def __post_init__(self) -> None:
@@ -110,9 +114,9 @@ class EpisodeConfig:
         if not 0 < self.target_ratio <= 1:
             raise ValueError("target_ratio must be in (0, 1]")
         if self.progress_timeout <= 0 or min(self.start_jitter) < 0 or \
-                self.linger_strikes < 0:
-            raise ValueError("start_jitter and linger_strikes must be >= 0, progress_timeout "
-                             "> 0")
+                self.linger_strikes < 0 or self.longer_route_restarts < 0:
+            raise ValueError("start_jitter, linger_strikes and longer_route_restarts must be "
+                             ">= 0, progress_timeout > 0")
 
 
 @dataclasses.dataclass
@@ -219,6 +223,7 @@ class Episode:
         self._decision_due = False
         self._best_distance = math.inf
         self._best_time = 0.0
+        self._route_restarts = 0
         self._decided_at = 0.0
         self._fallback = NearestFrontier()
         self.fallbacks = 0
@@ -360,6 +365,7 @@ class Episode:
             return False
         self._best_distance = self.navigator.remaining_length(pose)
         self._best_time = self._decided_at = self.sim.time
+        self._route_restarts = 0
         self._decision_due = False
         return True
 
@@ -487,8 +493,11 @@ class Episode:
             return True
         if self.goal is not None and self.navigator.status == NavStatus.ACTIVE:
             d = self.navigator.remaining_length(pose)
-            if d < self._best_distance - 0.25 or d > self._best_distance + 1.0:
+            longer = d > self._best_distance + 1.0 and \
+                self._route_restarts < cfg.longer_route_restarts
+            if d < self._best_distance - 0.25 or longer:
                 # Closer along the path, or a longer route replanned: the clock restarts.
+                self._route_restarts += longer
                 self._best_distance, self._best_time = d, t
             elif t - self._best_time > cfg.progress_timeout:
                 self._give_up("no_progress")
