@@ -259,6 +259,17 @@ class Episode:
         with ground-truth localisation)."""
         return self.sim.pose if self.localizer is None else self.localizer.pose
 
+    def _deskewed(self, scan, columns: slice):
+        """The scan as if all its beams were cast from ``base_scan`` at its stamp, undone
+        along the base's trajectory in ``kinematics_rows[:, columns]`` (5:8 the true poses,
+        8:11 the odometry's); the scan itself when its beams were cast at once."""
+        rows = self.sim.kinematics_rows
+        if scan.time_increment == 0 or len(rows) < 2:
+            return scan
+        first = scan.stamp + min(scan.time_increment * (len(scan.ranges) - 1), 0.0)
+        lo = max(int(np.searchsorted(rows[:, 0], first)) - 1, 0)
+        return deskew_scan(scan, trajectory=(rows[lo:, 0], rows[lo:, columns]))
+
     def _localize(self, scan):
         """Updates the pose estimate to the scan's stamp; the scan as the robot maps it
         (deskewed when its beams were taken over time) and its sensor pose."""
@@ -271,8 +282,7 @@ class Episode:
             k = int(np.argmin(np.abs(recent[:, 0] - scan.stamp)))  # Scans fall on samples.
             odom, truth = recent[k, 8:11], recent[k, 5:8]
         loc.advance(odom)
-        if scan.time_increment != 0 and len(rows) > 1:
-            scan = deskew_scan(scan, trajectory=(rows[:, 0], rows[:, 8:11]))
+        scan = self._deskewed(scan, slice(8, 11))
         if self.config.localization == "scan_matching":
             loc.correct(scan, self.mapper)
         self._pose_errors.append(float(np.hypot(*(loc.pose[:2] - truth[:2]))))
@@ -283,12 +293,15 @@ class Episode:
             return  # A broken state would map garbage; the episode ends at the next check.
         grid = self.mapper.grid
         seen = None
+        # What was seen: every beam from where it was really cast (the LDS-01's are spread
+        # over its rotation).
+        true_scan = self._deskewed(scan, slice(5, 8))
         if self.localizer is not None:
-            seen = self._seen.integrate(scan)
+            seen = self._seen.integrate(true_scan)
             scan, sensor_pose = self._localize(scan)
             changed = self.mapper.integrate(scan, sensor_pose)
         else:
-            changed = self.mapper.integrate(scan)
+            changed = self.mapper.integrate(true_scan)
         self.tracker.observe(grid, changed)
         if self._costmap is not None:
             self._costmap.update(np.concatenate([changed[:, 0] * grid.shape[1] + changed[:, 1],
