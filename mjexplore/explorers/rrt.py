@@ -5,7 +5,10 @@ growing over the whole map (step ``global_eta``) and a local tree (step ``local_
 that restarts at the robot every time it finds one. An extension toward a random sample
 that runs into unknown space marks a frontier point there; one that hits an obstacle is
 dropped; otherwise the tree grows. Points no longer next to unknown space are discarded
-and the rest are merged by mean shift (``bandwidth``). Each candidate's utility is
+and the rest are merged by mean shift (``bandwidth``); as rrt_exploration's filter node
+does, a merged point with less than ``min_gain`` square metres of unknown space within half
+of ``info_radius`` is dropped (a few unknown cells inside a wall are no frontier). Each
+candidate's utility is
 ``gain_weight * information_gain - path_cost``, with the information gain the unknown
 area within ``info_radius`` of it, doubled within ``hysteresis_radius`` of the robot; the
 best one is the goal. Trees grow by ``iterations_per_second`` for every simulated second
@@ -106,6 +109,19 @@ def mean_shift(points: np.ndarray, bandwidth: float, iterations: int = 10) -> np
     return modes[kept].reshape(-1, 2)
 
 
+def _unknown_area(grid, points: np.ndarray, radius: float) -> np.ndarray:
+    """Square metres of unknown space within ``radius`` metres of each (n, 2) point."""
+    if len(points) == 0:
+        return np.zeros(0)
+    unknown = (grid.data < 0).astype(np.float64)
+    k = max(1, int(round(radius / grid.resolution)))
+    yy, xx = np.mgrid[-k:k + 1, -k:k + 1]
+    disk = (xx ** 2 + yy ** 2) <= k * k
+    padded = np.pad(unknown, k)
+    return np.array([(padded[r:r + 2 * k + 1, c:c + 2 * k + 1] * disk).sum()
+                     for r, c in grid.world_to_cell(points)]) * grid.resolution ** 2
+
+
 @register("rrt")
 class RRTExplorer:
     """Args follow rrt_exploration's parameters (metres); see the module docstring."""
@@ -113,7 +129,8 @@ class RRTExplorer:
     def __init__(self, global_eta: float = 15.0, local_eta: float = 1.0,
                  iterations_per_second: int = 50, bandwidth: float = 0.3,
                  info_radius: float = 1.0, gain_weight: float = 3.0,
-                 hysteresis_radius: float = 3.0, hysteresis_gain: float = 2.0) -> None:
+                 hysteresis_radius: float = 3.0, hysteresis_gain: float = 2.0,
+                 min_gain: float = 0.2) -> None:
         self.global_eta = global_eta
         self.local_eta = local_eta
         self.iterations_per_second = iterations_per_second
@@ -122,6 +139,7 @@ class RRTExplorer:
         self.gain_weight = gain_weight
         self.hysteresis_radius = hysteresis_radius
         self.hysteresis_gain = hysteresis_gain
+        self.min_gain = min_gain
 
     def reset(self, rng: np.random.Generator) -> None:
         self.rng = rng
@@ -167,6 +185,8 @@ class RRTExplorer:
             keep = window_counts(grid.data < 0, cells, k) > 0
             self.points = self.points[keep]
         detected = mean_shift(self.points, self.bandwidth) if len(self.points) else np.zeros((0, 2))
+        detected = detected[_unknown_area(grid, detected, 0.5 * self.info_radius) >=
+                            self.min_gain]
         frontier_goals = np.array([f.goal for f in state.frontiers]).reshape(-1, 2)
         # The trees' detections first; if none of them can be reached, the map's frontiers,
         # which the detectors would find in time.
@@ -182,14 +202,8 @@ class RRTExplorer:
     def _utility(self, state: ExplorationState, candidates: np.ndarray) -> np.ndarray:
         """gain_weight * unknown area within info_radius (x hysteresis) - path cost."""
         grid = state.grid
-        unknown = (grid.data < 0).astype(np.float64)
-        k = max(1, int(round(self.info_radius / grid.resolution)))
-        yy, xx = np.mgrid[-k:k + 1, -k:k + 1]
-        disk = (xx ** 2 + yy ** 2) <= k * k
         cells = grid.world_to_cell(candidates)
-        padded = np.pad(unknown, k)
-        gains = np.array([(padded[r:r + 2 * k + 1, c:c + 2 * k + 1] * disk).sum()
-                          for r, c in cells]) * grid.resolution ** 2
+        gains = _unknown_area(grid, candidates, self.info_radius)
         near = np.hypot(*(candidates - state.pose[:2]).T) <= self.hysteresis_radius
         gains = np.where(near, gains * self.hysteresis_gain, gains)
         mask = np.zeros(grid.shape, bool)
