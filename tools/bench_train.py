@@ -95,8 +95,8 @@ def run(job: tuple[str, str, float]) -> dict:
 
 def ppo_round(dynamics: str) -> dict[str, float]:
     """One rollout and one PPO update of training/gvn.yaml from the shipped weights, its
-    episodes in the world ``dynamics`` names: wall seconds of each and the decisions
-    collected."""
+    episodes in the world ``dynamics`` names (the grid world with training/gvn_v2.yaml's
+    scan schedule, ``scan_travel``): wall seconds of each and the decisions collected."""
     import torch
     from stable_baselines3.common.callbacks import BaseCallback
 
@@ -105,9 +105,12 @@ def ppo_round(dynamics: str) -> dict[str, float]:
     from mjexplore.training import load_train_config, make_model, make_vec_env
 
     config = load_train_config(DEFAULT_WEIGHTS.parent / "gvn.yaml")
+    travel = load_train_config(DEFAULT_WEIGHTS.parent / "gvn_v2.yaml").env.episode.sim.scan_travel
     episode = config.env.episode
+    sim = dataclasses.replace(episode.sim, dynamics=dynamics,
+                              scan_travel=travel if dynamics == "grid" else None)
     config = dataclasses.replace(config, env=dataclasses.replace(config.env, episode=(
-        dataclasses.replace(episode, sim=dataclasses.replace(episode.sim, dynamics=dynamics)))))
+        dataclasses.replace(episode, sim=sim))))
     torch.set_num_threads(config.torch_threads)
     marks: dict[str, float] = {}
 

@@ -1,12 +1,15 @@
 """Sim-to-sim check: the same explorers and seeds in the grid world and in full physics.
 
 For each evaluation scene, explorer and seed, one episode in each world (the CLI's episode
-settings: ideal lidar with 0.01 m noise, 1800 s cap); prints one JSON line (per scene and
-explorer: mean ET in each world and their ratio, runs that reached the target) and, with
-``--out``, writes the table as markdown with the code revision (atomically).
+settings: ideal lidar with 0.01 m noise, 1800 s cap); the grid world scans as training
+runs it (``--grid-scans travel``: training/gvn_v2.yaml's ``scan_travel``) or at the lidar's
+rate (``rate``). Prints one JSON line (per scene and explorer: mean ET in each world and
+their ratio, runs that reached the target) and, with ``--out``, writes the table as
+markdown with the code revision (atomically).
 
 Usage: python tools/sim_to_sim.py [--scenes loop_with_corridor,maze,office]
-       [--explorers nearest,gvn] [--seeds 3] [--workers 2] [--out docs/sim_to_sim.md]
+       [--explorers nearest,gvn] [--seeds 3] [--workers 2] [--grid-scans travel|rate]
+       [--out docs/sim_to_sim.md]
 """
 
 from __future__ import annotations
@@ -23,11 +26,13 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 WORLDS = ("grid", "physics")
+SCHEDULES = {"travel": "by travel, as training/gvn_v2.yaml's scan_travel has it",
+             "rate": "at the lidar's rate"}
 
 
-def run(job: tuple[str, str, int, str]) -> dict:
+def run(job: tuple[str, str, int, str, str]) -> dict:
     """One episode; its world, ET and end."""
-    scene, explorer, seed, world = job
+    scene, explorer, seed, world, grid_scans = job
     import torch
 
     from mjexplore.episode import Episode, EpisodeConfig
@@ -35,9 +40,14 @@ def run(job: tuple[str, str, int, str]) -> dict:
     from mjexplore.scenes.canonical import resolve_scene
     from mjexplore.sim.lidar import lidar_model
     from mjexplore.sim.simulator import SimConfig
+    from mjexplore.training import load_train_config
 
     torch.set_num_threads(1)
-    config = EpisodeConfig(sim=SimConfig(dynamics=world,
+    travel = None
+    if world == "grid" and grid_scans == "travel":
+        travel = load_train_config(Path(__file__).resolve().parents[1] / "training" /
+                                   "gvn_v2.yaml").env.episode.sim.scan_travel
+    config = EpisodeConfig(sim=SimConfig(dynamics=world, scan_travel=travel,
                                          lidar=lidar_model("ideal", noise_std=0.01)))
     m = Episode(resolve_scene(scene), make_explorer(explorer), seed, config).run().metrics
     return {"scene": scene, "explorer": explorer, "seed": seed, "world": world,
@@ -50,11 +60,14 @@ def main() -> None:
     parser.add_argument("--explorers", default="nearest,gvn")
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--grid-scans", choices=("travel", "rate"), default="travel",
+                        help="the grid world's scans: by travel as in training (default) "
+                             "or at the lidar's rate")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
     scenes, explorers = args.scenes.split(","), args.explorers.split(",")
-    jobs = [(s, e, seed, w) for s in scenes for e in explorers for seed in range(args.seeds)
-            for w in WORLDS]
+    jobs = [(s, e, seed, w, args.grid_scans) for s in scenes for e in explorers
+            for seed in range(args.seeds) for w in WORLDS]
     with multiprocessing.get_context("spawn").Pool(args.workers) as pool:
         results = pool.map(run, jobs, chunksize=1)
     from mjexplore.io.atomic import write_text_atomic
@@ -77,14 +90,16 @@ def main() -> None:
                         f"{ratio:.3f} | {done['grid']}/{args.seeds} | "
                         f"{done['physics']}/{args.seeds} |")
     revision = git_revision()
-    print(json.dumps({"revision": revision, "seeds": args.seeds, **table}))
+    print(json.dumps({"revision": revision, "seeds": args.seeds,
+                      "grid_scans": args.grid_scans, **table}))
     if args.out is not None:
         write_text_atomic(args.out, "\n".join([
             "# Sim-to-sim: the grid world against full physics", "",
             f"Mean exploration time (s, simulated) to 98.5 % or the end over seeds "
             f"0-{args.seeds - 1}, the same explorer and seed in each world (the CLI's "
-            f"episode settings), from `python tools/sim_to_sim.py --seeds {args.seeds} "
-            f"--out {args.out}` at revision `{revision}`.", "",
+            f"episode settings; the grid world scanning {SCHEDULES[args.grid_scans]}), "
+            f"from `python tools/sim_to_sim.py --seeds {args.seeds} --grid-scans "
+            f"{args.grid_scans} --out {args.out}` at revision `{revision}`.", "",
             "| scene | explorer | ET grid | ET physics | grid / physics | explored grid | "
             "explored physics |", "|---|---|---|---|---|---|---|", *rows, ""]))
 

@@ -555,18 +555,32 @@ class Episode:
         """One control period; returns False once the episode has ended."""
         if self._check_end():
             return False
-        if self.decision_due() and not self._decide():
-            self.end_reason = "no_frontiers"
-            return False
+        if self.decision_due():
+            if self._decision_scan():
+                return False
+            if not self._decide():
+                self.end_reason = "no_frontiers"
+                return False
         self.control()
         return True
+
+    def _decision_scan(self) -> bool:
+        """Maps the scan that a world scanning by travel (the grid world's ``scan_travel``)
+        skipped at this instant, so that each decision sees the map from where the robot
+        stands; True if the episode ended with it."""
+        scan_now = getattr(self.sim, "scan_now", None)
+        scan = scan_now() if scan_now is not None else None
+        if scan is None:
+            return False
+        self._integrate(scan)
+        return self._check_end()
 
     def run_to_decision(self) -> bool:
         """Runs control periods until a decision is due (True) or the episode ends (False);
         for callers that choose goals themselves (the Gymnasium env)."""
         while not self._check_end():
             if self.decision_due():
-                return True
+                return not self._decision_scan()
             self.control()
         return False
 

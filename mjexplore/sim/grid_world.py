@@ -25,6 +25,11 @@ So the grid and kinematic worlds drive the same trajectory for the same commands
 their scans differ only by float rounding (a beam through a wall's corner may differ
 where the boxes and the cells meet at a point).
 
+For training, ``SimConfig.scan_travel`` (:class:`~mjexplore.sim.simulator.ScanTravel`)
+scans by travel instead: a denser scan every ``distance`` driven or ``angle`` turned and
+before each decision, which maps about as the lidar's rate does for a fraction of the
+scans (training/gvn_v2.yaml uses it; ``tools/sim_to_sim.py`` measures it against physics).
+
 ``model`` and ``data`` exist for rendering only: the scene's MJCF is compiled on first use
 and shows the robot at its pose; nothing is ever stepped.
 """
@@ -32,6 +37,7 @@ and shows the robot at its pose; nothing is ever stepped.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import math
 import os
 
@@ -244,6 +250,10 @@ class GridWorld(RobotWorld):
                                         "sample")
         lidar_cfg = self.config.resolved_lidar()
         self._scan_every = _steps_per(1.0 / lidar_cfg.rate_hz, self.timestep, "lidar scan")
+        travel = self.config.scan_travel
+        if travel is not None:
+            lidar_cfg = dataclasses.replace(
+                lidar_cfg, num_beams=lidar_cfg.num_beams * travel.beam_factor)
         self._rng = np.random.default_rng(self.config.seed)
         self.lidar = GridLidar(self.scene.ground_truth, lidar_cfg, self._rng)
         self._skew = lidar_cfg.motion_skew
@@ -331,14 +341,14 @@ class GridWorld(RobotWorld):
         self._kinematics.clear()
         self.lidar.clear_history()
         self._sample()
-        self._scan = self.lidar.scan(*self._pose, 0.0)
-        return self._scan
+        return self._take_scan()
 
     def step(self, duration: float) -> list[LaserScan]:
         """Advances simulated time by ``duration`` seconds (rounded to physics steps).
 
         Returns:
-            The scans taken during the step, oldest first.
+            The scans taken during the step, oldest first: one per scan instant, or with
+            ``scan_travel`` only those after enough travel.
         """
         end = self._steps + max(0, round(duration / self.timestep))
         sample, scan = self._sample_every, self._scan_every
@@ -351,12 +361,36 @@ class GridWorld(RobotWorld):
                 self._sample()
                 self._cmd_base = self._cmd
                 self._ramp()
-            if stop % scan == 0:
-                self._scan = self.lidar.scan(*self._pose, self.time)
-                scans.append(self._scan)
+            if stop % scan == 0 and self._travelled():
+                scans.append(self._take_scan())
         return scans
 
+    def scan_now(self) -> LaserScan | None:
+        """With ``scan_travel``, a scan at the current pose and time if the base has moved
+        or turned since the last scan (the one the schedule skipped); the episode maps it
+        before each decision. None otherwise (without ``scan_travel`` every scan instant
+        has had its scan)."""
+        if (self.config.scan_travel is None or self._pose == self._scan_pose or
+                self._scan.stamp == self.time):
+            return None
+        return self._take_scan()
+
     # ------------------------------------------------------------------ internals
+
+    def _take_scan(self) -> LaserScan:
+        self._scan = self.lidar.scan(*self._pose, self.time)
+        self._scan_pose = self._pose
+        return self._scan
+
+    def _travelled(self) -> bool:
+        """Whether a scan is due at a scan instant: always, or with ``scan_travel`` once
+        the base has moved or turned that much since the last scan."""
+        travel = self.config.scan_travel
+        if travel is None:
+            return True
+        (x, y, yaw), (x0, y0, yaw0) = self._pose, self._scan_pose
+        return (math.hypot(x - x0, y - y0) >= travel.distance or
+                abs(math.remainder(yaw - yaw0, 2 * math.pi)) >= travel.angle)
 
     def _move(self, stop: int) -> None:
         """Moves the base from step ``self._steps`` to ``stop`` (and sets the step count)."""
