@@ -1,0 +1,46 @@
+#!/bin/bash
+# Re-runs the experiments of docs/results.md at one committed revision, in a worktree of it
+# (so the runs record that revision, clean, whatever the checkout holds meanwhile).
+#
+# Usage: tools/rerun_results.sh REV WORKERS [table1 explore_bench ariadne ablation lobby_real]
+# Runs go to runs/rerun_REV/<experiment>; started again, bench skips the finished episodes.
+# Then: mjexplore collect runs/rerun_REV/<experiment> --experiment <experiment> and
+# mjexplore report. Needs ../shared/data (the Explore-Bench and ARiADNE maps).
+set -eu
+[ $# -ge 2 ] || { echo "usage: $0 REV WORKERS [EXPERIMENT...]" >&2; exit 2; }
+REV=$(git rev-parse --short "$1"); W=$2; shift 2
+EXPERIMENTS=${*:-table1 explore_bench ariadne ablation lobby_real}
+ROOT=$(git rev-parse --show-toplevel)
+SHARED=$(cd "$ROOT/../shared" && pwd)
+WT=$ROOT/runs/wt_$REV
+OUT=$ROOT/runs/rerun_$REV
+[ -d "$WT" ] || git -C "$ROOT" worktree add --detach "$WT" "$REV"
+ln -sfn "$SHARED" "$ROOT/runs/shared"  # ../shared as seen from the worktree.
+mkdir -p "$OUT"
+mj() { (cd "$WT" && PYTHONPATH="$WT" "$ROOT/.venv/bin/python" -c \
+    'import sys; from mjexplore.cli import main; sys.exit(main(sys.argv[1:]))' "$@"); }
+ALL=nearest,explore_lite,frontier_tsp,rrt,potential,cnn,gvn,oracle
+EB=$(ls "$SHARED"/data/explore_bench/*.yaml | sed "s#$SHARED#../shared#" | paste -sd,)
+for e in $EXPERIMENTS; do
+  echo "== $e $(date -u +%FT%TZ)"
+  case $e in
+    table1) mj bench --scenes loop_with_corridor,maze,office --explorers $ALL --seeds 10 \
+              --workers "$W" --out "$OUT/table1" ;;
+    explore_bench) mj bench --scenes "$EB" --explorers $ALL --seeds 2 --lidar-range 7 \
+              --workers "$W" --out "$OUT/explore_bench" ;;
+    ablation) mj bench --scenes loop_with_corridor,maze \
+              --explorers gvn_none,gvn_naive,gvn_unmasked,gvn --seeds 5 --workers "$W" \
+              --out "$OUT/ablation" ;;
+    lobby_real) mj bench --scenes lobby --explorers gvn,potential,nearest --profile real \
+              --seeds 5 --workers 1 --out "$OUT/lobby_real" ;;
+    ariadne)
+      for f in "$SHARED"/data/ariadne_test/img_*.png; do
+        d=$OUT/ariadne_scenes/$(basename "$f" .png)
+        [ -d "$d" ] || mj scene-gen --from-map "$f" --resolution 0.1 --out "$d" > /dev/null
+      done
+      mj bench --scenes "$(ls -d "$OUT"/ariadne_scenes/* | paste -sd,)" --explorers $ALL \
+        --seeds 1 --lidar-range 8 --workers "$W" --out "$OUT/ariadne" ;;
+    *) echo "unknown experiment $e" >&2; exit 2 ;;
+  esac
+done
+echo "== done $(date -u +%FT%TZ)"
