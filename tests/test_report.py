@@ -143,3 +143,24 @@ def test_the_report_says_what_lingering_meant_for_the_runs_it_shows():
     new = _other_ends(groups, episode={"navigator": nav, "linger_strikes": 3})
     assert "lingering: 60 s within 0.5 m;" in old
     assert "lingering: 3 goals in a row given up after 60 s within 0.5 m each;" in new
+
+
+def test_collect_and_report_name_the_planned_episodes_that_left_no_metrics(sweep, tmp_path):
+    from mjexplore.eval.report import _unfinished_note
+
+    partial = tmp_path / "partial"
+    shutil.copytree(sweep, partial)
+    runs = partial / "runs" / "train_loop"
+    shutil.rmtree(runs / "potential" / "seed1")  # Stopped before it ran.
+    shutil.rmtree(runs / "nearest" / "seed1")  # Crashed:
+    (runs / "nearest" / "seed1.failed.json").write_text(json.dumps(
+        {"error": "RuntimeError: boom"}))
+    summary = collect_sweep(partial, "table1")
+    assert summary["unfinished"] == {
+        "failed": [{"scene": "train_loop", "method": "nearest", "seed": 1,
+                    "error": "RuntimeError: boom"}],
+        "not_run": [{"scene": "train_loop", "method": "potential", "seed": 1}]}
+    note = _unfinished_note(summary)
+    assert "1 failed (an error): train_loop / nearest / seed 1" in note
+    assert "1 not run (the sweep was stopped first): train_loop / potential / seed 1" in note
+    assert _unfinished_note(collect_sweep(sweep, "table1")) is None

@@ -165,6 +165,22 @@ def _other_ends(groups, rename=None, episode: dict | None = None) -> str:
             "no_frontiers: none left reachable; time_limit: the cap): " + "; ".join(parts) + ".")
 
 
+def _unfinished_note(summary: dict[str, Any]) -> str | None:
+    """The planned episodes the tables lack: failed ones and those never run."""
+    unfinished = summary.get("unfinished") or {}
+    parts = []
+    for key, what in (("failed", "failed (an error)"),
+                      ("not_run", "not run (the sweep was stopped first)")):
+        runs = unfinished.get(key) or []
+        if runs:
+            listed = ", ".join(f"{r['scene']} / {r['method']} / seed {r['seed']}"
+                               for r in runs[:10])
+            more = f" and {len(runs) - 10} more" if len(runs) > 10 else ""
+            parts.append(f"{len(runs)} {what}: {listed}{more}")
+    return ("Planned episodes missing from the tables: " + "; ".join(parts) + ".") if parts \
+        else None
+
+
 def _mean_level_time(runs: list[dict[str, Any]], key: str) -> tuple[float | None, int]:
     times = [r["metrics"].get(key) for r in runs]
     reached = [t for t in times if t is not None]
@@ -380,11 +396,16 @@ def build_report(data_dir: str | os.PathLike, out: str | os.PathLike,
 
 def _section(name: str, summary, groups, figures: Path, rel: str) -> list[str]:
     if name == "ariadne":
+        note = _unfinished_note(summary)
         return [relative_table(groups), "", reference_table(summary), "",
-                _other_ends(groups, episode=summary.get("episode")), ""]
+                _other_ends(groups, episode=summary.get("episode")), ""] + \
+            ([note, ""] if note else [])
     rename = ABLATION_NAMES if name == "ablation" else None
     lines = [_table(groups, rename), "", _other_ends(groups, rename, summary.get("episode")),
              ""]
+    note = _unfinished_note(summary)
+    if note:
+        lines += [note, ""]
     if name == "table1":
         claims, faster = claims_table(groups)
         if faster:

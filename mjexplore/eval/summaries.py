@@ -20,7 +20,7 @@ import numpy as np
 
 from mjexplore.errors import UserInputError
 from mjexplore.eval.plots import resample
-from mjexplore.eval.sweep import read_kinematics, read_ratio_curve
+from mjexplore.eval.sweep import Job, read_kinematics, read_ratio_curve
 from mjexplore.io.atomic import write_text_atomic
 from mjexplore.io.provenance import git_revision
 
@@ -51,6 +51,26 @@ def _policy_record(path: Path) -> dict[str, Any] | None:
 
 def _run_folders(sweep: Path) -> list[Path]:
     return sorted(p.parent for p in sweep.glob("runs/*/*/seed*/metrics.json"))
+
+
+def _unfinished(sweep: Path, info: dict[str, Any]) -> dict[str, list[dict[str, Any]]]:
+    """The episodes ``sweep.json`` planned that left no metrics: ``failed`` (an error,
+    with its message) and ``not_run`` (the sweep was stopped before them)."""
+    failed, not_run = [], []
+    for scene in info.get("scenes", []):
+        for explorer in info.get("explorers", []):
+            for seed in info.get("seeds", []):
+                job = Job(scene, explorer, int(seed))
+                folder = job.folder(sweep)
+                if (folder / "metrics.json").is_file():
+                    continue
+                record = {"scene": job.label, "method": explorer, "seed": int(seed)}
+                error = folder.with_name(folder.name + ".failed.json")
+                if error.is_file():
+                    failed.append({**record, "error": json.loads(error.read_text()).get("error")})
+                else:
+                    not_run.append(record)
+    return {"failed": failed, "not_run": not_run}
 
 
 def _ratio(folder: Path) -> dict[str, Any]:
@@ -143,7 +163,8 @@ def collect_sweep(sweep: str | os.PathLike, experiment: str, command: str | None
                "run_weights": {m: sorted({r["metrics"]["weights_sha256"] for r in runs
                                           if r["method"] == m and "weights_sha256" in r["metrics"]})
                                for m in methods},
-               "episode": settings, "reference": _read_reference(reference), "runs": runs}
+               "episode": settings, "reference": _read_reference(reference), "runs": runs,
+               "unfinished": _unfinished(sweep, info)}
     if stills is not None:
         summary["stills"] = _copy_stills(folders, experiment, stills, media_dir)
         summary["stills_method"] = stills
