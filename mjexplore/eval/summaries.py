@@ -10,6 +10,7 @@ report regenerates in seconds from files in the repository, without re-running a
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import shutil
@@ -57,19 +58,18 @@ def _unfinished(sweep: Path, info: dict[str, Any]) -> dict[str, list[dict[str, A
     """The episodes ``sweep.json`` planned that left no metrics: ``failed`` (an error,
     with its message) and ``not_run`` (the sweep was stopped before them)."""
     failed, not_run = [], []
-    for scene in info.get("scenes", []):
-        for explorer in info.get("explorers", []):
-            for seed in info.get("seeds", []):
-                job = Job(scene, explorer, int(seed))
-                folder = job.folder(sweep)
-                if (folder / "metrics.json").is_file():
-                    continue
-                record = {"scene": job.label, "method": explorer, "seed": int(seed)}
-                error = folder.with_name(folder.name + ".failed.json")
-                if error.is_file():
-                    failed.append({**record, "error": json.loads(error.read_text()).get("error")})
-                else:
-                    not_run.append(record)
+    for scene, explorer, seed in itertools.product(
+            info.get("scenes", []), info.get("explorers", []), info.get("seeds", [])):
+        job = Job(scene, explorer, int(seed))
+        folder = job.folder(sweep)
+        if (folder / "metrics.json").is_file():
+            continue
+        record = {"scene": job.label, "method": explorer, "seed": job.seed}
+        error = folder.with_name(folder.name + ".failed.json")
+        if error.is_file():
+            failed.append({**record, "error": json.loads(error.read_text()).get("error")})
+        else:
+            not_run.append(record)
     return {"failed": failed, "not_run": not_run}
 
 

@@ -111,15 +111,16 @@ def mean_shift(points: np.ndarray, bandwidth: float, iterations: int = 10) -> np
 
 def _unknown_area(grid, points: np.ndarray, radius: float) -> np.ndarray:
     """Square metres of unknown space within ``radius`` metres of each (n, 2) point."""
-    if len(points) == 0:
-        return np.zeros(0)
-    unknown = (grid.data < 0).astype(np.float64)
     k = max(1, int(round(radius / grid.resolution)))
     yy, xx = np.mgrid[-k:k + 1, -k:k + 1]
     disk = (xx ** 2 + yy ** 2) <= k * k
-    padded = np.pad(unknown, k)
-    return np.array([(padded[r:r + 2 * k + 1, c:c + 2 * k + 1] * disk).sum()
-                     for r, c in grid.world_to_cell(points)]) * grid.resolution ** 2
+    rows, cols = grid.shape
+    counts = np.zeros(len(points))
+    for i, (r, c) in enumerate(grid.world_to_cell(points).reshape(-1, 2)):
+        r0, r1, c0, c1 = max(r - k, 0), min(r + k + 1, rows), max(c - k, 0), min(c + k + 1, cols)
+        window = grid.data[r0:r1, c0:c1] < 0  # The disk's square, clipped to the grid.
+        counts[i] = np.count_nonzero(window & disk[r0 - r + k:r1 - r + k, c0 - c + k:c1 - c + k])
+    return counts * grid.resolution ** 2
 
 
 @register("rrt")
