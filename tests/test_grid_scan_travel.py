@@ -9,6 +9,7 @@ import pytest
 
 from mjexplore.config import load_yaml_config
 from mjexplore.errors import UserInputError
+from mjexplore.robot import TURTLEBOT3_WAFFLE
 from mjexplore.scenes.generate import generate_scene
 from mjexplore.scenes.scene import load_scene_files, write_scene
 from mjexplore.sim.grid_world import GridWorld
@@ -59,7 +60,9 @@ def test_scan_now_takes_the_skipped_scan_once(box_room):
     now = world.scan_now()
     assert now is not None and now.stamp == pytest.approx(world.time)
     assert now.pose[2] == pytest.approx(world.pose[2])
-    assert np.hypot(*(now.pose[:2] - world.pose[:2])) == pytest.approx(0.064)
+    # Posed at the lidar on the base as it stands now.
+    assert np.hypot(*(now.pose[:2] - world.pose[:2])) == pytest.approx(
+        np.hypot(*TURTLEBOT3_WAFFLE.scan_offset[:2]))
     assert world.latest_scan is now and world.scan_now() is None
     plain = GridWorld(folder, SimConfig(dynamics="grid"))
     plain.command(0.3, 0.0)

@@ -30,9 +30,19 @@ SCHEDULES = {"travel": "by travel, as training/gvn_v2.yaml's scan_travel has it"
              "rate": "at the lidar's rate"}
 
 
-def run(job: tuple[str, str, int, str, str]) -> dict:
-    """One episode; its world, ET and end."""
-    scene, explorer, seed, world, grid_scans = job
+def training_scan_travel():
+    """The grid world's scans by travel as the training config has them."""
+    from mjexplore.explorers.gvn import DEFAULT_WEIGHTS
+    from mjexplore.training import load_train_config
+
+    return load_train_config(DEFAULT_WEIGHTS.parent /
+                             "gvn_v2.yaml").env.episode.sim.scan_travel
+
+
+def run(job: tuple) -> dict:
+    """One episode (scene, explorer, seed, world, the grid world's ScanTravel or None); its
+    world, ET and end."""
+    scene, explorer, seed, world, travel = job
     import torch
 
     from mjexplore.episode import Episode, EpisodeConfig
@@ -40,14 +50,10 @@ def run(job: tuple[str, str, int, str, str]) -> dict:
     from mjexplore.scenes.canonical import resolve_scene
     from mjexplore.sim.lidar import lidar_model
     from mjexplore.sim.simulator import SimConfig
-    from mjexplore.training import load_train_config
 
     torch.set_num_threads(1)
-    travel = None
-    if world == "grid" and grid_scans == "travel":
-        travel = load_train_config(Path(__file__).resolve().parents[1] / "training" /
-                                   "gvn_v2.yaml").env.episode.sim.scan_travel
-    config = EpisodeConfig(sim=SimConfig(dynamics=world, scan_travel=travel,
+    config = EpisodeConfig(sim=SimConfig(dynamics=world,
+                                         scan_travel=travel if world == "grid" else None,
                                          lidar=lidar_model("ideal", noise_std=0.01)))
     m = Episode(resolve_scene(scene), make_explorer(explorer), seed, config).run().metrics
     return {"scene": scene, "explorer": explorer, "seed": seed, "world": world,
@@ -66,7 +72,8 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
     scenes, explorers = args.scenes.split(","), args.explorers.split(",")
-    jobs = [(s, e, seed, w, args.grid_scans) for s in scenes for e in explorers
+    travel = training_scan_travel() if args.grid_scans == "travel" else None
+    jobs = [(s, e, seed, w, travel) for s in scenes for e in explorers
             for seed in range(args.seeds) for w in WORLDS]
     with multiprocessing.get_context("spawn").Pool(args.workers) as pool:
         results = pool.map(run, jobs, chunksize=1)

@@ -568,8 +568,7 @@ class Episode:
         """Maps the scan that a world scanning by travel (the grid world's ``scan_travel``)
         skipped at this instant, so that each decision sees the map from where the robot
         stands; True if the episode ended with it."""
-        scan_now = getattr(self.sim, "scan_now", None)
-        scan = scan_now() if scan_now is not None else None
+        scan = self.sim.scan_now()
         if scan is None:
             return False
         self._integrate(scan)

@@ -41,7 +41,6 @@ rad^2.
 from __future__ import annotations
 
 import dataclasses
-import logging
 import math
 
 import cv2
@@ -55,9 +54,7 @@ from mjexplore.mapping.scan_matching import (ScanMatcherConfig, ScanMatchingLoca
                                              match_scan, scan_points)
 from mjexplore.robot import TURTLEBOT3_WAFFLE, RobotGeometry
 from mjexplore.sim.lidar import LaserScan
-from mjexplore.sim.odometry import compose_pose, relative_pose, wrap_angle
-
-log = logging.getLogger(__name__)
+from mjexplore.sim.odometry import compose_pose, wrap_angle
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -419,16 +416,13 @@ class FusedLocalizer(ScanMatchingLocalizer):
         """Restarts at ``pose`` (``map``) with ``covariance``; ``odom_pose`` is the
         odometry's reading there. ``keep_map`` keeps the returns gathered so far (a
         re-localisation in the same map, as AMCL's initial pose)."""
-        self._pose = np.array(pose, dtype=float)
-        self._last_odom = None if odom_pose is None else np.array(odom_pose, dtype=float)
+        super().reset(pose, odom_pose)
         self.covariance = (np.diag([0.01 ** 2, 0.01 ** 2, math.radians(0.5) ** 2])
                            if covariance is None else np.array(covariance, dtype=float))
         self.last_match: FusionResult | None = None
         if not keep_map:
             self._density: np.ndarray | None = None
             self._density_geometry: tuple[float, tuple[float, float]] | None = None
-        self.matches = 0
-        self.rejections = 0
 
     def predict(self, odom_delta: tuple[float, float, float] | np.ndarray) -> None:
         """Moves the estimate by an odometry increment (x, y, yaw) given in the previous
@@ -485,8 +479,11 @@ class FusedLocalizer(ScanMatchingLocalizer):
         searched = False
         start = prior
         position_sd = math.sqrt(max(np.linalg.eigvalsh(prior_cov[:2, :2])[-1], 0.0))
-        if cfg.search_sigmas * position_sd > cfg.max_distance and n >= cfg.min_points:
-            reach += min(cfg.search_sigmas * position_sd, 1.0)
+        # The prediction too uncertain for the field's basin: Olson's search first, within
+        # this window (metres).
+        search = cfg.search_sigmas * position_sd > cfg.max_distance and n >= cfg.min_points
+        window = min(cfg.search_sigmas * position_sd, 1.0) if search else 0.0
+        reach += window
         if cfg.field == "returns":
             field = LikelihoodField.from_density(self._density, res, origin, prior[:2], reach,
                                                  cfg.max_distance, cfg.field_sigma,
@@ -498,9 +495,7 @@ class FusedLocalizer(ScanMatchingLocalizer):
         if n < cfg.min_points or not field.walls:
             return self._finish(self._reject(prior, prior_cov, n, 0.0, math.inf, False),
                                 points, noise)
-        if cfg.search_sigmas * position_sd > cfg.max_distance:
-            # The prediction is too uncertain for the field's basin: Olson's search first.
-            window = min(cfg.search_sigmas * position_sd, 1.0)
+        if search:
             angular = min(cfg.search_sigmas * math.sqrt(prior_cov[2, 2]), math.radians(20))
             near = field.distance < 0.5 * res
             trinary = GridMap(np.where(near, 100, 0).astype(np.int8), res,

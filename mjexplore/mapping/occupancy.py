@@ -103,11 +103,7 @@ def _integrate_scan(logodds, state, stamp, old_state, touched, scan_id, x0, y0, 
     is_hit = np.zeros(len(ranges), np.bool_)
     end_r = np.empty(len(ranges), np.int64)
     end_c = np.empty(len(ranges), np.int64)
-    cos_a = np.empty(len(ranges))  # Beam directions, computed once for both passes.
-    sin_a = np.empty(len(ranges))
-    for i in range(len(ranges)):
-        cos_a[i] = math.cos(angles[i])
-        sin_a[i] = math.sin(angles[i])
+    cos_a, sin_a = np.cos(angles), np.sin(angles)  # Computed once for both passes.
     # Pass 1: the return cells, marked so that pass 2 leaves them alone.
     for i in range(len(ranges)):
         r = ranges[i]

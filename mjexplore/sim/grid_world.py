@@ -370,8 +370,7 @@ class GridWorld(RobotWorld):
         or turned since the last scan (the one the schedule skipped); the episode maps it
         before each decision. None otherwise (without ``scan_travel`` every scan instant
         has had its scan)."""
-        if (self.config.scan_travel is None or self._pose == self._scan_pose or
-                self._scan.stamp == self.time):
+        if self.config.scan_travel is None or self._pose == self._scan_pose:
             return None
         return self._take_scan()
 

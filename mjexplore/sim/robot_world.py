@@ -55,6 +55,12 @@ class RobotWorld:
     def latest_scan(self) -> LaserScan:
         return self._scan
 
+    def scan_now(self) -> LaserScan | None:
+        """A scan at the current pose and time that the world's scan schedule skipped, or
+        None when every scan instant has had its scan (worlds scanning at the lidar's
+        rate; the grid world scanning by travel overrides this)."""
+        return None
+
     @property
     def in_collision(self) -> bool:
         return self._in_contact
