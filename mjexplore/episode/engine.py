@@ -220,6 +220,7 @@ class Episode:
                                  ground_truth=gt))
         explorer.reset(np.random.default_rng(seed))
         self.goal: np.ndarray | None = None
+        self._goal_window: tuple[tuple, tuple[slice, slice]] | None = None  # (goal, cells)
         self._decision_due = False
         self._best_distance = math.inf
         self._best_time = 0.0
@@ -322,14 +323,18 @@ class Episode:
         if getattr(self.explorer, "waypoint", False):
             # A waypoint (a TER node that is not a frontier) is driven to until reached.
             return self.navigator.status == NavStatus.ACTIVE
-        grid = self.mapper.grid
-        verdict = self.explorer.goal_open(grid) if hasattr(self.explorer, "goal_open") else None
-        if verdict is not None:
-            return verdict
-        r, c = grid.world_to_cell(self.goal)
-        k = max(1, int(round(0.3 / grid.resolution)))
-        window = grid.data[max(r - k, 0):r + k + 1, max(c - k, 0):c + k + 1]
-        return bool((window < 0).any())
+        if hasattr(self.explorer, "goal_open"):
+            verdict = self.explorer.goal_open(self.mapper.grid)
+            if verdict is not None:
+                return verdict
+        # Asked every control period: the cells around the goal are found once per goal.
+        goal = tuple(self.goal)
+        if self._goal_window is None or self._goal_window[0] != goal:
+            grid = self.mapper.grid
+            r, c = grid.world_to_cell(self.goal)
+            k = max(1, int(round(0.3 / grid.resolution)))
+            self._goal_window = goal, np.s_[max(r - k, 0):r + k + 1, max(c - k, 0):c + k + 1]
+        return bool((self.mapper.state[self._goal_window[1]] < 0).any())
 
     def decision_state(self) -> ExplorationState:
         """What the explorer sees now (frontiers already filtered by the blacklist)."""
@@ -546,7 +551,8 @@ class Episode:
         sim.command(v, w)
         for scan in sim.step(1.0 / cfg.control_rate_hz):
             self._integrate(scan)
-        if not self.visited or np.hypot(*(pose[:2] - self.visited[-1])) > 0.25:
+        last = self.visited[-1] if self.visited else None
+        if last is None or np.hypot(pose[0] - last[0], pose[1] - last[1]) > 0.25:
             self.visited.append(pose[:2].copy())
         if self.observer is not None:
             self.observer.on_step(self)

@@ -20,6 +20,7 @@ import dataclasses
 import enum
 import math
 
+import numba
 import numpy as np
 
 from mjexplore.navigation.planner import Costmap
@@ -56,6 +57,35 @@ class NavigatorConfig:
                              "linger_time must be > 0, turn_in_place_angle >= 0")
 
 
+@numba.njit(cache=True)
+def pursuit_points(xs: np.ndarray, ys: np.ndarray, segments: np.ndarray, x: float, y: float,
+                   lookahead: float) -> tuple[int, float, int, float]:
+    """Where a position is along a path: its nearest point, and the point pure pursuit
+    steers to.
+
+    Args:
+        xs, ys: (n,) the path's points (n >= 1) in the ``map`` frame, metres.
+        segments: (n - 1,) lengths of the path's segments, metres.
+        x, y: The position in the ``map`` frame, metres.
+        lookahead: Distance along the path, metres (> 0).
+
+    Returns:
+        The index of the point nearest (x, y) (the first of equals) and its distance from
+        (x, y); the index of the first later point at least ``lookahead`` along the path
+        from it (the last point if none is) and its distance from (x, y); metres.
+    """
+    nearest, nearest_dist = 0, math.inf
+    for i in range(len(xs)):
+        d = math.hypot(xs[i] - x, ys[i] - y)
+        if d < nearest_dist:
+            nearest, nearest_dist = i, d
+    target, along = nearest, 0.0
+    while target < len(xs) - 1 and along < lookahead:
+        along += segments[target]
+        target += 1
+    return nearest, nearest_dist, target, math.hypot(xs[target] - x, ys[target] - y)
+
+
 class NavStatus(enum.Enum):
     IDLE = "idle"
     ACTIVE = "active"
@@ -76,6 +106,7 @@ class Navigator:
         self.config = config or NavigatorConfig()
         self.goal: np.ndarray | None = None
         self.path: np.ndarray | None = None
+        self._path_x = self._path_y = self._segments = np.zeros(0)
         self._path_cells = np.zeros(0, np.int64)
         self.status = NavStatus.IDLE
         self._last_plan = -math.inf
@@ -92,12 +123,15 @@ class Navigator:
     def remaining_length(self, pose: np.ndarray) -> float:
         """Length of the rest of the current path from ``pose``, metres (the distance to
         its nearest point, then along it); inf without a path."""
-        path = self.path
-        if path is None or self.status != NavStatus.ACTIVE:
+        if self.path is None or self.status != NavStatus.ACTIVE:
             return math.inf
-        d = np.hypot(path[:, 0] - pose[0], path[:, 1] - pose[1])
-        nearest = int(np.argmin(d))
-        return float(d[nearest] + np.hypot(*np.diff(path[nearest:], axis=0).T).sum())
+        nearest, dist, _, _ = self._pursuit_points(pose)
+        return float(dist + self._segments[nearest:].sum())
+
+    def _pursuit_points(self, pose: np.ndarray) -> tuple[int, float, int, float]:
+        """:func:`pursuit_points` of the current path from ``pose``'s (x, y)."""
+        return pursuit_points(self._path_x, self._path_y, self._segments, pose[0], pose[1],
+                              self.config.lookahead)
 
     def _replan(self, costmap: Costmap, pose: np.ndarray, t: float) -> None:
         self._last_plan = t
@@ -107,13 +141,19 @@ class Navigator:
             self.status = NavStatus.NO_PATH
         else:
             self.path = path
+            # Per path, not per control period: its coordinates as separate arrays and
+            # the length (m) of each of its segments.
+            self._path_x, self._path_y = path[:, 0].copy(), path[:, 1].copy()
+            self._segments = np.hypot(*np.diff(path, axis=0).T)
             if self.config.replan_when_blocked:
                 rc = costmap.grid.world_to_cell(path)
                 self._path_cells = rc[:, 0] * costmap.grid.shape[1] + rc[:, 1]
 
     def lingering(self, pose: np.ndarray, t: float) -> bool:
         """True once the robot has stayed near one spot for ``linger_time`` seconds."""
-        if self._anchor is None or np.hypot(*(pose[:2] - self._anchor)) > self.config.linger_radius:
+        anchor = self._anchor
+        if anchor is None or np.hypot(pose[0] - anchor[0], pose[1] - anchor[1]) > \
+                self.config.linger_radius:
             self._anchor = np.array(pose[:2], float)
             self._anchor_time = t
             return False
@@ -134,7 +174,8 @@ class Navigator:
         """
         if self.status != NavStatus.ACTIVE or self.goal is None:
             return 0.0, 0.0
-        if np.hypot(*(pose[:2] - self.goal)) <= self.config.goal_tolerance:
+        goal = self.goal
+        if np.hypot(pose[0] - goal[0], pose[1] - goal[1]) <= self.config.goal_tolerance:
             self.status = NavStatus.REACHED
             return 0.0, 0.0
         due = t - self._last_plan >= 1.0 / self.config.replan_rate_hz - 1e-9
@@ -147,22 +188,14 @@ class Navigator:
         return self._pursue(pose)
 
     def _pursue(self, pose: np.ndarray) -> tuple[float, float]:
-        path = self.path
         x, y, yaw = pose
-        d = np.hypot(path[:, 0] - x, path[:, 1] - y)
-        nearest = int(np.argmin(d))
-        ahead = path[nearest:]
-        seg = np.hypot(*np.diff(ahead, axis=0).T) if len(ahead) > 1 else np.zeros(0)
-        along = np.concatenate([[0.0], np.cumsum(seg)])
-        k = int(np.searchsorted(along, self.config.lookahead))
-        target = ahead[min(k, len(ahead) - 1)]
-        heading = math.atan2(target[1] - y, target[0] - x)
+        _, _, k, dist = self._pursuit_points(pose)
+        heading = math.atan2(self._path_y[k] - y, self._path_x[k] - x)
         alpha = (heading - yaw + math.pi) % (2 * math.pi) - math.pi
         p = self.profile
         if abs(alpha) > self.config.turn_in_place_angle:
             return 0.0, math.copysign(p.max_angular_speed, alpha)
-        dist = max(float(np.hypot(target[0] - x, target[1] - y)), 1e-3)
-        curvature = 2.0 * math.sin(alpha) / dist
+        curvature = 2.0 * math.sin(alpha) / max(dist, 1e-3)
         v = p.max_linear_speed * max(0.0, math.cos(alpha))
         omega = v * curvature
         if abs(omega) > p.max_angular_speed:  # Keep the curvature, slow down.
