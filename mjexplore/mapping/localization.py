@@ -279,6 +279,32 @@ def wall_cells(grid, occupied_logodds: float) -> tuple[np.ndarray, float, tuple[
     return grid.logodds > occupied_logodds, grid.config.resolution, tuple(grid.origin[:2])
 
 
+def neighbour_ranges(ranges: np.ndarray, half: int = 2) -> np.ndarray:
+    """Each beam's range as its neighbours read it: the median of the finite ranges of the
+    ``half`` beams on either side (not its own; the beams wrap around), NaN where none is
+    finite. Unlike the beam's own reading, it does not depend on the beam's noise.
+
+    Args:
+        ranges: (n,) ranges of a scan in beam order, metres (non-finite: no return).
+    """
+    r = np.asarray(ranges, dtype=np.float64)
+    r = np.where(np.isfinite(r), r, np.nan)
+    around = np.stack([np.roll(r, k) for k in range(-half, half + 1) if k != 0])
+    out = np.full(len(r), np.nan)
+    some = ~np.isnan(around).all(axis=0)
+    out[some] = np.nanmedian(around[:, some], axis=0)
+    return out
+
+
+def to_map(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Points (n, 2) given in the frame at ``pose`` (x, y, yaw; or (n, 3), one pose per
+    point), in the pose's frame, metres."""
+    pose = np.asarray(pose, dtype=np.float64)
+    c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
+    return np.column_stack([pose[..., 0] + c * points[:, 0] - s * points[:, 1],
+                            pose[..., 1] + s * points[:, 0] + c * points[:, 1]])
+
+
 def deposit(density: np.ndarray, resolution: float, origin: tuple[float, float],
             pose: np.ndarray, points: np.ndarray, weights: np.ndarray) -> None:
     """Adds returns to a density of returns (in place).
@@ -288,17 +314,16 @@ def deposit(density: np.ndarray, resolution: float, origin: tuple[float, float],
             at ``origin`` (x, y), metres.
         resolution: Cell side, metres.
         origin: See ``density``.
-        pose: (x, y, yaw) of the frame of ``points`` in the density's frame.
+        pose: (x, y, yaw) of the frame of ``points`` in the density's frame, or (n, 3):
+            one per point.
         points: (n, 2) returns, metres.
         weights: (n,) weight of each.
     """
     if not len(points):
         return
-    c, s = math.cos(pose[2]), math.sin(pose[2])
-    col = np.floor((pose[0] + c * points[:, 0] - s * points[:, 1] - origin[0]) / resolution
-                   ).astype(np.int64)
-    row = np.floor((pose[1] + s * points[:, 0] + c * points[:, 1] - origin[1]) / resolution
-                   ).astype(np.int64)
+    xy = to_map(pose, points)
+    col = np.floor((xy[:, 0] - origin[0]) / resolution).astype(np.int64)
+    row = np.floor((xy[:, 1] - origin[1]) / resolution).astype(np.int64)
     rows, cols = density.shape
     ok = (row >= 0) & (row < rows) & (col >= 0) & (col < cols)
     np.add.at(density, (row[ok], col[ok]), np.asarray(weights, np.float32)[ok])
@@ -456,16 +481,21 @@ class FusedLocalizer(ScanMatchingLocalizer):
         cfg = self.config
         prior, prior_cov = self._pose.copy(), self.covariance.copy()
         sensor_points = scan_points(scan)
-        ranges = np.hypot(sensor_points[:, 0], sensor_points[:, 1])
+        # Each return is kept and weighted by the range its neighbours read, never by its
+        # own: trusting a return more, or keeping it, because it reads short biases the
+        # walls towards the robot: walls ahead come nearer and the estimate lags behind
+        # (with the LDS-01's 3.5 % noise, 3.7 mm per metre down a corridor; 1.7 this way).
+        ranges = neighbour_ranges(scan.ranges)[np.isfinite(scan.ranges)]
+        ranges = np.where(np.isnan(ranges), np.hypot(*sensor_points.T), ranges)
         # Returns near the range limit are biased short (those the noise took past the
         # limit are missing): they are left out of the matching and of the density.
         far = scan.range_max * (1.0 - cfg.truncation_sigmas * cfg.range_noise_rel)
         sensor_points, ranges = sensor_points[ranges < far], ranges[ranges < far]
-        n = len(sensor_points)
         ox, oy, _ = self.geometry.scan_offset
         points = sensor_points + (ox, oy)  # base_scan is not turned on base_link.
         noise = np.where(ranges < cfg.range_noise_from, cfg.range_noise_std,
                          np.maximum(cfg.range_noise_rel * ranges, cfg.range_noise_std))
+        n = len(points)
         weights = 1.0 / (cfg.field_sigma ** 2 + noise ** 2)
         if isinstance(grid, GridMap):
             shape, res, origin = grid.shape, grid.resolution, tuple(grid.origin[:2])
