@@ -6,6 +6,9 @@ many pushes can follow, with ``if size + room > len(keys): keys, vals = grow(...
 returns the arrays it ended with so that its caller keeps them between calls. (Returning
 the arrays from every push costs reference-count updates per array and push: a fifth to a
 quarter of the planner's and the GVD's kernel time.)
+
+Equal keys pop in the order of the textbook binary heap: the planner's paths depend on it,
+so a faster heap must keep that order (tests/test_heap.py checks it).
 """
 
 from __future__ import annotations
@@ -43,17 +46,22 @@ def push(keys, vals, size, key, val):
 
 @numba.njit(cache=True, inline="always")
 def pop(keys, vals, size):
-    """Removes the smallest key; returns (key, val, size)."""
+    """Removes the smallest key of a heap with ``size > 0``; returns (key, val, size)."""
     key, val = keys[0], vals[0]
     size -= 1
     last_key, last_val = keys[size], vals[size]
-    i = 0
+    # Unsigned positions: numba indexes with them without the wraparound of negative
+    # indices, two instructions on the sift's critical path. (All arithmetic on them stays
+    # uint64: mixed with int64, numba would compute in float64.)
+    end, one, i = np.uint64(size), np.uint64(1), np.uint64(0)
     while True:  # Sift the last entry down from the root, moving smaller children up.
-        child = 2 * i + 1
-        if child >= size:
+        child = i + i + one
+        if child >= end:
             break
-        if child + 1 < size and keys[child + 1] < keys[child]:
-            child += 1
+        if child + one < end:
+            # Branch-free pick of the smaller child (the left one on a tie): as a branch,
+            # this comparison goes either way about half the time and mispredicts.
+            child += np.uint64(keys[child + one] < keys[child])
         if last_key <= keys[child]:
             break
         keys[i] = keys[child]

@@ -35,6 +35,60 @@ def test_heap_pops_every_key_in_order_with_its_value():
     assert sorted(out_vals) == list(range(len(keys)))
 
 
+@numba.njit
+def _push_pop(ops, keys_in):
+    """Pushes keys_in[i] (value i) where ops[i] is True, else pops; returns popped values."""
+    keys = np.empty(len(keys_in), keys_in.dtype)
+    vals = np.empty(len(keys_in), np.int64)
+    out = np.full(len(ops), -1)
+    size = 0
+    for i in range(len(ops)):
+        if ops[i]:
+            size = push(keys, vals, size, keys_in[i], i)
+        elif size > 0:
+            _, out[i], size = pop(keys, vals, size)
+    return out
+
+
+def _textbook_push_pop(ops, keys_in):
+    """:func:`_push_pop` on the textbook binary heap: sift up while the parent is larger;
+    sift down to the smaller child (the left one on a tie) while it is smaller."""
+    heap, out = [], np.full(len(ops), -1)
+    for i, op in enumerate(ops):
+        if op:
+            heap.append((keys_in[i], i))
+            j = len(heap) - 1
+            while j > 0 and heap[(j - 1) // 2][0] > heap[j][0]:
+                heap[j], heap[(j - 1) // 2] = heap[(j - 1) // 2], heap[j]
+                j = (j - 1) // 2
+        elif heap:
+            out[i] = heap[0][1]
+            last = heap.pop()
+            if heap:
+                heap[0], j = last, 0
+                while 2 * j + 1 < len(heap):
+                    c = 2 * j + 1
+                    if c + 1 < len(heap) and heap[c + 1][0] < heap[c][0]:
+                        c += 1
+                    if heap[j][0] <= heap[c][0]:
+                        break
+                    heap[j], heap[c] = heap[c], heap[j]
+                    j = c
+    return out
+
+
+def test_ties_pop_in_the_textbook_heap_order():
+    # The planner's paths depend on which of equal keys pops first: that order is part of
+    # the heap's contract, so that a faster heap changes no episode.
+    rng = np.random.default_rng(1)
+    for dtype in (np.float64, np.int64):
+        ops = rng.random(3000) < 0.6
+        keys = rng.integers(0, 30, 3000).astype(dtype)
+        out = _push_pop(ops, keys)
+        assert np.array_equal(out, _textbook_push_pop(ops, keys))
+        assert (out >= 0).sum() > 1000
+
+
 def test_gvd_grows_a_full_heap_and_stays_exact():
     rng = np.random.default_rng(3)
     obst = np.zeros((40, 50), bool)

@@ -52,11 +52,25 @@ class PlannerConfig:
 
 
 @numba.njit(cache=True)
-def _search(cost, start, goal, rows, cols, heuristic_weight, dist, parent, stamp, search_id,
-            keys, vals, is_target, stop_after):
+def _hypot_table(rows, cols):
+    """(rows * cols,) ``math.hypot(r, c)`` at ``r * cols + c``: the A* heuristic's
+    distances in cells, looked up rather than computed per push (a libm call), with the
+    very same values (hypot(x, y) = hypot(|x|, |y|), C99 Annex F)."""
+    table = np.empty(rows * cols)
+    for r in range(rows):
+        for c in range(cols):
+            table[r * cols + c] = math.hypot(r, c)
+    return table
+
+
+@numba.njit(cache=True)
+def _search(cost, start, goal, rows, cols, heuristic_weight, hypot_table, dist, parent, stamp,
+            search_id, keys, vals, is_target, stop_after):
     """Dijkstra (goal < 0: to every cell) or A* (goal >= 0) over cells with cost >= 0.
 
-    ``cost`` is the extra cost per step into a cell (-1: not traversable). ``dist`` and
+    ``cost`` is the extra cost per step into a cell (-1: not traversable). The heuristic is
+    ``heuristic_weight`` times the straight-line distance in cells, read from
+    ``hypot_table`` (:func:`_hypot_table`; unused when the weight is 0). ``dist`` and
     ``parent`` hold results for cells whose ``stamp`` equals ``search_id`` (reused buffers,
     so a search touches only the cells it reaches); the heap arrays are returned, grown.
     A stamp of -search_id marks a closed cell. With ``stop_after > 0`` the search ends
@@ -101,7 +115,7 @@ def _search(cost, start, goal, rows, cols, heuristic_weight, dist, parent, stamp
                 parent[y] = s
                 h = 0.0
                 if heuristic_weight > 0.0:
-                    h = heuristic_weight * math.hypot(rr - gr, cc - gc)
+                    h = heuristic_weight * hypot_table[abs(rr - gr) * cols + abs(cc - gc)]
                 size = _heap_push(keys, vals, size, d + h, y)
     return keys, vals
 
@@ -136,6 +150,19 @@ def _update_cost(cost, cells, free, dist2, resolution, lethal, soft, penalty):
             cost[c] = penalty * min(max(x, 0.0), 1.0)
 
 
+@numba.njit(cache=True)
+def _nearest_traversable(cost, rows, cols, r, c, k):
+    """Flat index of the cell with cost >= 0 nearest to cell (r, c) within k cells (the
+    first in row-major order of equally near ones), or -1."""
+    best, best_d2 = -1, k * k + 1
+    for rr in range(max(r - k, 0), min(r + k + 1, rows)):
+        for cc in range(max(c - k, 0), min(c + k + 1, cols)):
+            d2 = (rr - r) ** 2 + (cc - c) ** 2
+            if d2 < best_d2 and cost[rr * cols + cc] >= 0:
+                best, best_d2 = rr * cols + cc, d2
+    return best
+
+
 class Costmap:
     """Step costs over a map, kept up to date cell by cell.
 
@@ -164,6 +191,7 @@ class Costmap:
         self._keys = np.empty(4096)
         self._vals = np.empty(4096, np.int64)
         self._no_targets = np.zeros(1, np.bool_)
+        self._hypot_table = np.zeros(0)  # Built by the first A* search.
         self.update(None)
 
     def update(self, cells: np.ndarray | None) -> None:
@@ -183,19 +211,7 @@ class Costmap:
         grid = self.grid
         r, c = grid.world_to_cell(np.asarray(xy, float))
         k = int(math.ceil(radius / grid.resolution))
-        r0, r1 = max(r - k, 0), min(r + k + 1, grid.shape[0])
-        c0, c1 = max(c - k, 0), min(c + k + 1, grid.shape[1])
-        if r0 >= r1 or c0 >= c1:
-            return -1
-        window = self.cost.reshape(grid.shape)[r0:r1, c0:c1] >= 0
-        rows, cols = np.nonzero(window)
-        if len(rows) == 0:
-            return -1
-        d = (rows + r0 - r) ** 2 + (cols + c0 - c) ** 2
-        i = int(np.argmin(d))
-        if d[i] > k * k:
-            return -1
-        return int((rows[i] + r0) * grid.shape[1] + cols[i] + c0)
+        return _nearest_traversable(self.cost, *grid.shape, int(r), int(c), k)
 
     def _run(self, start: int, goal: int, targets: np.ndarray | None = None,
              stop_after: int = 0) -> None:
@@ -203,10 +219,12 @@ class Costmap:
         if targets is None:
             targets = self._no_targets
         weight = self.config.heuristic_weight if goal >= 0 else 0.0
+        if weight > 0 and len(self._hypot_table) == 0:
+            self._hypot_table = _hypot_table(*self.grid.shape)
         self._keys, self._vals = _search(self.cost, start, goal, *self.grid.shape, weight,
-                                         self._dist, self._parent, self._stamp,
-                                         self._search_id, self._keys, self._vals, targets,
-                                         stop_after)
+                                         self._hypot_table, self._dist, self._parent,
+                                         self._stamp, self._search_id, self._keys, self._vals,
+                                         targets, stop_after)
 
     def _nearest_reachable(self, xy: np.ndarray, radius: float, start: int) -> int:
         """Flat index of the traversable cell within ``radius`` of ``xy`` nearest to
