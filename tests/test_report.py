@@ -71,6 +71,18 @@ def test_report_has_the_tables_and_figures_of_collected_sweeps(sweep, tmp_path):
             "--explorers gvn --profile real") in text
 
 
+def test_the_realistic_setting_shows_pose_errors_beside_the_ideal_one(sweep, tmp_path):
+    data = tmp_path / "data"
+    for name in ("realistic", "table1"):
+        write_summary(collect_sweep(sweep, name), data / f"{name}.json")
+    text = build_report(data, tmp_path / "results.md").read_text()
+    section = text[text.index("## Sensing and localisation as on the real robot"):]
+    assert "| scene | method | runs | pose RMSE (m) | pose max (m) |" in section
+    assert "| train_loop | nearest | 2 | 0.000 +- 0.000 | 0.000 +- 0.000 |" in section
+    beside = section[section.index("Beside the ideal setting"):]
+    assert "| train_loop | potential |" in beside and beside.count("| train_loop |") == 2
+
+
 def test_collect_refuses_a_sweep_that_mixes_settings(sweep, tmp_path):
     mixed = tmp_path / "mixed"
     shutil.copytree(sweep, mixed)
