@@ -31,7 +31,7 @@ for e in $EXPERIMENTS; do
               --workers "$W" --out "$OUT/explore_bench" ;;
     realistic) mj bench --scenes loop_with_corridor,maze,office --explorers $ALL --seeds 5 \
               --lidar-model lds01 --odometry-error typical --localization scan_matching \
-              --workers "$W" --out "$OUT/realistic" ;;
+              --max-time 3600 --workers "$W" --out "$OUT/realistic" ;;
     ablation) mj bench --scenes loop_with_corridor,maze \
               --explorers gvn_none,gvn_naive,gvn_unmasked,gvn --seeds 5 --workers "$W" \
               --out "$OUT/ablation" ;;
