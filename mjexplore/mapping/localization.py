@@ -53,7 +53,7 @@ from mjexplore.mapping.scan_matching import (ScanMatcherConfig, ScanMatchingLoca
                                              accumulate_normal_equations, base_pose_of,
                                              match_scan, scan_points)
 from mjexplore.robot import TURTLEBOT3_WAFFLE, RobotGeometry
-from mjexplore.sim.lidar import LaserScan
+from mjexplore.sim.lidar import LaserScan, range_noise_std
 from mjexplore.sim.odometry import compose_pose, wrap_angle
 
 
@@ -493,8 +493,8 @@ class FusedLocalizer(ScanMatchingLocalizer):
         sensor_points, ranges = sensor_points[ranges < far], ranges[ranges < far]
         ox, oy, _ = self.geometry.scan_offset
         points = sensor_points + (ox, oy)  # base_scan is not turned on base_link.
-        noise = np.where(ranges < cfg.range_noise_from, cfg.range_noise_std,
-                         np.maximum(cfg.range_noise_rel * ranges, cfg.range_noise_std))
+        noise = range_noise_std(ranges, cfg.range_noise_std, cfg.range_noise_rel,
+                                cfg.range_noise_from)
         n = len(points)
         weights = 1.0 / (cfg.field_sigma ** 2 + noise ** 2)
         if isinstance(grid, GridMap):

@@ -384,13 +384,14 @@ def lidar_model(name: str = "ideal", **overrides) -> LidarConfig:
                          f"{', '.join(LIDAR_MODELS)}.")
 
 
-def range_noise_std(dist: np.ndarray, config: LidarConfig) -> np.ndarray:
-    """Standard deviation of the range noise at each true distance, in metres."""
-    std = np.full(dist.shape, float(config.noise_std))
-    if config.noise_rel > 0:
-        far = dist >= config.noise_rel_from
-        std[far] = np.maximum(config.noise_std, config.noise_rel * dist[far])
-    return std
+def range_noise_std(dist: np.ndarray, noise_std: float, noise_rel: float = 0.0,
+                    noise_rel_from: float = 0.0) -> np.ndarray:
+    """Standard deviation of the range noise at each distance, metres: ``noise_std``, and
+    from ``noise_rel_from`` on at least ``noise_rel`` times the distance (a
+    :class:`LidarConfig`'s fields of the same names)."""
+    dist = np.asarray(dist, dtype=np.float64)
+    return np.where(dist >= noise_rel_from, np.maximum(noise_rel * dist, noise_std),
+                    float(noise_std))
 
 
 def dropout_probability(config: LidarConfig, cos_incidence: np.ndarray | None,
@@ -437,7 +438,8 @@ def measure_ranges(dist: np.ndarray, config: LidarConfig, rng: np.random.Generat
     hit = (dist >= 0) & np.isfinite(dist)
     ranges = dist.astype(np.float32)
     if cfg.noise_rel > 0:
-        std = range_noise_std(np.where(hit, dist, 0.0), cfg)
+        std = range_noise_std(np.where(hit, dist, 0.0), cfg.noise_std, cfg.noise_rel,
+                              cfg.noise_rel_from)
         ranges += (rng.normal(0.0, 1.0, size=ranges.shape) * std).astype(np.float32)
     elif cfg.noise_std > 0:
         ranges += rng.normal(0.0, cfg.noise_std, size=ranges.shape).astype(np.float32)
