@@ -296,15 +296,6 @@ def neighbour_ranges(ranges: np.ndarray, half: int = 2) -> np.ndarray:
     return out
 
 
-def to_map(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Points (n, 2) given in the frame at ``pose`` (x, y, yaw; or (n, 3), one pose per
-    point), in the pose's frame, metres."""
-    pose = np.asarray(pose, dtype=np.float64)
-    c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
-    return np.column_stack([pose[..., 0] + c * points[:, 0] - s * points[:, 1],
-                            pose[..., 1] + s * points[:, 0] + c * points[:, 1]])
-
-
 def deposit(density: np.ndarray, resolution: float, origin: tuple[float, float],
             pose: np.ndarray, points: np.ndarray, weights: np.ndarray) -> None:
     """Adds returns to a density of returns (in place).
@@ -314,16 +305,17 @@ def deposit(density: np.ndarray, resolution: float, origin: tuple[float, float],
             at ``origin`` (x, y), metres.
         resolution: Cell side, metres.
         origin: See ``density``.
-        pose: (x, y, yaw) of the frame of ``points`` in the density's frame, or (n, 3):
-            one per point.
+        pose: (x, y, yaw) of the frame of ``points`` in the density's frame.
         points: (n, 2) returns, metres.
         weights: (n,) weight of each.
     """
     if not len(points):
         return
-    xy = to_map(pose, points)
-    col = np.floor((xy[:, 0] - origin[0]) / resolution).astype(np.int64)
-    row = np.floor((xy[:, 1] - origin[1]) / resolution).astype(np.int64)
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    col = np.floor((pose[0] + c * points[:, 0] - s * points[:, 1] - origin[0]) / resolution
+                   ).astype(np.int64)
+    row = np.floor((pose[1] + s * points[:, 0] + c * points[:, 1] - origin[1]) / resolution
+                   ).astype(np.int64)
     rows, cols = density.shape
     ok = (row >= 0) & (row < rows) & (col >= 0) & (col < cols)
     np.add.at(density, (row[ok], col[ok]), np.asarray(weights, np.float32)[ok])
