@@ -76,7 +76,9 @@ class PolicyConfig:
     """Policy network and masking (see :mod:`mjexplore.policies.sb3`; ``features`` is the
     CNN baseline's encoder width, the others are GVN sizes). ``share_features_extractor``
     False gives the critic an encoder of its own: with one shared encoder the value loss's
-    gradient, about 500 times the policy gradient's at the start, trains it for the critic."""
+    gradient, about 500 times the policy gradient's at the start, trains it for the critic.
+    ``prior_temperature`` (metres per nat, GVN with v2 observations) adds the nearest-node
+    rule's logits to the actor's: the network learns a residual on nearest-frontier."""
 
     masking: str = "iam"
     share_features_extractor: bool = True
@@ -85,6 +87,7 @@ class PolicyConfig:
     gcn_layers: int = 3
     tcn_kernel: int = 3
     tcn_dilations: tuple[int, ...] = (1, 2, 4)
+    prior_temperature: float | None = None
 
     def __post_init__(self) -> None:
         from mjexplore.policies.sb3 import MASKING_MODES
@@ -93,6 +96,8 @@ class PolicyConfig:
             raise ValueError(f"policy.masking must be one of {', '.join(MASKING_MODES)}")
         if self.hidden < 1 or self.gcn_layers < 1 or self.tcn_kernel < 1:
             raise ValueError("policy sizes must be >= 1")
+        if self.prior_temperature is not None and not self.prior_temperature > 0:
+            raise ValueError("policy.prior_temperature must be > 0 (metres per nat) or null")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -185,6 +190,10 @@ class TrainConfig:
             raise ValueError(f"kind {self.kind!r} needs env.decisions: {wanted}")
         if self.kind == "cnn" and self.policy.masking != "iam":
             raise ValueError("the cnn kind supports policy.masking: iam only")
+        if self.policy.prior_temperature is not None and (
+                self.kind != "gvn" or self.env.observation.features != "v2"):
+            raise ValueError("policy.prior_temperature needs kind gvn with "
+                             "env.observation.features: v2 (the path feature)")
         if (self.policy.masking == "none") != (self.env.valid_actions == "all_nodes"):
             raise ValueError("policy.masking: none (training without a mask) goes with "
                              "env.valid_actions: all_nodes, and all_nodes only with none")
@@ -323,6 +332,8 @@ def _policy_kwargs(config: TrainConfig) -> dict[str, Any]:
                   tcn_kernel=p.tcn_kernel, tcn_dilations=list(p.tcn_dilations))
     if not p.share_features_extractor:  # Stored with the weights only when it differs.
         kwargs["share_features_extractor"] = False
+    if p.prior_temperature is not None:
+        kwargs["prior_temperature"] = p.prior_temperature
     return kwargs
 
 

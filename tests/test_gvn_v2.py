@@ -463,8 +463,10 @@ def test_v2_actor_exports_to_onnx_with_torchs_logits(tmp_path):
     config = ObservationConfig(max_nodes=128, max_neighbours=8, memory_length=4,
                                features="v2")
     weights, model = tmp_path / "v2.safetensors", tmp_path / "v2.onnx"
-    save_policy_weights(weights, _policy(config, actor_gain=1.0), "gvn",
-                        {"masking": "iam", "hidden": 16, "actor_gain": 1.0},
+    # A residual policy: the nearest-node prior is part of the exported graph.
+    save_policy_weights(weights, _policy(config, actor_gain=1.0, prior_temperature=1.0), "gvn",
+                        {"masking": "iam", "hidden": 16, "actor_gain": 1.0,
+                         "prior_temperature": 1.0},
                         layout_of("gvn", EnvConfig(scenes=("train_loop",), observation=config)))
     export_onnx(weights, model)
     obs, masks = record_decisions(weights, 6, "train_loop")
@@ -505,3 +507,58 @@ def test_a_critic_with_its_own_encoder_saves_loads_and_acts(tmp_path, masking):
     masked = torch.where(torch.as_tensor(masks), logits, torch.tensor(-1e8))
     assert torch.equal(masked.argmax(1), again)
     torch.testing.assert_close(torch.log_softmax(logits, 1), expected)
+
+
+# ----------------------------------------------------------------------- nearest prior
+
+
+def test_path_prior_prefers_the_nearest_reachable_allowed_node():
+    from mjexplore.policies.gvn import path_prior
+
+    features = torch.zeros(1, 4, SMALL_V2.num_features)
+    features[0, :, PATH] = torch.tensor([3.0, 1.0, 0.5, 0.0])
+    features[0, 2, BLACKLISTED] = 1.0  # The nearest is given up...
+    features[0, 3, UNREACHABLE] = 1.0  # ...and the path-0 one cannot be reached.
+    logits = path_prior(features, temperature=2.0)
+    assert logits.argmax().item() == 1
+    torch.testing.assert_close(logits[0, 0] - logits[0, 1], torch.tensor(-1.0))
+
+
+def test_residual_policy_starts_as_the_nearest_node_rule_and_round_trips(tmp_path):
+    from mjexplore.policies.weights import actor_logits, load_policy, save_policy_weights
+
+    obs, masks = _random_obs(SMALL_V2, 16, np.random.default_rng(5), valid=True)
+    features = obs["node_features"].reshape(16, SMALL_V2.max_nodes, -1)
+    features[..., PATH] = features[..., PATH].abs()
+    features[..., UNREACHABLE] = (features[..., UNREACHABLE] > 4).float()
+    features[..., BLACKLISTED] = 0.0
+    obs["node_features"] = features.reshape(16, -1)
+    kwargs = {"masking": "iam", "hidden": 16, "share_features_extractor": False,
+              "prior_temperature": 0.5}
+    policy = _policy(SMALL_V2, **{k: v for k, v in kwargs.items() if k != "hidden"})
+    with torch.no_grad():
+        actions, _, _ = policy(obs, deterministic=True, action_masks=masks)
+    cost = features[..., PATH] + 1e6 * features[..., UNREACHABLE]
+    nearest = torch.where(masks, cost, torch.tensor(torch.inf)).argmin(1)
+    assert torch.equal(actions, nearest)
+    # Without the prior the same weights' near-uniform head picks other nodes.
+    plain = _policy(SMALL_V2, masking="iam", share_features_extractor=False)
+    with torch.no_grad():
+        assert not torch.equal(plain(obs, deterministic=True, action_masks=masks)[0], nearest)
+    path = tmp_path / "residual.safetensors"
+    save_policy_weights(path, policy, "gvn", kwargs, {**dataclasses.asdict(SMALL_V2)})
+    loaded, _ = load_policy(path, "gvn")
+    with torch.no_grad():
+        torch.testing.assert_close(actor_logits(loaded, obs), actor_logits(policy, obs))
+
+
+def test_prior_needs_the_v2_path_feature():
+    from mjexplore.training import load_train_config
+
+    with pytest.raises(ValueError, match="v2"):
+        _policy(ObservationConfig(max_nodes=12, max_neighbours=3, memory_length=4),
+                prior_temperature=1.0)
+    config = load_train_config(Path(__file__).parents[1] / "training" / "gvn.yaml")
+    with pytest.raises(ValueError, match="prior_temperature"):
+        dataclasses.replace(config, policy=dataclasses.replace(config.policy,
+                                                               prior_temperature=1.0))

@@ -43,7 +43,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from mjexplore.envs.observation import structured
+from mjexplore.envs.observation import BLACKLISTED, PATH, UNREACHABLE, structured
 from mjexplore.topology.ter import NUM_FEATURES
 
 # Fixed input scaling of [px, py, G_info, phi_diff, D, flag]: metres / 10, radians / pi;
@@ -91,6 +91,29 @@ class GvnConfig:
                                       or self.hidden % self.attention_heads):
             raise ValueError("v2 needs attention_layers >= 1 and attention_heads >= 1 "
                              "dividing hidden")
+
+
+# The nearest-node prior's logit penalty (nats) on a node the robot cannot reach or whose
+# goal is blacklisted: far below any path's, so the rule picks one only when no other is left.
+PRIOR_PENALTY = 100.0
+
+
+def path_prior(node_features: torch.Tensor, temperature: float) -> torch.Tensor:
+    """Logits of the nearest-node rule from v2 node features: ``-path / temperature``,
+    ``PRIOR_PENALTY`` less for unreachable or blacklisted nodes. Its argmax over the valid
+    nodes is the frontier node nearest along the known map (what nearest-frontier picks).
+
+    Args:
+        node_features: (..., N, F) v2 node features (raw: metres, flags).
+        temperature: Path length per nat, metres (> 0): the prior prefers a node ``t``
+            metres nearer by a factor e.
+
+    Returns:
+        (..., N) logits.
+    """
+    path = node_features[..., PATH]
+    excluded = (node_features[..., UNREACHABLE] + node_features[..., BLACKLISTED]) > 0
+    return -path / temperature - PRIOR_PENALTY * excluded.to(path.dtype)
 
 
 def real_positions(real_rows: torch.Tensor, size: int) -> torch.Tensor:

@@ -162,7 +162,11 @@ class ExportedActor(nn.Module):
         obs = dict(zip(self.keys, arrays))
         policy = self.policy
         if self.kind == "gvn":
-            features = gvn_features(policy.features_extractor.gvn, obs)
+            extractor = policy.features_extractor
+            features = gvn_features(extractor.gvn, obs)
+            prior = extractor.prior_logits(obs)
+            if prior is not None:  # A residual policy (GvnExtractor's last features).
+                features = torch.cat([features, prior], -1)
         else:
             features = policy.features_extractor(obs)
         logits = policy.action_net(policy.mlp_extractor.forward_actor(features))

@@ -5,6 +5,11 @@ extractor runs the :class:`~mjexplore.policies.gvn.GVN`, the actor head gives on
 TER node (the default head, a ``Linear(latent, N)``, would tie logits to node slots), and
 the critic head reads the pooled node features.
 
+With ``prior_temperature`` set (v2 observations), the actor's logits are the nearest-node
+rule's (:func:`~mjexplore.policies.gvn.path_prior`: minus the path length to each node)
+plus the network's: a residual policy. Its head starting near zero, the policy starts as
+nearest-frontier (greedy) and PPO learns where to depart from it.
+
 Masking modes (paper Table 2):
 
 * ``iam``: invalid action masking (Eq. 14-15): invalid logits are replaced by -1e8 when
@@ -30,13 +35,14 @@ from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
-from mjexplore.policies.gvn import GVN, GvnConfig
+from mjexplore.policies.gvn import GVN, GvnConfig, path_prior
 
 MASKING_MODES = ("iam", "naive", "none")
 
 
 class GvnExtractor(BaseFeaturesExtractor):
-    """Observation dict -> flat [z (N d), pooled (2 d)] features.
+    """Observation dict -> flat [z (N d), pooled (2 d)] features, then with
+    ``prior_temperature`` the nearest-node prior's logits (N).
 
     The network's feature set follows the observation's: a ``memory_pose`` entry means the
     ``v2`` observation, and so the v2 network.
@@ -44,11 +50,17 @@ class GvnExtractor(BaseFeaturesExtractor):
 
     def __init__(self, observation_space: spaces.Dict, hidden: int = 64, gcn_layers: int = 3,
                  tcn_kernel: int = 3, tcn_dilations: tuple[int, ...] = (1, 2, 4),
-                 attention_layers: int = 1, attention_heads: int = 4) -> None:
+                 attention_layers: int = 1, attention_heads: int = 4,
+                 prior_temperature: float | None = None) -> None:
         n = observation_space["node_mask"].shape[0]
-        super().__init__(observation_space, features_dim=n * hidden + 2 * hidden)
+        prior = n if prior_temperature is not None else 0
+        super().__init__(observation_space, features_dim=n * hidden + 2 * hidden + prior)
         self.num_nodes = n
         features = "v2" if "memory_pose" in observation_space.spaces else "v1"
+        if prior and (features != "v2" or prior_temperature <= 0):
+            raise ValueError("prior_temperature needs the v2 observation (its path "
+                             "feature) and must be > 0 (metres)")
+        self.prior_temperature = prior_temperature
         self.gvn = GVN(GvnConfig(hidden=hidden, gcn_layers=gcn_layers, tcn_kernel=tcn_kernel,
                                  tcn_dilations=tuple(tcn_dilations), features=features,
                                  attention_layers=attention_layers,
@@ -57,26 +69,43 @@ class GvnExtractor(BaseFeaturesExtractor):
 
     def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
         z, pooled = self.gvn(observations)
-        return torch.cat([z.flatten(1), pooled], -1)
+        prior = self.prior_logits(observations)
+        return torch.cat([z.flatten(1), pooled] + ([] if prior is None else [prior]), -1)
+
+    def prior_logits(self, observations: dict[str, torch.Tensor]) -> torch.Tensor | None:
+        """The nearest-node prior's logits (B, N) of batched flat observations (None
+        without ``prior_temperature``)."""
+        if self.prior_temperature is None:
+            return None
+        features = observations["node_features"]
+        return path_prior(features.reshape(len(features), self.num_nodes, -1),
+                          self.prior_temperature)
 
 
 class GvnHeads(nn.Module):
-    """Actor (one logit per node) and critic trunks over :class:`GvnExtractor` features."""
+    """Actor (one logit per node, plus the prior's when the features carry one) and critic
+    trunks over :class:`GvnExtractor` features."""
 
-    def __init__(self, num_nodes: int, hidden: int) -> None:
+    def __init__(self, num_nodes: int, hidden: int, prior: bool = False) -> None:
         super().__init__()
-        self.num_nodes, self.hidden = num_nodes, hidden
+        self.num_nodes, self.hidden, self.prior = num_nodes, hidden, prior
         self.latent_dim_pi = num_nodes
         self.latent_dim_vf = hidden
         self.actor = nn.Sequential(nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, 1))
         self.critic = nn.Sequential(nn.Linear(2 * hidden, hidden), nn.ReLU())
 
-    def _split(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def _split(self, features: torch.Tensor
+               ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """(z (B, N, d), pooled (B, 2 d), the prior's logits (B, N) or None)."""
         n, d = self.num_nodes, self.hidden
-        return features[:, :n * d].reshape(-1, n, d), features[:, n * d:]
+        z = features[:, :n * d].reshape(-1, n, d)
+        pooled = features[:, n * d:n * d + 2 * d]
+        return z, pooled, (features[:, n * d + 2 * d:] if self.prior else None)
 
     def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
-        return self.actor(self._split(features)[0]).squeeze(-1)
+        z, _, prior = self._split(features)
+        logits = self.actor(z).squeeze(-1)
+        return logits if prior is None else logits + prior
 
     def forward_critic(self, features: torch.Tensor) -> torch.Tensor:
         return self.critic(self._split(features)[1])
@@ -97,6 +126,8 @@ class GvnPolicy(MaskableActorCriticPolicy):
         hidden, gcn_layers, tcn_kernel, tcn_dilations, attention_layers, attention_heads:
             :class:`GvnConfig` sizes (attention: v2 observations only).
         actor_gain: Initial gain of the logit layer (applied with ``ortho_init``).
+        prior_temperature: Metres per nat of the nearest-node prior added to the actor's
+            logits (v2 observations; None: no prior). See the module docstring.
         Other arguments as ``MaskableActorCriticPolicy``.
     """
 
@@ -104,7 +135,8 @@ class GvnPolicy(MaskableActorCriticPolicy):
                  lr_schedule, masking: str = "iam", hidden: int = 64, gcn_layers: int = 3,
                  tcn_kernel: int = 3, tcn_dilations: tuple[int, ...] = (1, 2, 4),
                  attention_layers: int = 1, attention_heads: int = 4,
-                 actor_gain: float = 0.01, **kwargs: Any) -> None:
+                 actor_gain: float = 0.01, prior_temperature: float | None = None,
+                 **kwargs: Any) -> None:
         if masking not in MASKING_MODES:
             raise ValueError(f"masking must be one of {MASKING_MODES}, not {masking!r}")
         self.masking = masking
@@ -114,11 +146,13 @@ class GvnPolicy(MaskableActorCriticPolicy):
         kwargs.setdefault("features_extractor_kwargs", dict(
             hidden=hidden, gcn_layers=gcn_layers, tcn_kernel=tcn_kernel,
             tcn_dilations=tuple(tcn_dilations), attention_layers=attention_layers,
-            attention_heads=attention_heads))
+            attention_heads=attention_heads, prior_temperature=prior_temperature))
+        self.prior_temperature = prior_temperature
         self._gvn_kwargs = dict(masking=masking, hidden=hidden, gcn_layers=gcn_layers,
                                 tcn_kernel=tcn_kernel, tcn_dilations=tuple(tcn_dilations),
                                 attention_layers=attention_layers,
-                                attention_heads=attention_heads, actor_gain=actor_gain)
+                                attention_heads=attention_heads, actor_gain=actor_gain,
+                                prior_temperature=prior_temperature)
         super().__init__(observation_space, action_space, lr_schedule, **kwargs)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
@@ -127,7 +161,8 @@ class GvnPolicy(MaskableActorCriticPolicy):
         return data
 
     def _build_mlp_extractor(self) -> None:
-        self.mlp_extractor = GvnHeads(int(self.action_space.n), self.hidden)
+        self.mlp_extractor = GvnHeads(int(self.action_space.n), self.hidden,
+                                      prior=self.prior_temperature is not None)
 
     def _build(self, lr_schedule) -> None:
         super()._build(lr_schedule)
