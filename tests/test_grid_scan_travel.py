@@ -78,14 +78,14 @@ def test_scan_travel_is_refused_outside_the_grid_world():
 
 
 def test_the_grid_training_config_scans_by_travel():
-    """training/gvn_v2.yaml trains in the grid world with the travel schedule; its
-    evaluation episodes (kinematic world) scan at the lidar's rate."""
+    """training/gvn_v2.yaml trains, and selects its model, in the grid world with the
+    travel schedule."""
     from mjexplore.training import TrainConfig
 
     config = load_yaml_config(TrainConfig, "training/gvn_v2.yaml")
-    assert config.env.episode.sim.dynamics == "grid"
-    assert config.env.episode.sim.scan_travel == ScanTravel()
-    assert config.eval.episode.sim.scan_travel is None
+    for episode in (config.env.episode, config.eval.episode):
+        assert episode.sim.dynamics == "grid"
+        assert episode.sim.scan_travel == ScanTravel()
 
 
 def test_episode_scans_at_every_decision_and_explores(tmp_path):
