@@ -368,6 +368,23 @@ def evaluate_policy_episodes(policy, config: TrainConfig) -> list[dict[str, Any]
     return results
 
 
+class NearestNodeRule:
+    """The nearest-node rule as a policy for :func:`evaluate_policy_episodes`: the valid
+    node nearest along the known map (the greedy choice of
+    :func:`~mjexplore.policies.gvn.path_prior`; v2 observations), the baseline a learned
+    GVN has to beat on the held-out layouts."""
+
+    def predict(self, obs: dict[str, np.ndarray], deterministic: bool = True,
+                action_masks: np.ndarray | None = None) -> tuple[int, None]:
+        from mjexplore.policies.gvn import path_prior
+
+        features = torch.as_tensor(obs["node_features"]).reshape(len(obs["node_mask"]), -1)
+        logits = path_prior(features, 1.0).numpy()
+        if action_masks is not None:
+            logits = np.where(action_masks, logits, -np.inf)
+        return int(np.argmax(logits)), None
+
+
 def _eval_score(results: list[dict[str, Any]]) -> float:
     """How good a held-out evaluation is: mean coverage first, then mean speed."""
     return (float(np.mean([r["exploration_ratio"] for r in results])) * 1e4

@@ -562,3 +562,14 @@ def test_prior_needs_the_v2_path_feature():
     with pytest.raises(ValueError, match="prior_temperature"):
         dataclasses.replace(config, policy=dataclasses.replace(config.policy,
                                                                prior_temperature=1.0))
+
+
+def test_nearest_node_rule_takes_the_nearest_valid_reachable_node():
+    from mjexplore.training import NearestNodeRule
+
+    features = np.zeros((SMALL_V2.max_nodes, SMALL_V2.num_features), np.float32)
+    features[:4, PATH] = [0.5, 2.0, 1.0, 0.2]
+    features[3, UNREACHABLE] = 1.0
+    obs = {"node_features": features.reshape(-1), "node_mask": (np.arange(12) < 4) * 1.0}
+    valid = np.array([False, True, True, True] + [False] * 8)  # Node 0 is not a frontier.
+    assert NearestNodeRule().predict(obs, action_masks=valid)[0] == 2
