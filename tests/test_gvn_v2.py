@@ -522,6 +522,9 @@ def test_path_prior_prefers_the_nearest_reachable_allowed_node():
     logits = path_prior(features, temperature=2.0)
     assert logits.argmax().item() == 1
     torch.testing.assert_close(logits[0, 0] - logits[0, 1], torch.tensor(-1.0))
+    features[0, 0, PATH] = 900.0  # However far a reachable node, an excluded one is below.
+    logits = path_prior(features, temperature=0.5)
+    assert logits[0, 0] > logits[0, 2:].max()
 
 
 def test_residual_policy_starts_as_the_nearest_node_rule_and_round_trips(tmp_path):

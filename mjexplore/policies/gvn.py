@@ -43,7 +43,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from mjexplore.envs.observation import BLACKLISTED, PATH, UNREACHABLE, structured
+from mjexplore.envs.observation import (BLACKLISTED, FEATURE_BOUND, PATH, UNREACHABLE,
+                                        structured)
 from mjexplore.topology.ter import NUM_FEATURES
 
 # Fixed input scaling of [px, py, G_info, phi_diff, D, flag]: metres / 10, radians / pi;
@@ -93,14 +94,15 @@ class GvnConfig:
                              "dividing hidden")
 
 
-# The nearest-node prior's logit penalty (nats) on a node the robot cannot reach or whose
-# goal is blacklisted: far below any path's, so the rule picks one only when no other is left.
-PRIOR_PENALTY = 100.0
+# The nearest-node prior counts a node the robot cannot reach, or whose goal is blacklisted,
+# this much farther (m): beyond any path (paths are clipped at FEATURE_BOUND), so the rule
+# picks one only when no other is left, whatever the temperature.
+PRIOR_EXCLUDED_M = 2 * FEATURE_BOUND
 
 
 def path_prior(node_features: torch.Tensor, temperature: float) -> torch.Tensor:
-    """Logits of the nearest-node rule from v2 node features: ``-path / temperature``,
-    ``PRIOR_PENALTY`` less for unreachable or blacklisted nodes. Its argmax over the valid
+    """Logits of the nearest-node rule from v2 node features: ``-path / temperature``, with
+    unreachable or blacklisted nodes ``PRIOR_EXCLUDED_M`` farther. Its argmax over the valid
     nodes is the frontier node nearest along the known map (what nearest-frontier picks).
 
     Args:
@@ -113,7 +115,7 @@ def path_prior(node_features: torch.Tensor, temperature: float) -> torch.Tensor:
     """
     path = node_features[..., PATH]
     excluded = (node_features[..., UNREACHABLE] + node_features[..., BLACKLISTED]) > 0
-    return -path / temperature - PRIOR_PENALTY * excluded.to(path.dtype)
+    return -(path + PRIOR_EXCLUDED_M * excluded.to(path.dtype)) / temperature
 
 
 def real_positions(real_rows: torch.Tensor, size: int) -> torch.Tensor:
