@@ -351,13 +351,18 @@ def _warm_start(policy, config: TrainConfig, out: Path) -> None:
     write_text_atomic(out / "imitation.json", json.dumps({**stats, **fit}, indent=2) + "\n")
 
 
+def heldout_env(config: TrainConfig, scene: str) -> ExplorationEnv:
+    """The training env on one held-out scene (of ``config.eval.scene_list()``) with the
+    evaluation's episode settings; reset it with ``seed=config.eval.seed``."""
+    return ExplorationEnv(dataclasses.replace(config.env, scenes=(scene,), procedural=None,
+                                              episode=config.eval.episode))
+
+
 def evaluate_policy_episodes(policy, config: TrainConfig) -> list[dict[str, Any]]:
     """Runs the policy deterministically on the held-out scenes; their episode metrics."""
     results = []
     for scene in config.eval.scene_list():
-        env_cfg = dataclasses.replace(config.env, scenes=(scene,), procedural=None,
-                                      episode=config.eval.episode)
-        env = ExplorationEnv(env_cfg)
+        env = heldout_env(config, scene)
         obs, _ = env.reset(seed=config.eval.seed)
         while True:
             action, _ = policy.predict(obs, deterministic=True, action_masks=env.action_masks())

@@ -5,17 +5,21 @@ layouts and training-mode dynamics) on held-out seeds with three ways to choose 
 
 * ``policy``: the trained policy, its most probable valid action (as the explorers use it);
 * ``random``: a valid action drawn uniformly (what an untrained policy amounts to);
-* ``greedy``: the valid action placed nearest the robot (for the grid decisions, the cell
-  nearest the robot, i.e. roughly the nearest frontier; for TER nodes, the nearest node).
+* ``greedy``: the valid action nearest the robot: with v2 observations the node nearest
+  along the known map (:class:`~mjexplore.training.NearestNodeRule`, what nearest-frontier
+  ranks by), otherwise the one placed nearest in a straight line (for the grid decisions,
+  roughly the nearest frontier).
 
-Every mode sees the same layouts and start poses (episode seed ``--seed-base + i``; training
+Every mode sees the same layouts and start poses: episode seed ``--seed-base + i`` (training
 draws its layouts from the config's seed, so these are unseen layouts of the same
-distribution). Prints one JSON line: per mode the mean return, simulated exploration time
-(s), path length (m) and how many episodes were explored, and ``learned_fraction``, where
-the policy's mean return lies between random (0) and greedy (1).
+distribution), or with ``--heldout`` the config's model-selection layouts (``eval``: the
+generated layouts training never draws, its episode settings and seed; one episode each).
+Prints one JSON line: per mode the mean return, simulated exploration time (s), path length
+(m) and how many episodes were explored, and ``learned_fraction``, where the policy's mean
+return lies between random (0) and greedy (1).
 
 Usage: python tools/probe_policy.py --config training/cnn.yaml \
-    --weights training/cnn_policy.safetensors [--episodes 10] [--workers 2]
+    --weights training/cnn_policy.safetensors [--episodes 10] [--heldout] [--workers 2]
 """
 
 from __future__ import annotations
@@ -27,19 +31,20 @@ import multiprocessing as mp
 MODES = ("policy", "random", "greedy")
 
 
-def _episode(job: tuple[str, str, str, int]) -> dict:
+def _episode(job: tuple[str, str, str, int, str | None]) -> dict:
     import numpy as np
     import torch
 
     from mjexplore.envs import ExplorationEnv
     from mjexplore.policies.weights import load_policy
-    from mjexplore.training import load_train_config
+    from mjexplore.training import NearestNodeRule, heldout_env, load_train_config
 
-    config_path, weights, mode, seed = job
+    config_path, weights, mode, seed, scene = job
     torch.set_num_threads(1)
     config = load_train_config(config_path)
-    env = ExplorationEnv(config.env)
+    env = ExplorationEnv(config.env) if scene is None else heldout_env(config, scene)
     policy = load_policy(weights, expected_kind=config.kind)[0] if mode == "policy" else None
+    along_map = config.env.observation.features == "v2" and config.kind == "gvn"
     rng = np.random.default_rng(seed)
     obs, info = env.reset(seed=seed)
     total = 0.0
@@ -50,6 +55,8 @@ def _episode(job: tuple[str, str, str, int]) -> dict:
             action, _ = policy.predict(obs, deterministic=True, action_masks=mask)
         elif mode == "random":
             action = rng.choice(np.flatnonzero(mask))
+        elif along_map:
+            action, _ = NearestNodeRule().predict(obs, action_masks=mask)
         else:
             distance = np.linalg.norm(env.decisions.action_positions()
                                       - env.episode.sim.pose[:2], axis=1)
@@ -58,7 +65,7 @@ def _episode(job: tuple[str, str, str, int]) -> dict:
         total += reward
         done = terminated or truncated
     metrics = env.episode.result().metrics
-    return {"mode": mode, "seed": seed, "return": total,
+    return {"mode": mode, "seed": seed, "scene": scene, "return": total,
             "exploration_time_s": metrics["exploration_time_s"],
             "path_length_m": metrics["path_length_m"],
             "explored": metrics["end_reason"] == "explored"}
@@ -70,15 +77,25 @@ def main() -> None:
     parser.add_argument("--weights", required=True, help="exported policy (.safetensors)")
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--seed-base", type=int, default=10_000)
+    parser.add_argument("--heldout", action="store_true",
+                        help="the config's model-selection layouts instead of --episodes")
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
 
-    jobs = [(args.config, args.weights, mode, args.seed_base + i)
-            for i in range(args.episodes) for mode in MODES]
+    if args.heldout:
+        from mjexplore.training import load_train_config
+
+        config = load_train_config(args.config)
+        episodes = [(config.eval.seed, scene) for scene in config.eval.scene_list()]
+    else:
+        episodes = [(args.seed_base + i, None) for i in range(args.episodes)]
+    jobs = [(args.config, args.weights, mode, seed, scene)
+            for seed, scene in episodes for mode in MODES]
     with mp.get_context("spawn").Pool(args.workers) as pool:
         rows = pool.map(_episode, jobs, chunksize=1)
     figures: dict = {"config": args.config, "weights": args.weights,
-                     "episodes": args.episodes, "seed_base": args.seed_base}
+                     "episodes": len(episodes),
+                     "layouts": "heldout" if args.heldout else f"seeds from {args.seed_base}"}
     for mode in MODES:
         mine = [r for r in rows if r["mode"] == mode]
         for key in ("return", "exploration_time_s", "path_length_m"):
