@@ -42,8 +42,8 @@ from mjexplore.policies.weights import read_policy_weights, save_policy_weights
 log = logging.getLogger(__name__)
 
 CHECKPOINT_FORMAT = "mjexplore-checkpoint-v1"
-# Settings a resumed run may change: how long it trains and on how many envs.
-RESUMABLE_CHANGES = ("total_steps", "n_envs")
+# Settings a resumed run may change: how long it trains, on how many envs and threads.
+RESUMABLE_CHANGES = ("total_steps", "n_envs", "torch_threads", "update_threads")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -60,11 +60,18 @@ class PpoConfig:
     ent_coef: float = 0.01
     vf_coef: float = 0.5
     max_grad_norm: float = 0.5
+    # Minibatches of runs of this many consecutive decisions of one env, not single ones
+    # (mjexplore/rollout_blocks.py: the GVN then encodes about a third of the TERs).
+    minibatch_block: int = 1
 
     def __post_init__(self) -> None:
-        for name in ("n_steps", "batch_size", "n_epochs"):
+        for name in ("n_steps", "batch_size", "n_epochs", "minibatch_block"):
             if getattr(self, name) < 1:
                 raise ValueError(f"ppo.{name} must be >= 1")
+        if self.n_steps % self.minibatch_block or self.batch_size % self.minibatch_block:
+            raise ValueError(f"ppo.minibatch_block ({self.minibatch_block}) must divide "
+                             f"ppo.n_steps ({self.n_steps}) and ppo.batch_size "
+                             f"({self.batch_size})")
         if not 0 < self.gamma <= 1 or not 0 <= self.gae_lambda <= 1:
             raise ValueError("ppo.gamma must be in (0, 1] and ppo.gae_lambda in [0, 1]")
         if self.learning_rate <= 0:
@@ -165,6 +172,8 @@ class TrainConfig:
         checkpoint_every: Checkpoint after at least this many steps since the last one.
         seed: Seed of torch, numpy and the envs.
         torch_threads: torch intra-op threads in the learner (1 is fastest on 2 cores).
+        update_threads: torch intra-op threads during PPO updates, while the env workers
+            wait (None: ``torch_threads``).
     """
 
     kind: str = "gvn"
@@ -179,6 +188,7 @@ class TrainConfig:
     checkpoint_every: int = 512
     seed: int = 0
     torch_threads: int = 1
+    update_threads: int | None = None
 
     def __post_init__(self) -> None:
         from mjexplore.policies.registry import KINDS
@@ -199,6 +209,10 @@ class TrainConfig:
                              "env.valid_actions: all_nodes, and all_nodes only with none")
         if self.total_steps < 1 or self.n_envs < 1 or self.checkpoint_every < 1:
             raise ValueError("total_steps, n_envs and checkpoint_every must be >= 1")
+        if self.torch_threads < 1 or (self.update_threads or 1) < 1:
+            raise ValueError("torch_threads and update_threads must be >= 1")
+        if self.ppo.minibatch_block > 1 and self.kind != "gvn":
+            raise ValueError("ppo.minibatch_block > 1 is for kind gvn (its TER memory)")
 
 
 def load_train_config(path: str | Path, total_steps: int | None = None,
@@ -254,13 +268,19 @@ def make_model(config: TrainConfig, venv, seed: int, tensorboard_log: str | None
     from mjexplore.policies.registry import policy_class
 
     ppo = config.ppo
+    buffer = {}
+    if ppo.minibatch_block > 1:
+        from mjexplore.rollout_blocks import BlockDictRolloutBuffer
+
+        buffer = {"rollout_buffer_class": BlockDictRolloutBuffer,
+                  "rollout_buffer_kwargs": {"block": ppo.minibatch_block, "seed": seed}}
     return MaskablePPO(policy_class(config.kind), venv, n_steps=ppo.n_steps,
                        batch_size=ppo.batch_size, n_epochs=ppo.n_epochs,
                        learning_rate=ppo.learning_rate, gamma=ppo.gamma,
                        gae_lambda=ppo.gae_lambda, clip_range=ppo.clip_range,
                        ent_coef=ppo.ent_coef, vf_coef=ppo.vf_coef,
                        max_grad_norm=ppo.max_grad_norm, policy_kwargs=_policy_kwargs(config),
-                       tensorboard_log=tensorboard_log, seed=seed, verbose=0)
+                       tensorboard_log=tensorboard_log, seed=seed, verbose=0, **buffer)
 
 
 def _seed_everything(seed: int) -> None:
@@ -440,7 +460,7 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
         if ({k: v for k, v in saved.items() if k not in RESUMABLE_CHANGES}
                 != {k: v for k, v in to_dict(config).items() if k not in RESUMABLE_CHANGES}):
             raise UserInputError(f"the config differs from the one {str(out)!r} was trained with "
-                                 f"(only {' and '.join(RESUMABLE_CHANGES)} may change): resume "
+                                 f"(only {', '.join(RESUMABLE_CHANGES)} may change): resume "
                                  f"with {str(out / 'config.yaml')!r}.")
     done = int(state["num_timesteps"]) if state else 0
     _seed_everything(config.seed + done)
@@ -481,7 +501,11 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
                 self.bar = tqdm(total=config.total_steps, initial=self.num_timesteps,
                                 unit="decision", desc="train")
 
+        def _on_rollout_end(self) -> None:
+            torch.set_num_threads(config.update_threads or config.torch_threads)
+
         def _on_rollout_start(self) -> None:
+            torch.set_num_threads(config.torch_threads)
             # Between updates: the policy and optimizer are consistent with num_timesteps.
             n = self.num_timesteps
             if n - self.last_ckpt >= config.checkpoint_every:
@@ -529,6 +553,7 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
         written.append(ckpt.save(model, model.num_timesteps).name)
         final = export("policy.safetensors", model.num_timesteps)
     finally:
+        torch.set_num_threads(config.torch_threads)
         venv.close()
     return {"num_timesteps": int(model.num_timesteps), "checkpoints": written,
             "weights": str(final), "resumed_from": done}

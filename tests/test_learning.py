@@ -488,6 +488,29 @@ def _train_cli(args, **kw):
                            *args], capture_output=True, text=True, **kw)
 
 
+def test_training_with_minibatch_runs_and_update_threads(tmp_path, monkeypatch):
+    from mjexplore import rollout_blocks
+    from mjexplore.training import train
+
+    threads_in_updates = []
+    get = rollout_blocks.BlockDictRolloutBuffer.get
+
+    def counted_get(self, batch_size=None):
+        threads_in_updates.append(torch.get_num_threads())
+        return get(self, batch_size)
+
+    monkeypatch.setattr(rollout_blocks.BlockDictRolloutBuffer, "get", counted_get)
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text(TINY.format(total=16, n_envs=1).replace(
+        "n_epochs: 1}", "n_epochs: 2, minibatch_block: 4}") + "update_threads: 2\n")
+    config = load_train_config(cfg)
+    assert (config.ppo.minibatch_block, config.update_threads) == (4, 2)
+    result = train(config, tmp_path / "run", progress=False)
+    assert result["num_timesteps"] == 16
+    assert threads_in_updates == [2] * 4  # Two updates of two epochs.
+    assert torch.get_num_threads() == config.torch_threads
+
+
 def test_train_flags_replace_the_configs_steps_and_envs(tmp_path, capsys):
     from mjexplore.cli import main
 
