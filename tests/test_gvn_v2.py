@@ -279,6 +279,35 @@ def test_v2_network_is_permutation_equivariant_over_nodes():
     assert logits[real].std() > 1e-4
 
 
+def test_inference_reuses_encoded_ters_until_the_weights_change(monkeypatch):
+    policy = _policy(SMALL_V2)
+    gvn = policy.features_extractor.gvn
+    encoded = []
+    rows = gvn.spatial.rows
+
+    def counted_rows(features, neighbours, node_mask):
+        encoded.append(len(node_mask))
+        return rows(features, neighbours, node_mask)
+
+    monkeypatch.setattr(gvn.spatial, "rows", counted_rows)
+    obs = _random_obs(SMALL_V2, 4, np.random.default_rng(3))
+
+    def features(grad: bool) -> torch.Tensor:
+        with torch.set_grad_enabled(grad):
+            return policy.extract_features(obs).detach()
+
+    reference = features(True)
+    first, again = features(False), features(False)
+    assert encoded[1] > 0 and encoded[2:] == []  # The second call encodes nothing.
+    torch.testing.assert_close(first, reference, atol=1e-5, rtol=1e-5)
+    assert torch.equal(again, first)
+    with torch.no_grad():
+        gvn.spatial.layers[0].self_weight.weight.add_(0.5)  # As an optimizer step does.
+    changed = features(False)
+    torch.testing.assert_close(changed, features(True), atol=1e-5, rtol=1e-5)
+    assert not torch.allclose(changed, first, atol=1e-3)
+
+
 def test_v2_uses_edge_lengths_and_global_attention():
     from mjexplore.policies.gvn import LengthConv
 

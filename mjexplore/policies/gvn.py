@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
+from collections import OrderedDict
 
 import torch
 from torch import nn
@@ -408,6 +409,54 @@ def masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     return (x * mask[..., None]).sum(-2) / mask.sum(-1, keepdim=True).clamp(min=1.0)
 
 
+class EncodedTers:
+    """The node embeddings of recently encoded TERs, for inference without gradients.
+
+    Deciding, a policy re-encodes each TER of its memory at every one of the next E
+    decisions; with this it encodes each once while its weights stay the same. An entry
+    is found by the TER's arrays themselves (exact: equal arrays, as in
+    :func:`distinct_graphs`), and all entries are dropped when any weight of the encoder
+    changes (an optimizer step or a load bumps the tensors' version counters).
+
+    Args:
+        capacity: Entries kept, least recently used dropped first.
+    """
+
+    def __init__(self, capacity: int = 512) -> None:
+        self.capacity = capacity
+        self.entries: OrderedDict[bytes, torch.Tensor] = OrderedDict()
+        self.weights_version: tuple = ()
+
+    def rows(self, encoder: nn.Module, features: torch.Tensor, neighbours: torch.Tensor,
+             node_mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``encoder.rows`` (see :meth:`SpatialEncoder.rows`), encoding only the TERs not
+        held: (M, N, F), (M, N, K), (M, N) -> (R, d) embeddings, (R,) flat indices."""
+        version = tuple((p.data_ptr(), p._version) for p in encoder.parameters())
+        if version != self.weights_version:
+            self.entries.clear()
+            self.weights_version = version
+        arrays = [a.detach().cpu().numpy() for a in (features, neighbours, node_mask)]
+        keys = [b"".join(a[i].tobytes() for a in arrays) for i in range(len(node_mask))]
+        missing = [i for i, key in enumerate(keys) if key not in self.entries]
+        if missing:
+            index = torch.tensor(missing, device=node_mask.device)
+            rows, _ = encoder.rows(features[index], neighbours[index], node_mask[index])
+            counts = (node_mask[index] > 0).sum(1).tolist()
+            for i, part in zip(missing, rows.split(counts)):
+                self.entries[keys[i]] = part
+        for key in keys:
+            self.entries.move_to_end(key)
+        while len(self.entries) > self.capacity:
+            self.entries.popitem(last=False)
+        real_rows = (node_mask.reshape(-1) > 0).nonzero().squeeze(1)
+        return torch.cat([self.entries[key] for key in keys]), real_rows
+
+
+def _tracing() -> bool:
+    return (torch.jit.is_tracing() or torch.compiler.is_compiling()
+            or torch.onnx.is_in_onnx_export())
+
+
 class GVN(nn.Module):
     """Spatial encoder, episodic memory, attention fusion and aggregator (no heads).
 
@@ -434,6 +483,7 @@ class GVN(nn.Module):
                 GlobalAttention(d, config.attention_heads)
                 for _ in range(config.attention_layers))
         self.temporal = TemporalEncoder(config)
+        self.encoded = EncodedTers()
         self.attention = nn.Linear(d, 1)
         self.aggregator = nn.Sequential(nn.Linear(2 * d, d), nn.ReLU(), nn.Linear(d, d), nn.ReLU())
 
@@ -476,7 +526,8 @@ class GVN(nn.Module):
         A PPO minibatch holds each TER many times: as the current TER of its decision and in
         the memory of the next E decisions of its episode. The encoder runs on the distinct
         TERs only (see :func:`distinct_graphs`) and its outputs are gathered back, which
-        gives the same numbers as encoding every copy.
+        gives the same numbers as encoding every copy. Without gradients, TERs encoded by
+        earlier calls with the same weights are taken from :class:`EncodedTers`.
 
         Returns:
             The embeddings (R, d) of the real nodes of the current TERs, their flat indices
@@ -489,7 +540,11 @@ class GVN(nn.Module):
             for key in ("node_features", "neighbours", "node_mask"))
         keep, inverse = distinct_graphs(features, neighbours, node_mask)
         node_mask = node_mask[keep]
-        rows, real_rows = self.spatial.rows(features[keep], neighbours[keep], node_mask)
+        if torch.is_grad_enabled() or _tracing():
+            rows, real_rows = self.spatial.rows(features[keep], neighbours[keep], node_mask)
+        else:
+            rows, real_rows = self.encoded.rows(self.spatial, features[keep], neighbours[keep],
+                                                node_mask)
         inverse = inverse.view(b, e + 1)
         current_rows = (obs["node_mask"].reshape(-1) > 0).nonzero().squeeze(1)
         # A current TER's real nodes are those of its distinct copy (equal arrays).
