@@ -7,6 +7,11 @@ a 100 x 100 m office episode grew from 1.7 to 2.9 GB resident by its end
 (tools/bench_long_episode.py). Fixing the threshold at 128 KiB (which also turns off the
 dynamic adjustment) returns every large block to the system when freed: the same episode
 peaked at 1.0 GB. No-op where the C library is not glibc.
+
+A training learner is the opposite case: each PPO minibatch allocates and frees the same
+tensors of up to tens of megabytes, and with that threshold every one is mapped afresh and
+faulted in page by page (5.6 million page faults, 41 % of the time in the kernel, on a
+benchmark of 12 minibatches that takes 9.6 s instead of 16.3 s with the heap reused).
 """
 
 from __future__ import annotations
@@ -19,19 +24,31 @@ log = logging.getLogger(__name__)
 
 M_TRIM_THRESHOLD = -1
 M_MMAP_THRESHOLD = -3
+M_MMAP_MAX = -4
 THRESHOLD_BYTES = 128 * 1024
+LEARNER_TRIM_BYTES = 1 << 30
 
 
-def bound_heap_growth() -> bool:
-    """Sets glibc's mmap and trim thresholds (see the module docstring); True if set."""
+def _mallopt(settings: tuple[tuple[int, int], ...]) -> bool:
     name = ctypes.util.find_library("c")
     if not name:
         return False
     try:
         libc = ctypes.CDLL(name)
-        ok = bool(libc.mallopt(M_MMAP_THRESHOLD, THRESHOLD_BYTES)) and \
-            bool(libc.mallopt(M_TRIM_THRESHOLD, THRESHOLD_BYTES))
+        ok = all([bool(libc.mallopt(option, value)) for option, value in settings])
     except (OSError, AttributeError):
         return False
-    log.debug("malloc thresholds set: %s", ok)
+    log.debug("mallopt %s: %s", settings, ok)
     return ok
+
+
+def bound_heap_growth() -> bool:
+    """Sets glibc's mmap and trim thresholds for long episodes on large maps (see the
+    module docstring); True if set."""
+    return _mallopt(((M_MMAP_THRESHOLD, THRESHOLD_BYTES), (M_TRIM_THRESHOLD, THRESHOLD_BYTES)))
+
+
+def reuse_freed_memory() -> bool:
+    """Makes glibc serve every block from the heap and keep up to 1 GiB of freed memory
+    there, for a training learner (see the module docstring); True if set."""
+    return _mallopt(((M_MMAP_MAX, 0), (M_TRIM_THRESHOLD, LEARNER_TRIM_BYTES)))

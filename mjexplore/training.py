@@ -36,6 +36,7 @@ from mjexplore.episode import EpisodeConfig
 from mjexplore.imitation import ImitationConfig
 from mjexplore.io.atomic import write_bytes_atomic, write_text_atomic
 from mjexplore.io.provenance import git_revision
+from mjexplore.memory import reuse_freed_memory
 from mjexplore.policies.registry import layout_of
 from mjexplore.policies.weights import read_policy_weights, save_policy_weights
 
@@ -431,7 +432,8 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
     """Trains a policy into the run folder ``out`` (see the module docstring).
 
     ``ray_address`` runs the envs as Ray actors (see :func:`make_vec_env`); it is no part of
-    the config, so a run may resume with or without Ray, on any cluster.
+    the config, so a run may resume with or without Ray, on any cluster. The process's
+    malloc keeps freed memory for reuse from then on (:func:`reuse_freed_memory`).
 
     Returns:
         Summary: steps, checkpoints written, final weights path.
@@ -463,6 +465,7 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
                                  f"(only {', '.join(RESUMABLE_CHANGES)} may change): resume "
                                  f"with {str(out / 'config.yaml')!r}.")
     done = int(state["num_timesteps"]) if state else 0
+    reuse_freed_memory()  # The learner's tensors: see mjexplore/memory.py.
     _seed_everything(config.seed + done)
     torch.set_num_threads(config.torch_threads)
     venv = make_vec_env(config, config.seed + done, ray_address)  # Before writing: may refuse.

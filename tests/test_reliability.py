@@ -206,14 +206,33 @@ def test_any_map_with_a_room_imports_as_a_valid_scene(tmp_path_factory, width, h
 
 
 
-def test_heap_growth_bound_is_set_on_glibc():
+@pytest.mark.parametrize("setting", ["bound_heap_growth", "reuse_freed_memory"])
+def test_malloc_settings_decide_whether_a_freed_block_is_faulted_in_again(setting):
     import platform
+    import subprocess
+    import sys
 
-    from mjexplore.memory import bound_heap_growth
-
-    result = bound_heap_growth()
-    if platform.libc_ver()[0] == "glibc":
-        assert result
+    if platform.libc_ver()[0] != "glibc":
+        pytest.skip("glibc's mallopt only")
+    # A 1 MB block allocated and freed 100 times: from the heap, its pages are there after
+    # the first time; mapped afresh each time, its 256 pages fault every time.
+    script = f"""
+import resource, numpy as np
+from mjexplore.memory import {setting}
+assert {setting}()
+np.ones(1 << 18, np.float32)
+before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+for _ in range(100):
+    np.ones(1 << 18, np.float32)
+print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+"""
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    faults = int(run.stdout)
+    if setting == "reuse_freed_memory":
+        assert faults < 1000
+    else:
+        assert faults > 20000
 
 
 def test_bench_exits_non_zero_when_an_episode_failed(tmp_path, monkeypatch):
