@@ -21,7 +21,7 @@ from mjexplore.envs.observation import (BLACKLISTED, PATH, UNREACHABLE, observat
                                         poses_in_frame)
 from mjexplore.episode import EpisodeConfig
 from mjexplore.navigation.navigator import NavigatorConfig
-from mjexplore.policies.gvn import memory_pose_features
+from mjexplore.policies.gvn import EncodedTers, memory_pose_features
 from mjexplore.policies.sb3 import GvnPolicy
 from mjexplore.sim.simulator import SimConfig
 
@@ -306,6 +306,9 @@ def test_inference_reuses_encoded_ters_until_the_weights_change(monkeypatch):
     changed = features(False)
     torch.testing.assert_close(changed, features(True), atol=1e-5, rtol=1e-5)
     assert not torch.allclose(changed, first, atol=1e-3)
+    gvn.encoded = EncodedTers(capacity=1)  # Fewer entries than one batch's TERs.
+    torch.testing.assert_close(features(False), changed)
+    assert len(gvn.encoded.entries) == 1
 
 
 def test_v2_uses_edge_lengths_and_global_attention():

@@ -440,16 +440,16 @@ class EncodedTers:
         missing = [i for i, key in enumerate(keys) if key not in self.entries]
         if missing:
             index = torch.tensor(missing, device=node_mask.device)
-            rows, _ = encoder.rows(features[index], neighbours[index], node_mask[index])
+            encoded, _ = encoder.rows(features[index], neighbours[index], node_mask[index])
             counts = (node_mask[index] > 0).sum(1).tolist()
-            for i, part in zip(missing, rows.split(counts)):
+            for i, part in zip(missing, encoded.split(counts)):
                 self.entries[keys[i]] = part
+        rows = torch.cat([self.entries[key] for key in keys])
         for key in keys:
             self.entries.move_to_end(key)
         while len(self.entries) > self.capacity:
             self.entries.popitem(last=False)
-        real_rows = (node_mask.reshape(-1) > 0).nonzero().squeeze(1)
-        return torch.cat([self.entries[key] for key in keys]), real_rows
+        return rows, (node_mask.reshape(-1) > 0).nonzero().squeeze(1)
 
 
 def _tracing() -> bool:
