@@ -21,6 +21,7 @@ import io
 import json
 import logging
 import random
+import time
 from pathlib import Path
 from typing import Any
 
@@ -284,6 +285,55 @@ def make_model(config: TrainConfig, venv, seed: int, tensorboard_log: str | None
                        tensorboard_log=tensorboard_log, seed=seed, verbose=0, **buffer)
 
 
+def set_phase_threads(config: TrainConfig, updating: bool) -> None:
+    """torch's intra-op threads for a PPO update (``update_threads``) or a rollout."""
+    torch.set_num_threads(config.update_threads or config.torch_threads if updating
+                          else config.torch_threads)
+
+
+def ppo_round(config: TrainConfig, seed: int | None = None,
+              model_setup=None) -> dict[str, float]:
+    """One rollout and one PPO update of ``config``, as :func:`train` runs them (torch
+    threads included), timed: wall seconds of each and the decisions collected.
+
+    Args:
+        config: The recipe.
+        seed: Seed of the model and envs (default: the config's).
+        model_setup: Called with the fresh model before the round (to load weights).
+    """
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    seed = config.seed if seed is None else seed
+    marks: dict[str, float] = {}
+
+    class Clock(BaseCallback):
+        def _on_rollout_start(self) -> None:
+            set_phase_threads(config, updating=False)
+            marks["start"] = time.perf_counter()
+
+        def _on_rollout_end(self) -> None:
+            set_phase_threads(config, updating=True)
+            marks["collected"] = time.perf_counter()
+
+        def _on_step(self) -> bool:
+            return True
+
+    _seed_everything(seed)
+    venv = make_vec_env(config, seed)
+    try:
+        model = make_model(config, venv, seed)
+        if model_setup is not None:
+            model_setup(model)
+        decisions = config.ppo.n_steps * config.n_envs
+        model.learn(decisions, callback=Clock())  # One rollout, then one update.
+        end = time.perf_counter()
+    finally:
+        set_phase_threads(config, updating=False)
+        venv.close()
+    return {"decisions": decisions, "rollout_s": marks["collected"] - marks["start"],
+            "update_s": end - marks["collected"]}
+
+
 def _seed_everything(seed: int) -> None:
     random.seed(seed)
     np.random.seed(seed)  # noqa: NPY002 - third-party code may draw from the global state
@@ -505,10 +555,10 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
                                 unit="decision", desc="train")
 
         def _on_rollout_end(self) -> None:
-            torch.set_num_threads(config.update_threads or config.torch_threads)
+            set_phase_threads(config, updating=True)
 
         def _on_rollout_start(self) -> None:
-            torch.set_num_threads(config.torch_threads)
+            set_phase_threads(config, updating=False)
             # Between updates: the policy and optimizer are consistent with num_timesteps.
             n = self.num_timesteps
             if n - self.last_ckpt >= config.checkpoint_every:
@@ -556,7 +606,7 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
         written.append(ckpt.save(model, model.num_timesteps).name)
         final = export("policy.safetensors", model.num_timesteps)
     finally:
-        torch.set_num_threads(config.torch_threads)
+        set_phase_threads(config, updating=False)
         venv.close()
     return {"num_timesteps": int(model.num_timesteps), "checkpoints": written,
             "weights": str(final), "resumed_from": done}

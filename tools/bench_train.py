@@ -97,12 +97,9 @@ def ppo_round(dynamics: str) -> dict[str, float]:
     """One rollout and one PPO update of training/gvn.yaml from the shipped weights, its
     episodes in the world ``dynamics`` names (the grid world with training/gvn_v2.yaml's
     scan schedule, ``scan_travel``): wall seconds of each and the decisions collected."""
-    import torch
-    from stable_baselines3.common.callbacks import BaseCallback
-
     from mjexplore.explorers.gvn import DEFAULT_WEIGHTS
     from mjexplore.policies.weights import load_policy
-    from mjexplore.training import load_train_config, make_model, make_vec_env
+    from mjexplore.training import load_train_config, ppo_round as timed_round
 
     config = load_train_config(DEFAULT_WEIGHTS.parent / "gvn.yaml")
     travel = load_train_config(DEFAULT_WEIGHTS.parent / "gvn_v2.yaml").env.episode.sim.scan_travel
@@ -111,31 +108,12 @@ def ppo_round(dynamics: str) -> dict[str, float]:
                               scan_travel=travel if dynamics == "grid" else None)
     config = dataclasses.replace(config, env=dataclasses.replace(config.env, episode=(
         dataclasses.replace(episode, sim=sim))))
-    torch.set_num_threads(config.torch_threads)
-    marks: dict[str, float] = {}
 
-    class Clock(BaseCallback):
-        def _on_rollout_start(self) -> None:
-            marks["start"] = time.perf_counter()
-
-        def _on_rollout_end(self) -> None:
-            marks["collected"] = time.perf_counter()
-
-        def _on_step(self) -> bool:
-            return True
-
-    venv = make_vec_env(config, config.seed)
-    try:
-        model = make_model(config, venv, config.seed)
+    def load_shipped(model) -> None:
         shipped, _ = load_policy(DEFAULT_WEIGHTS, expected_kind="gvn")
         model.policy.load_state_dict(shipped.state_dict())
-        decisions = config.ppo.n_steps * config.n_envs
-        model.learn(decisions, callback=Clock())  # One rollout, then one update.
-        end = time.perf_counter()
-    finally:
-        venv.close()
-    return {"decisions": decisions, "rollout_s": marks["collected"] - marks["start"],
-            "update_s": end - marks["collected"]}
+
+    return timed_round(config, model_setup=load_shipped)
 
 
 def main() -> None:
