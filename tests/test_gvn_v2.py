@@ -486,14 +486,17 @@ def test_model_selection_uses_held_out_layouts(tmp_path, caplog):
 
 
 @pytest.mark.slow  # An export takes 5-20 s on 2 cores.
-def test_v2_actor_exports_to_onnx_with_torchs_logits(tmp_path):
+@pytest.mark.parametrize("privileged", [False, True])
+def test_v2_actor_exports_to_onnx_with_torchs_logits(tmp_path, privileged):
     from mjexplore.policies.onnx_export import (OnnxActor, export_onnx, record_decisions,
                                                 torch_actor_logits)
     from mjexplore.policies.registry import layout_of
     from mjexplore.policies.weights import load_policy, save_policy_weights
 
+    # With privileged, the explorer (record_decisions) feeds zeros for the critic's
+    # ground truth, and the exported actor takes no such input.
     config = ObservationConfig(max_nodes=128, max_neighbours=8, memory_length=4,
-                               features="v2")
+                               features="v2", privileged=privileged)
     weights, model = tmp_path / "v2.safetensors", tmp_path / "v2.onnx"
     # A residual policy: the nearest-node prior is part of the exported graph.
     save_policy_weights(weights, _policy(config, actor_gain=1.0, prior_temperature=1.0), "gvn",
@@ -503,6 +506,8 @@ def test_v2_actor_exports_to_onnx_with_torchs_logits(tmp_path):
     export_onnx(weights, model)
     obs, masks = record_decisions(weights, 6, "train_loop")
     assert "memory_pose" in obs and obs["memory_mask"][-1].sum() >= 3
+    assert ("privileged" in obs) == privileged
+    assert "privileged" not in OnnxActor(model).keys
     expected = torch_actor_logits(load_policy(weights)[0], obs, masks).numpy()
     logits, actions = OnnxActor(model)(obs, masks)
     np.testing.assert_allclose(logits, expected, atol=1e-4, rtol=0)
@@ -539,6 +544,43 @@ def test_a_critic_with_its_own_encoder_saves_loads_and_acts(tmp_path, masking):
     masked = torch.where(torch.as_tensor(masks), logits, torch.tensor(-1e8))
     assert torch.equal(masked.argmax(1), again)
     torch.testing.assert_close(torch.log_softmax(logits, 1), expected)
+
+
+@pytest.mark.parametrize("share", [True, False])
+def test_privileged_inputs_reach_the_critic_and_never_the_actor(share):
+    config = dataclasses.replace(SMALL_V2, privileged=True)
+    policy = _policy(config, prior_temperature=1.0, share_features_extractor=share)
+    obs, masks = _random_obs(config, 3, np.random.default_rng(2), valid=True)
+    assert (obs["privileged"] == 0).all()  # No ground truth outside the training env.
+    other = {**obs, "privileged": torch.tensor([[1.5, 0.4], [0.2, 0.9], [3.0, 0.7]])}
+    with torch.no_grad():
+        logits = [policy.get_distribution(o).distribution.logits for o in (obs, other)]
+        values = [policy.predict_values(o) for o in (obs, other)]
+    assert torch.equal(*logits)
+    assert (values[0] != values[1]).all()
+
+
+def test_training_env_fills_in_the_ground_truth_for_the_critic():
+    from mjexplore.envs.observation import privileged_features
+
+    env = ExplorationEnv(EnvConfig(scenes=("train_loop",), episode=FAST,
+                                   observation=dataclasses.replace(V2, privileged=True)))
+    obs, info = env.reset(seed=1)
+    assert env.observation_space["privileged"].contains(obs["privileged"])
+    seen = [obs["privileged"]]
+    for _ in range(4):
+        obs, _, terminated, truncated, info = env.step(
+            int(np.flatnonzero(env.action_masks())[0]))
+        seen.append(obs["privileged"])
+        if terminated or truncated:
+            break
+    ep = env.episode
+    assert obs["privileged"][1] == pytest.approx(1.0 - info["exploration_ratio"], abs=1e-6)
+    target = ep.config.target_ratio * ep.counter.total - ep.counter.count
+    assert obs["privileged"][0] == pytest.approx(
+        target * ep.mapper.grid.resolution ** 2 / 100.0, rel=1e-5)
+    assert seen[0][0] > seen[-1][0] > 0.0 and seen[0][1] > seen[-1][1]
+    np.testing.assert_array_equal(privileged_features(10, 10, 0.9, 0.01), [0.0, 0.0])
 
 
 # ----------------------------------------------------------------------- nearest prior

@@ -11,7 +11,7 @@ import gymnasium as gym
 import numpy as np
 
 from mjexplore.envs.decisions import GridConfig, GridDecisions, TerDecisions
-from mjexplore.envs.observation import ObservationConfig
+from mjexplore.envs.observation import ObservationConfig, privileged_features
 from mjexplore.errors import UserInputError
 from mjexplore.episode import Episode, EpisodeConfig
 from mjexplore.explorers.base import ExplorationState
@@ -350,7 +350,13 @@ class ExplorationEnv(gym.Env):
         return self.decisions.mask.copy()
 
     def _observation(self) -> dict[str, np.ndarray]:
-        return self.decisions.observation()
+        obs = self.decisions.observation()
+        if "privileged" in obs:
+            ep = self.episode
+            obs["privileged"] = privileged_features(
+                ep.counter.count, ep.counter.total, ep.config.target_ratio,
+                ep.mapper.grid.resolution ** 2)
+        return obs
 
     def _progress(self) -> tuple[int, int, int, float]:
         """(observable cells known, accuracy in cells, kinematics rows, simulated time in

@@ -38,6 +38,12 @@ flat, row-major: SB3 takes only 1-D vectors and images as plain observations):
   built at, in the current ``base_link`` frame (metres, radians in [-pi, pi)); a node at
   (px, py) of that TER lies at R(dyaw) (px, py) + (dx, dy) from the robot now. Zero for
   empty slots.
+* ``privileged`` (2), with ``ObservationConfig.privileged`` only: ground truth for the
+  critic, never the actor (an asymmetric actor-critic): the observable area still to be
+  seen before the episode's target ratio, in hundreds of m^2, and the share of the
+  observable area not yet seen. The training env fills them in
+  (:class:`mjexplore.envs.ExplorationEnv`); anywhere else, with no ground truth, they are
+  zero.
 
 Edge lengths are not carried: a TER edge is the straight segment between its nodes, so its
 length is the distance between the nodes' (px, py), which the network computes.
@@ -62,6 +68,7 @@ FEATURE_SETS = ("v1", "v2")
 # Node features per feature set: v2 adds path cost, unreachable and blacklisted.
 NODE_FEATURES = {"v1": NUM_FEATURES, "v2": NUM_FEATURES + 3}
 PATH, UNREACHABLE, BLACKLISTED = NUM_FEATURES, NUM_FEATURES + 1, NUM_FEATURES + 2
+PRIVILEGED_FEATURES = 2  # [area to the target ratio / 100 m^2, share unseen]
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -76,6 +83,8 @@ class ObservationConfig:
             blacklist flags and memory poses); see the module docstring.
         path_radius: v2: a node's path cost is the least over the cells within this
             distance of it (metres; the reach nearest-frontier gives a goal).
+        privileged: Add the critic's ground-truth inputs (``privileged``, see the module
+            docstring).
     """
 
     max_nodes: int = 256
@@ -83,6 +92,7 @@ class ObservationConfig:
     memory_length: int = 10
     features: str = "v1"
     path_radius: float = 0.5
+    privileged: bool = False
 
     def __post_init__(self) -> None:
         if self.features not in FEATURE_SETS:
@@ -119,6 +129,9 @@ def observation_space(config: ObservationConfig) -> spaces.Dict:
     }
     if config.features == "v2":
         space["memory_pose"] = spaces.Box(shape=(e * 3,), **feat)
+    if config.privileged:
+        space["privileged"] = spaces.Box(low=0.0, high=FEATURE_BOUND,
+                                         shape=(PRIVILEGED_FEATURES,), dtype=np.float32)
     return spaces.Dict(space)
 
 
@@ -214,6 +227,8 @@ class TerMemory:
                 relative[self._mask == 0] = 0.0
             obs["memory_pose"] = np.clip(relative, -FEATURE_BOUND, FEATURE_BOUND).astype(
                 np.float32).reshape(-1)
+        if self.config.privileged:
+            obs["privileged"] = np.zeros(PRIVILEGED_FEATURES, np.float32)  # No ground truth.
         return obs
 
     def remember(self, current: dict[str, np.ndarray], choice: int,
@@ -229,6 +244,15 @@ class TerMemory:
         self._choice[-1] = float(choice)
         self._mask[-1] = 1.0
         self._pose[-1] = 0.0 if pose is None else np.asarray(pose, float)[:3]
+
+
+def privileged_features(known: int, total: int, target_ratio: float,
+                        cell_area: float) -> np.ndarray:
+    """The ``privileged`` entry (2,) from the observable cells known and in all (ground
+    truth), the episode's target ratio and the area of a cell (m^2)."""
+    total = max(total, 1)
+    to_target = max(0.0, target_ratio * total - known) * cell_area
+    return np.array([to_target / 100.0, 1.0 - known / total], np.float32)
 
 
 def structured(obs: dict, batch_dims: int = 1) -> dict:

@@ -182,7 +182,8 @@ def actor_signature(meta: dict[str, Any]) -> dict[str, dict[str, Any]]:
     """Input name -> per-decision shape and dtype, in the order the model takes them."""
     decisions = meta["decisions"]
     inputs = {key: {"shape": list(space.shape), "dtype": "float32"}
-              for key, space in decisions.observation_space.spaces.items()}
+              for key, space in decisions.observation_space.spaces.items()
+              if key != "privileged"}  # The critic's ground truth; the actor reads none.
     inputs["action_mask"] = {"shape": [int(decisions.action_space.n)], "dtype": "bool"}
     return inputs
 

@@ -3,7 +3,9 @@
 :class:`GvnPolicy` subclasses sb3-contrib's ``MaskableActorCriticPolicy``: the features
 extractor runs the :class:`~mjexplore.policies.gvn.GVN`, the actor head gives one logit per
 TER node (the default head, a ``Linear(latent, N)``, would tie logits to node slots), and
-the critic head reads the pooled node features.
+the critic head reads the pooled node features (and, with an observation that carries
+them, the ground-truth ``privileged`` inputs: an asymmetric actor-critic, whose actor
+does not read them).
 
 With ``prior_temperature`` set (v2 observations), the actor's logits are the nearest-node
 rule's (:func:`~mjexplore.policies.gvn.path_prior`: minus the path length to each node)
@@ -42,7 +44,8 @@ MASKING_MODES = ("iam", "naive", "none")
 
 class GvnExtractor(BaseFeaturesExtractor):
     """Observation dict -> flat [z (N d), pooled (2 d)] features, then with
-    ``prior_temperature`` the nearest-node prior's logits (N).
+    ``prior_temperature`` the nearest-node prior's logits (N), then the observation's
+    ``privileged`` entry when it has one (for the critic only).
 
     The network's feature set follows the observation's: a ``memory_pose`` entry means the
     ``v2`` observation, and so the v2 network.
@@ -54,7 +57,9 @@ class GvnExtractor(BaseFeaturesExtractor):
                  prior_temperature: float | None = None) -> None:
         n = observation_space["node_mask"].shape[0]
         prior = n if prior_temperature is not None else 0
-        super().__init__(observation_space, features_dim=n * hidden + 2 * hidden + prior)
+        privileged = privileged_size(observation_space)
+        super().__init__(observation_space,
+                         features_dim=n * hidden + 2 * hidden + prior + privileged)
         self.num_nodes = n
         features = "v2" if "memory_pose" in observation_space.spaces else "v1"
         if prior and (features != "v2" or prior_temperature <= 0):
@@ -69,8 +74,13 @@ class GvnExtractor(BaseFeaturesExtractor):
 
     def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
         z, pooled = self.gvn(observations)
+        parts = [z.flatten(1), pooled]
         prior = self.prior_logits(observations)
-        return torch.cat([z.flatten(1), pooled] + ([] if prior is None else [prior]), -1)
+        if prior is not None:
+            parts.append(prior)
+        if "privileged" in observations:  # Passed through for the critic (GvnHeads).
+            parts.append(observations["privileged"])
+        return torch.cat(parts, -1)
 
     def prior_logits(self, observations: dict[str, torch.Tensor]) -> torch.Tensor | None:
         """The nearest-node prior's logits (B, N) of batched flat observations (None
@@ -82,25 +92,37 @@ class GvnExtractor(BaseFeaturesExtractor):
                           self.prior_temperature)
 
 
+def privileged_size(observation_space: spaces.Dict) -> int:
+    """Ground-truth critic inputs in an observation space (0 without a ``privileged``
+    entry; see :mod:`mjexplore.envs.observation`)."""
+    space = observation_space.spaces.get("privileged")
+    return 0 if space is None else int(space.shape[0])
+
+
 class GvnHeads(nn.Module):
     """Actor (one logit per node, plus the prior's when the features carry one) and critic
-    trunks over :class:`GvnExtractor` features."""
+    (the pooled node features, and the ground-truth inputs when the features carry them)
+    trunks over :class:`GvnExtractor` features. The actor never reads the ground truth."""
 
-    def __init__(self, num_nodes: int, hidden: int, prior: bool = False) -> None:
+    def __init__(self, num_nodes: int, hidden: int, prior: bool = False,
+                 privileged: int = 0) -> None:
         super().__init__()
         self.num_nodes, self.hidden, self.prior = num_nodes, hidden, prior
+        self.privileged = privileged
         self.latent_dim_pi = num_nodes
         self.latent_dim_vf = hidden
         self.actor = nn.Sequential(nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, 1))
-        self.critic = nn.Sequential(nn.Linear(2 * hidden, hidden), nn.ReLU())
+        self.critic = nn.Sequential(nn.Linear(2 * hidden + privileged, hidden), nn.ReLU())
 
-    def _split(self, features: torch.Tensor
-               ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
-        """(z (B, N, d), pooled (B, 2 d), the prior's logits (B, N) or None)."""
+    def _split(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor,
+                                                       torch.Tensor | None]:
+        """(z (B, N, d), pooled (B, 2 d), the prior's logits (B, N) or None); the
+        ground-truth inputs, when present, are the last ``privileged`` features."""
         n, d = self.num_nodes, self.hidden
         z = features[:, :n * d].reshape(-1, n, d)
         pooled = features[:, n * d:n * d + 2 * d]
-        return z, pooled, (features[:, n * d + 2 * d:] if self.prior else None)
+        prior = features[:, n * d + 2 * d:n * d + 2 * d + n] if self.prior else None
+        return z, pooled, prior
 
     def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
         z, _, prior = self._split(features)
@@ -108,7 +130,10 @@ class GvnHeads(nn.Module):
         return logits if prior is None else logits + prior
 
     def forward_critic(self, features: torch.Tensor) -> torch.Tensor:
-        return self.critic(self._split(features)[1])
+        pooled = self._split(features)[1]
+        if self.privileged:
+            pooled = torch.cat([pooled, features[:, -self.privileged:]], -1)
+        return self.critic(pooled)
 
     def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return self.forward_actor(features), self.forward_critic(features)
@@ -162,7 +187,8 @@ class GvnPolicy(MaskableActorCriticPolicy):
 
     def _build_mlp_extractor(self) -> None:
         self.mlp_extractor = GvnHeads(int(self.action_space.n), self.hidden,
-                                      prior=self.prior_temperature is not None)
+                                      prior=self.prior_temperature is not None,
+                                      privileged=privileged_size(self.observation_space))
 
     def _build(self, lr_schedule) -> None:
         super()._build(lr_schedule)
