@@ -60,6 +60,7 @@ class GvnExtractor(BaseFeaturesExtractor):
         privileged = privileged_size(observation_space)
         super().__init__(observation_space,
                          features_dim=n * hidden + 2 * hidden + prior + privileged)
+        self.privileged = privileged > 0
         self.num_nodes = n
         features = "v2" if "memory_pose" in observation_space.spaces else "v1"
         if prior and (features != "v2" or prior_temperature <= 0):
@@ -78,7 +79,7 @@ class GvnExtractor(BaseFeaturesExtractor):
         prior = self.prior_logits(observations)
         if prior is not None:
             parts.append(prior)
-        if "privileged" in observations:  # Passed through for the critic (GvnHeads).
+        if self.privileged:  # Passed through for the critic (GvnHeads).
             parts.append(observations["privileged"])
         return torch.cat(parts, -1)
 
