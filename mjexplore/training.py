@@ -429,10 +429,12 @@ def heldout_env(config: TrainConfig, scene: str) -> ExplorationEnv:
                                               episode=config.eval.episode))
 
 
-def evaluate_policy_episodes(policy, config: TrainConfig) -> list[dict[str, Any]]:
-    """Runs the policy deterministically on the held-out scenes; their episode metrics."""
+def evaluate_policy_episodes(policy, config: TrainConfig,
+                             scenes: tuple[str, ...] | None = None) -> list[dict[str, Any]]:
+    """Runs the policy deterministically on the held-out scenes (or ``scenes``, with the
+    evaluation's episode settings); their episode metrics."""
     results = []
-    for scene in config.eval.scene_list():
+    for scene in config.eval.scene_list() if scenes is None else scenes:
         env = heldout_env(config, scene)
         obs, _ = env.reset(seed=config.eval.seed)
         while True:
