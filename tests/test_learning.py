@@ -707,11 +707,11 @@ def test_cli_refuses_bad_policy_weights(tmp_path):
     assert r.returncode == 2 and "learned explorers" in r.stderr
 
 
-def test_ablation_explorers_say_how_to_make_their_missing_policy(tmp_path, monkeypatch):
+def test_shipped_policy_explorers_say_how_to_make_their_missing_policy(tmp_path, monkeypatch):
     from mjexplore.explorers import gvn, make_explorer
 
     monkeypatch.setattr(gvn, "DEFAULT_WEIGHTS", tmp_path / "gvn_policy.safetensors")
-    for name in ("gvn_naive", "gvn_none"):
+    for name in ("gvn_naive", "gvn_none", "gvn_v2"):
         with pytest.raises(UserInputError, match=f"training/{name}.yaml"):
             make_explorer(name)
 

@@ -24,7 +24,7 @@ from mjexplore.eval.sweep import MEAN_STD_NOTE, format_mean_std, markdown_table,
 from mjexplore.io.atomic import write_text_atomic
 
 METHOD_ORDER = ("nearest", "explore_lite", "frontier_tsp", "rrt", "potential", "cnn", "gvn_none",
-                "gvn_naive", "gvn_unmasked", "gvn", "oracle")
+                "gvn_naive", "gvn_unmasked", "gvn", "gvn_v2", "oracle")
 # The paper's claim (Sec. "Comparison with baselines"): gvn is faster than the potential field
 # by this range of percentages to the given exploration ratio.
 PAPER_SPEEDUP = {"t80_s": (7.0, 11.1), "t985_s": (4.0, 16.2)}

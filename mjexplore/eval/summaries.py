@@ -35,7 +35,8 @@ KINEMATIC_FIELDS = ("linear_velocity", "angular_velocity", "linear_acceleration"
 POLICY_FILES = {"gvn": "training/gvn_policy.safetensors", "gvn_unmasked":
                 "training/gvn_policy.safetensors", "cnn": "training/cnn_policy.safetensors",
                 "gvn_naive": "training/gvn_naive_policy.safetensors",
-                "gvn_none": "training/gvn_none_policy.safetensors"}
+                "gvn_none": "training/gvn_none_policy.safetensors",
+                "gvn_v2": "training/gvn_v2_policy.safetensors"}
 REPO = Path(__file__).resolve().parents[2]
 
 

@@ -126,7 +126,7 @@ class GvnUnmaskedExplorer(GvnExplorer):
         super().__init__(policy, masking=False, deterministic=deterministic)
 
 
-def _ablation_weights(name: str) -> Path:
+def _shipped_weights(name: str) -> Path:
     path = DEFAULT_WEIGHTS.with_name(f"{name}_policy.safetensors")
     if not path.is_file():
         raise UserInputError(
@@ -137,6 +137,18 @@ def _ablation_weights(name: str) -> Path:
     return path
 
 
+@register("gvn_v2")
+class GvnV2Explorer(GvnExplorer):
+    """The v2 recipe's GVN (training/gvn_v2.yaml: time reward, path-aware features, a
+    residual on the nearest-node rule), its shipped weights
+    ``training/gvn_v2_policy.safetensors``, run with the mask."""
+
+    def __init__(self, policy: str | os.PathLike | None = None,
+                 deterministic: bool = True) -> None:
+        super().__init__(policy or _shipped_weights("gvn_v2"), masking=True,
+                         deterministic=deterministic)
+
+
 @register("gvn_naive")
 class GvnNaiveExplorer(GvnExplorer):
     """The "naive masking" ablation: a policy trained with masked sampling but an unmasked
@@ -144,7 +156,7 @@ class GvnNaiveExplorer(GvnExplorer):
 
     def __init__(self, policy: str | os.PathLike | None = None,
                  deterministic: bool = True) -> None:
-        super().__init__(policy or _ablation_weights("gvn_naive"), masking=True,
+        super().__init__(policy or _shipped_weights("gvn_naive"), masking=True,
                          deterministic=deterministic)
 
 
@@ -155,5 +167,5 @@ class GvnNoMaskingExplorer(GvnExplorer):
 
     def __init__(self, policy: str | os.PathLike | None = None,
                  deterministic: bool = True) -> None:
-        super().__init__(policy or _ablation_weights("gvn_none"), masking=False,
+        super().__init__(policy or _shipped_weights("gvn_none"), masking=False,
                          deterministic=deterministic)
