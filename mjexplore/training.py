@@ -287,7 +287,7 @@ def make_model(config: TrainConfig, venv, seed: int, tensorboard_log: str | None
 
 def set_phase_threads(config: TrainConfig, updating: bool) -> None:
     """torch's intra-op threads for a PPO update (``update_threads``) or a rollout."""
-    torch.set_num_threads(config.update_threads or config.torch_threads if updating
+    torch.set_num_threads((config.update_threads or config.torch_threads) if updating
                           else config.torch_threads)
 
 
