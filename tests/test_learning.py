@@ -488,8 +488,10 @@ def _train_cli(args, **kw):
                            *args], capture_output=True, text=True, **kw)
 
 
-def test_training_with_minibatch_runs_and_update_threads(tmp_path, monkeypatch):
+def test_training_with_minibatch_runs_update_threads_and_a_privileged_critic(tmp_path,
+                                                                              monkeypatch):
     from mjexplore import rollout_blocks
+    from mjexplore.policies.weights import load_policy
     from mjexplore.training import train
 
     threads_in_updates = []
@@ -502,13 +504,19 @@ def test_training_with_minibatch_runs_and_update_threads(tmp_path, monkeypatch):
     monkeypatch.setattr(rollout_blocks.BlockDictRolloutBuffer, "get", counted_get)
     cfg = tmp_path / "tiny.yaml"
     cfg.write_text(TINY.format(total=16, n_envs=1).replace(
-        "n_epochs: 1}", "n_epochs: 2, minibatch_block: 4}") + "update_threads: 2\n")
+        "n_epochs: 1}", "n_epochs: 2, minibatch_block: 4}").replace(
+        "memory_length: 3}", "memory_length: 3, features: v2, privileged: true}")
+        + "update_threads: 2\n")
     config = load_train_config(cfg)
     assert (config.ppo.minibatch_block, config.update_threads) == (4, 2)
+    assert config.env.observation.privileged
     result = train(config, tmp_path / "run", progress=False)
     assert result["num_timesteps"] == 16
     assert threads_in_updates == [2] * 4  # Two updates of two epochs.
     assert torch.get_num_threads() == config.torch_threads
+    policy, meta = load_policy(result["weights"], expected_kind="gvn")
+    assert meta["decisions"].config.privileged
+    assert policy.mlp_extractor.critic[0].in_features == 2 * 16 + 2
 
 
 def test_train_flags_replace_the_configs_steps_and_envs(tmp_path, capsys):
