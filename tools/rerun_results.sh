@@ -2,15 +2,15 @@
 # Re-runs the experiments of docs/results.md at one committed revision, in a worktree of it
 # (so the runs record that revision, clean, whatever the checkout holds meanwhile).
 #
-# Usage: tools/rerun_results.sh REV WORKERS [table1 explore_bench ariadne ablation lobby_real
-#        realistic]
+# Usage: tools/rerun_results.sh REV WORKERS [table1 gvn_v2 explore_bench ariadne ablation
+#        lobby_real realistic]
 # Runs go to runs/rerun_REV/<experiment>; started again, bench skips the finished episodes.
 # Then: mjexplore collect runs/rerun_REV/<experiment> --experiment <experiment> and
 # mjexplore report. Needs ../shared/data (the Explore-Bench and ARiADNE maps).
 set -eu
 [ $# -ge 2 ] || { echo "usage: $0 REV WORKERS [EXPERIMENT...]" >&2; exit 2; }
 REV=$(git rev-parse --short "$1"); W=$2; shift 2
-EXPERIMENTS=${*:-table1 explore_bench ariadne ablation lobby_real realistic}
+EXPERIMENTS=${*:-table1 gvn_v2 explore_bench ariadne ablation lobby_real realistic}
 ROOT=$(git rev-parse --show-toplevel)
 SHARED=$(cd "$ROOT/../shared" && pwd)
 WT=$ROOT/runs/wt_$REV
@@ -27,6 +27,8 @@ for e in $EXPERIMENTS; do
   case $e in
     table1) mj bench --scenes loop_with_corridor,maze,office --explorers $ALL --seeds 10 \
               --workers "$W" --out "$OUT/table1" ;;
+    gvn_v2) mj bench --scenes loop_with_corridor,maze,office --explorers nearest,potential,gvn_v2 \
+              --seeds 5 --workers "$W" --out "$OUT/gvn_v2" ;;
     explore_bench) mj bench --scenes "$EB" --explorers $ALL --seeds 2 --lidar-range 7 \
               --workers "$W" --out "$OUT/explore_bench" ;;
     realistic) mj bench --scenes loop_with_corridor,maze,office --explorers $ALL --seeds 5 \
