@@ -463,9 +463,13 @@ class NearestNodeRule:
         return int(np.argmax(logits)), None
 
 
-def _eval_score(results: list[dict[str, Any]]) -> float:
-    """How good a held-out evaluation is: mean coverage first, then mean speed."""
-    return (float(np.mean([r["exploration_ratio"] for r in results])) * 1e4
+def eval_score(results: list[dict[str, Any]]) -> float:
+    """How good a held-out evaluation is: mean coverage first, then mean speed. An explored
+    episode counts as full coverage: what it saw past the target ratio (the last scan's
+    overshoot) says nothing of the policy."""
+    coverage = [1.0 if r["end_reason"] == "explored" else r["exploration_ratio"]
+                for r in results]
+    return (float(np.mean(coverage)) * 1e4
             - float(np.mean([r["exploration_time_s"] for r in results])))
 
 
@@ -474,7 +478,7 @@ def _best_score(path: Path) -> float | None:
     if not path.is_file():
         return None
     try:
-        return _eval_score(read_policy_weights(path)[1]["provenance"]["eval"])
+        return eval_score(read_policy_weights(path)[1]["provenance"]["eval"])
     except (UserInputError, KeyError, TypeError):
         return None  # Unreadable: the next evaluation replaces it.
 
@@ -586,7 +590,7 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
                 for r in results:
                     f.write(f"{n},{r['scene']},{r['exploration_time_s']},{r['path_length_m']},"
                             f"{r['exploration_ratio']},{r['end_reason']}\n")
-            score = _eval_score(results)
+            score = eval_score(results)
             if best["score"] is None or score > best["score"]:
                 best["score"] = score
                 export("best.safetensors", n, {"eval": results})

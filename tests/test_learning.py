@@ -733,3 +733,16 @@ def test_env_without_a_valid_action_goes_on_with_the_engines_fallback(monkeypatc
     ep = env.episode
     assert ep.end_reason == "explored"
     assert ep.result().metrics["fallbacks"] > 0
+
+
+def test_model_selection_scores_coverage_up_to_the_target_then_speed():
+    from mjexplore.training import eval_score
+
+    def runs(*rows):
+        return [{"end_reason": end, "exploration_ratio": ratio, "exploration_time_s": t}
+                for end, ratio, t in rows]
+
+    faster = runs(("explored", 0.9855, 300.0), ("explored", 0.986, 400.0))
+    overshooting = runs(("explored", 0.992, 301.0), ("explored", 0.995, 401.0))
+    short = runs(("explored", 0.99, 100.0), ("time_limit", 0.97, 1800.0))
+    assert eval_score(faster) > eval_score(overshooting) > eval_score(short)
