@@ -1,5 +1,10 @@
 """The shipped v2 GVN against the nearest-node rule on layouts no training or model selection
-saw: a regression in training, features or the env fails here (simulated time, not wall)."""
+saw: a regression in the policy, its features or the env fails here (simulated time, not
+wall).
+
+These eight layouts pin what the shipped weights do, not a general lead: on the 32 layouts
+past the model-selection set (these eight among them) they took 355.5 s on average against
+the rule's 351.3 (15 faster, 16 slower, one tie; all explored), at revision 2d0a79d."""
 
 from pathlib import Path
 
@@ -16,7 +21,7 @@ UNSEEN = 8
 
 
 @pytest.mark.slow
-def test_shipped_v2_policy_beats_the_nearest_node_rule_on_unseen_layouts():
+def test_shipped_v2_policy_is_faster_than_the_rule_on_eight_unseen_layouts():
     policy, meta = load_policy(WEIGHTS, expected_kind="gvn")
     config = from_dict(TrainConfig, meta["provenance"]["config"])
     assert config.env.observation.features == "v2"
