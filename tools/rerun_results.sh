@@ -28,7 +28,7 @@ for e in $EXPERIMENTS; do
     table1) mj bench --scenes loop_with_corridor,maze,office --explorers $ALL --seeds 10 \
               --workers "$W" --out "$OUT/table1" ;;
     gvn_v2) mj bench --scenes loop_with_corridor,maze,office --explorers nearest,potential,gvn_v2 \
-              --seeds 5 --workers "$W" --out "$OUT/gvn_v2" ;;
+              --seeds 10 --workers "$W" --out "$OUT/gvn_v2" ;;
     explore_bench) mj bench --scenes "$EB" --explorers $ALL --seeds 2 --lidar-range 7 \
               --workers "$W" --out "$OUT/explore_bench" ;;
     realistic) mj bench --scenes loop_with_corridor,maze,office --explorers $ALL --seeds 5 \

@@ -81,9 +81,9 @@ EXPERIMENTS = (
                "costs and reachability per node, a residual on the nearest-node rule; "
                "trained in the grid world on generated layouts, selected on held-out ones) "
                "beside nearest-frontier and the potential field, run by the same revision in "
-               "full physics on Table 1's scenes, 5 runs each.",
+               "full physics on Table 1's scenes, 10 runs each.",
                ("nearest", "potential", "gvn_v2"),
-               f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 5 "
+               f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 10 "
                "--workers 2 --out runs/gvn_v2"),
     Experiment("ablation", "Table 2: invalid action masking",
                "The ablation of the paper's Table 2 on the loop and maze scenes, 5 runs each: "
