@@ -579,8 +579,8 @@ def build_parser() -> argparse.ArgumentParser:
         "collect", help="summarise a bench sweep for the results report",
         description="Keep what the report needs from a sweep's run folders (metrics, ratio "
                     "curves every 2 s, kinematic statistics) in DATA/EXPERIMENT.json, small "
-                    "enough to commit. Experiments the report knows: table1, ablation, "
-                    "lobby_real, explore_bench, ariadne.")
+                    "enough to commit. Experiments the report knows: table1, gvn_v2, "
+                    "ablation, lobby_real, realistic, explore_bench, ariadne.")
     co.add_argument("sweep", type=Path, help="the sweep's --out folder")
     co.add_argument("--experiment", required=True, help="summary name (e.g. table1)")
     co.add_argument("--data", type=Path, default=Path("docs/results/data"),
