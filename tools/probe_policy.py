@@ -13,13 +13,17 @@ layouts and training-mode dynamics) on held-out seeds with three ways to choose 
 Every mode sees the same layouts and start poses: episode seed ``--seed-base + i`` (training
 draws its layouts from the config's seed, so these are unseen layouts of the same
 distribution), or with ``--heldout`` the config's model-selection layouts (``eval``: the
-generated layouts training never draws, its episode settings and seed; one episode each).
+generated layouts training never draws, its episode settings and seed; one episode each),
+or with ``--unseen N`` the N generated layouts after those (the same generator seeds'
+sequence, seen by neither training nor model selection; evaluation settings as
+``--heldout``). Without ``--config`` the config is the one stored with the weights.
 Prints one JSON line: per mode the mean return, simulated exploration time (s), path length
 (m) and how many episodes were explored, and ``learned_fraction``, where the policy's mean
 return lies between random (0) and greedy (1).
 
-Usage: python tools/probe_policy.py --config training/cnn.yaml \
-    --weights training/cnn_policy.safetensors [--episodes 10] [--heldout] [--workers 2]
+Usage: python tools/probe_policy.py --weights training/cnn_policy.safetensors
+    [--config training/cnn.yaml] [--episodes 10 | --heldout | --unseen 32]
+    [--modes policy,random,greedy] [--workers 2]
 """
 
 from __future__ import annotations
@@ -31,17 +35,28 @@ import multiprocessing as mp
 MODES = ("policy", "random", "greedy")
 
 
-def _episode(job: tuple[str, str, str, int, str | None]) -> dict:
+def _config(config_path: str | None, weights: str):
+    """The training config of ``--config``, or the one the weights were trained with."""
+    from mjexplore.config import from_dict
+    from mjexplore.policies.weights import read_policy_weights
+    from mjexplore.training import TrainConfig, load_train_config
+
+    if config_path is not None:
+        return load_train_config(config_path)
+    return from_dict(TrainConfig, read_policy_weights(weights)[1]["provenance"]["config"])
+
+
+def _episode(job: tuple[str | None, str, str, int, str | None]) -> dict:
     import numpy as np
     import torch
 
     from mjexplore.envs import ExplorationEnv
     from mjexplore.policies.weights import load_policy
-    from mjexplore.training import NearestNodeRule, heldout_env, load_train_config
+    from mjexplore.training import NearestNodeRule, heldout_env
 
     config_path, weights, mode, seed, scene = job
     torch.set_num_threads(1)
-    config = load_train_config(config_path)
+    config = _config(config_path, weights)
     env = ExplorationEnv(config.env) if scene is None else heldout_env(config, scene)
     policy = load_policy(weights, expected_kind=config.kind)[0] if mode == "policy" else None
     along_map = config.env.observation.features == "v2" and config.kind == "gvn"
@@ -73,37 +88,56 @@ def _episode(job: tuple[str, str, str, int, str | None]) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--config", required=True, help="training YAML (its env is used)")
+    parser.add_argument("--config", help="training YAML (its env is used; default: the "
+                                         "config stored with the weights)")
     parser.add_argument("--weights", required=True, help="exported policy (.safetensors)")
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--seed-base", type=int, default=10_000)
     parser.add_argument("--heldout", action="store_true",
                         help="the config's model-selection layouts instead of --episodes")
+    parser.add_argument("--unseen", type=int, default=0,
+                        help="this many generated layouts past the model-selection ones")
+    parser.add_argument("--modes", default=",".join(MODES),
+                        help=f"comma-separated, of {', '.join(MODES)}")
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
+    modes = [m for m in args.modes.split(",") if m]
+    if not modes or set(modes) - set(MODES):
+        parser.error(f"--modes takes {', '.join(MODES)}")
 
-    if args.heldout:
-        from mjexplore.training import load_train_config
+    if args.heldout or args.unseen:
+        from mjexplore.envs.exploration import heldout_scenes
 
-        config = load_train_config(args.config)
-        episodes = [(config.eval.seed, scene) for scene in config.eval.scene_list()]
+        evaluation = _config(args.config, args.weights).eval
+        if args.unseen:
+            scenes = heldout_scenes(evaluation.procedural, evaluation.layouts + args.unseen,
+                                    evaluation.seed)[evaluation.layouts:]
+        else:
+            scenes = evaluation.scene_list()
+        episodes = [(evaluation.seed, scene) for scene in scenes]
     else:
         episodes = [(args.seed_base + i, None) for i in range(args.episodes)]
     jobs = [(args.config, args.weights, mode, seed, scene)
-            for seed, scene in episodes for mode in MODES]
+            for seed, scene in episodes for mode in modes]
     with mp.get_context("spawn").Pool(args.workers) as pool:
         rows = pool.map(_episode, jobs, chunksize=1)
-    figures: dict = {"config": args.config, "weights": args.weights,
-                     "episodes": len(episodes),
-                     "layouts": "heldout" if args.heldout else f"seeds from {args.seed_base}"}
-    for mode in MODES:
+    layouts = (f"{args.unseen} past model selection" if args.unseen else
+               "heldout" if args.heldout else f"seeds from {args.seed_base}")
+    figures: dict = {"config": args.config or "stored with the weights",
+                     "weights": args.weights, "episodes": len(episodes), "layouts": layouts}
+    for mode in modes:
         mine = [r for r in rows if r["mode"] == mode]
         for key in ("return", "exploration_time_s", "path_length_m"):
             figures[f"{mode}_{key}"] = round(sum(r[key] for r in mine) / len(mine), 3)
         figures[f"{mode}_explored"] = sum(r["explored"] for r in mine)
-    span = figures["greedy_return"] - figures["random_return"]
-    figures["learned_fraction"] = (round((figures["policy_return"] - figures["random_return"])
-                                         / span, 3) if span else None)
+    if set(MODES) <= set(modes):
+        span = figures["greedy_return"] - figures["random_return"]
+        figures["learned_fraction"] = (round((figures["policy_return"]
+                                              - figures["random_return"]) / span, 3)
+                                       if span else None)
+    if {"policy", "greedy"} <= set(modes):
+        figures["policy_over_greedy_time"] = round(figures["policy_exploration_time_s"]
+                                                   / figures["greedy_exploration_time_s"], 3)
     print(json.dumps(figures))
 
 
