@@ -51,6 +51,22 @@ def test_unknown_is_not_traversable_and_incremental_costs_match():
     assert costmap.plan(np.array([2.0, 1.0]), np.array([8.5, 1.0])) is not None
 
 
+def test_distance_field_by_buckets_equals_the_heap_search():
+    rng = np.random.default_rng(4)
+    grid = room_with_wall()
+    for r, c in rng.integers(2, [56, 96], size=(25, 2)):  # Boxes: costs vary near walls.
+        grid.data[r:r + 3, c:c + 2] = OCCUPIED
+    grid.data[20:40, 75:90] = UNKNOWN
+    costmap, _ = costmap_of(grid)
+    for xy in ([1.5, 1.0], [8.0, 5.0], [5.2, 5.5]):
+        buckets = costmap.distances_from(np.array(xy))  # Every cell: the bucket queue.
+        heap = costmap.distances_from(np.array(xy), np.zeros(grid.shape, bool))  # The heap.
+        reached = np.isfinite(heap)
+        assert reached.sum() > 3000
+        np.testing.assert_array_equal(np.isfinite(buckets), reached)
+        np.testing.assert_allclose(buckets[reached], heap[reached], rtol=1e-12)
+
+
 def test_distances_from_stop_at_first_target():
     grid = room_with_wall()
     costmap, _ = costmap_of(grid)
