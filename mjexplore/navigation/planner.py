@@ -157,8 +157,8 @@ def _bucket_search(cost, start, rows, cols, dist, stamp, search_id, cells, nexts
                 cells, nexts = grown_cells, grown_nexts
             r0, c0 = s // cols, s % cols
             ds = dist[s]
-            # The relaxation of _search, written out: an inlined shared helper timed the
-            # A* of both kernels' hot loop no faster and up to 10 % slower.
+            # _search's relaxation, written out: with an inlined helper shared by both,
+            # A* timed up to 10 % slower.
             for j in range(8):
                 rr, cc = r0 + _DR[j], c0 + _DC[j]
                 if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
