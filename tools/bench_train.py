@@ -151,6 +151,9 @@ def main() -> None:
                        ariadne_ms_per_decision=ARIADNE_MS_PER_DECISION,
                        speedup_vs_ariadne=round(ARIADNE_MS_PER_DECISION / (topo + pol), 1))
         out[f"{mode}_bench_wall_s"] = round(wall, 1)
+    from mjexplore.memory import reuse_freed_memory
+
+    reuse_freed_memory()  # As mjexplore train sets it for its learner.
     t = time.perf_counter()
     kinematic = ppo_round("kinematic")
     ppo = ppo_round("grid")
