@@ -10,6 +10,10 @@ layouts and training-mode dynamics) on held-out seeds with three ways to choose 
   ranks by), otherwise the one placed nearest in a straight line (for the grid decisions,
   roughly the nearest frontier).
 
+With ``--heldout`` or ``--unseen``, a classic explorer's name (``nearest``, ``oracle``, ...) is
+a mode too: that explorer drives the same episode (layout, start pose, seed and settings)
+on its own, a reference such as the ground-truth bound; it has no return.
+
 Every mode sees the same layouts and start poses: episode seed ``--seed-base + i`` (training
 draws its layouts from the config's seed, so these are unseen layouts of the same
 distribution), or with ``--heldout`` the config's model-selection layouts (``eval``: the
@@ -23,7 +27,7 @@ return lies between random (0) and greedy (1).
 
 Usage: python tools/probe_policy.py --weights training/cnn_policy.safetensors
     [--config training/cnn.yaml] [--episodes 10 | --heldout | --unseen 32]
-    [--modes policy,random,greedy] [--workers 2]
+    [--modes policy,random,greedy[,nearest,oracle]] [--workers 2]
 """
 
 from __future__ import annotations
@@ -58,6 +62,18 @@ def _episode(job: tuple[str | None, str, str, int, str | None]) -> dict:
     torch.set_num_threads(1)
     config = _config(config_path, weights)
     env = ExplorationEnv(config.env) if scene is None else heldout_env(config, scene)
+    if mode not in MODES:  # A classic explorer on the episode the env would run.
+        from mjexplore.episode import Episode
+        from mjexplore.explorers import make_explorer
+
+        env.reset(seed=seed)
+        ep = env.episode
+        metrics = Episode(ep.scene, make_explorer(mode), ep.sim.config.seed,
+                          ep.config).run().metrics
+        return {"mode": mode, "seed": seed, "scene": scene, "return": None,
+                "exploration_time_s": metrics["exploration_time_s"],
+                "path_length_m": metrics["path_length_m"],
+                "explored": metrics["end_reason"] == "explored"}
     policy = load_policy(weights, expected_kind=config.kind)[0] if mode == "policy" else None
     along_map = config.env.observation.features == "v2" and config.kind == "gvn"
     rng = np.random.default_rng(seed)
@@ -102,8 +118,20 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
     modes = [m for m in args.modes.split(",") if m]
-    if not modes or set(modes) - set(MODES):
-        parser.error(f"--modes takes {', '.join(MODES)}")
+    if not modes:
+        parser.error(f"--modes takes {', '.join(MODES)} (and, with --heldout or --unseen, "
+                     "explorer names)")
+    explorers = sorted(set(modes) - set(MODES))
+    if explorers and not (args.heldout or args.unseen):
+        parser.error("explorer modes need --heldout or --unseen (a given layout)")
+    for name in explorers:
+        from mjexplore.errors import UserInputError
+        from mjexplore.explorers import make_explorer
+
+        try:
+            make_explorer(name)
+        except UserInputError as exc:
+            parser.error(f"--modes: {exc}")
 
     if args.heldout or args.unseen:
         from mjexplore.envs.exploration import heldout_scenes
@@ -128,7 +156,8 @@ def main() -> None:
     for mode in modes:
         mine = [r for r in rows if r["mode"] == mode]
         for key in ("return", "exploration_time_s", "path_length_m"):
-            figures[f"{mode}_{key}"] = round(sum(r[key] for r in mine) / len(mine), 3)
+            if mine[0][key] is not None:
+                figures[f"{mode}_{key}"] = round(sum(r[key] for r in mine) / len(mine), 3)
         figures[f"{mode}_explored"] = sum(r["explored"] for r in mine)
     if set(MODES) <= set(modes):
         span = figures["greedy_return"] - figures["random_return"]
