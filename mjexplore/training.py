@@ -156,6 +156,17 @@ class EvalConfig:
             return self.scenes
         return heldout_scenes(self.procedural, self.layouts, self.seed)
 
+    def unseen_scenes(self, count: int) -> tuple[str, ...]:
+        """``count`` generated layouts after the model-selection ones (the same draw, seen
+        by neither training nor model selection): where a selected policy is tested.
+
+        Raises:
+            ValueError: No ``procedural`` layouts to draw them from.
+        """
+        if self.procedural is None:
+            raise ValueError("unseen layouts need eval.procedural")
+        return heldout_scenes(self.procedural, self.layouts + count, self.seed)[self.layouts:]
+
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class TrainConfig:

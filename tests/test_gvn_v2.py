@@ -473,6 +473,10 @@ def test_model_selection_uses_held_out_layouts(tmp_path, caplog):
     seeds = [int(Path(s).name.rsplit("_s", 1)[1]) for s in first]
     assert all(s >= HELDOUT_SEED_BASE for s in seeds)  # Training draws below 2**31 - 1.
     assert EvalConfig(procedural=proc, layouts=2).scene_list() == first
+    unseen = EvalConfig(procedural=proc, layouts=1).unseen_scenes(2)
+    assert unseen == (first[1], heldout_scenes(proc, 3, seed=0)[2])  # After the selection.
+    with pytest.raises(ValueError, match="eval.procedural"):
+        EvalConfig(scenes=("train_loop",)).unseen_scenes(2)
     with caplog.at_level(logging.WARNING, logger="mjexplore.training"):
         EvalConfig(scenes=("office",))
     assert "office" in caplog.text and "eval.procedural" in caplog.text

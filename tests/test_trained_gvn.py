@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from mjexplore.config import from_dict
-from mjexplore.envs.exploration import heldout_scenes
 from mjexplore.policies.weights import load_policy
 from mjexplore.training import NearestNodeRule, TrainConfig, evaluate_policy_episodes
 
@@ -27,9 +26,7 @@ def test_shipped_v2_policy_is_faster_than_the_rule_on_eight_unseen_layouts():
     assert config.env.observation.features == "v2"
     # The held-out generator seeds past the model-selection set: layouts of the training
     # families and sizes that neither training nor the choice of these weights saw.
-    selection = config.eval.layouts
-    scenes = heldout_scenes(config.eval.procedural, selection + UNSEEN,
-                            config.eval.seed)[selection:]
+    scenes = config.eval.unseen_scenes(UNSEEN)
     learned = evaluate_policy_episodes(policy, config, scenes)
     rule = evaluate_policy_episodes(NearestNodeRule(), config, scenes)
     assert all(r["end_reason"] == "explored" for r in learned + rule)

@@ -25,9 +25,10 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=4)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    from mjexplore.training import NearestNodeRule, _make_env, load_train_config
+    from mjexplore.envs import ExplorationEnv
+    from mjexplore.training import NearestNodeRule, load_train_config
 
-    env = _make_env(load_train_config("training/gvn_v2.yaml").env)()
+    env = ExplorationEnv(load_train_config("training/gvn_v2.yaml").env)
     rule = NearestNodeRule()
     times: dict[str, list[float]] = {"buckets": [], "heap": []}
     worst = 0.0

@@ -70,10 +70,7 @@ def _episode(job: tuple[str | None, str, str, int, str | None]) -> dict:
         ep = env.episode
         metrics = Episode(ep.scene, make_explorer(mode), ep.sim.config.seed,
                           ep.config).run().metrics
-        return {"mode": mode, "seed": seed, "scene": scene, "return": None,
-                "exploration_time_s": metrics["exploration_time_s"],
-                "path_length_m": metrics["path_length_m"],
-                "explored": metrics["end_reason"] == "explored"}
+        return _row(mode, seed, scene, None, metrics)
     policy = load_policy(weights, expected_kind=config.kind)[0] if mode == "policy" else None
     along_map = config.env.observation.features == "v2" and config.kind == "gvn"
     rng = np.random.default_rng(seed)
@@ -95,7 +92,11 @@ def _episode(job: tuple[str | None, str, str, int, str | None]) -> dict:
         obs, reward, terminated, truncated, info = env.step(int(action))
         total += reward
         done = terminated or truncated
-    metrics = env.episode.result().metrics
+    return _row(mode, seed, scene, total, env.episode.result().metrics)
+
+
+def _row(mode: str, seed: int, scene: str | None, total: float | None,
+         metrics: dict) -> dict:
     return {"mode": mode, "seed": seed, "scene": scene, "return": total,
             "exploration_time_s": metrics["exploration_time_s"],
             "path_length_m": metrics["path_length_m"],
@@ -134,14 +135,9 @@ def main() -> None:
             parser.error(f"--modes: {exc}")
 
     if args.heldout or args.unseen:
-        from mjexplore.envs.exploration import heldout_scenes
-
         evaluation = _config(args.config, args.weights).eval
-        if args.unseen:
-            scenes = heldout_scenes(evaluation.procedural, evaluation.layouts + args.unseen,
-                                    evaluation.seed)[evaluation.layouts:]
-        else:
-            scenes = evaluation.scene_list()
+        scenes = (evaluation.unseen_scenes(args.unseen) if args.unseen
+                  else evaluation.scene_list())
         episodes = [(evaluation.seed, scene) for scene in scenes]
     else:
         episodes = [(args.seed_base + i, None) for i in range(args.episodes)]
