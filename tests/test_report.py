@@ -81,6 +81,22 @@ def test_the_realistic_setting_shows_pose_errors_beside_the_ideal_one(sweep, tmp
     assert "| train_loop | nearest | 2 | 0.000 +- 0.000 | 0.000 +- 0.000 |" in section
     beside = section[section.index("Beside the ideal setting"):]
     assert "| train_loop | potential |" in beside and beside.count("| train_loop |") == 2
+    assert "by where the robot believes it is" not in section  # No companion sweep yet.
+
+
+def test_the_realistic_setting_shows_nearest_under_each_localization(sweep, tmp_path):
+    data = tmp_path / "data"
+    for name in ("realistic", "realistic_odometry"):
+        write_summary(collect_sweep(sweep, name), data / f"{name}.json")
+    text = build_report(data, tmp_path / "results.md").read_text()
+    section = text[text.index("## Sensing and localisation as on the real robot"):]
+    table = section[section.index("by where the robot believes it is"):]
+    assert "| scene | localisation | explored | ET (s) | IoU | pose RMSE (m) |" in table
+    assert "| train_loop | scan matching | 2/2 |" in table or \
+        "| train_loop | scan matching | 0/2 |" in table
+    assert "| train_loop | odometry |" in table and "ground truth" not in table.split("##")[0]
+    assert "## Realistic sensing with odometry alone" in text
+    assert "--localization ground_truth" in text  # realistic_truth: listed as not yet run.
 
 
 def test_collect_refuses_a_sweep_that_mixes_settings(sweep, tmp_path):

@@ -115,6 +115,20 @@ EXPERIMENTS = (
                f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 5 "
                "--lidar-model lds01 --odometry-error typical --localization scan_matching "
                "--max-time 3600 --workers 2 --out runs/realistic"),
+    Experiment("realistic_truth", "Realistic sensing at the true pose",
+               "nearest with the realistic setting's LDS-01 and odometry error, but mapping, "
+               "navigating and ending the episode at the true pose: what a perfect localiser "
+               "would give (the IoU the realistic runs are measured against).", ("nearest",),
+               f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 5 "
+               "--lidar-model lds01 --odometry-error typical --localization ground_truth "
+               "--max-time 3600 --workers 2 --out runs/realistic_truth"),
+    Experiment("realistic_odometry", "Realistic sensing with odometry alone",
+               "nearest with the realistic setting's LDS-01 and odometry error, the robot "
+               "dead-reckoning its pose from the wheel odometry (no scan matching): how much "
+               "worse it gets without localisation.", ("nearest",),
+               f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 5 "
+               "--lidar-model lds01 --odometry-error typical --localization odometry "
+               "--max-time 3600 --workers 2 --out runs/realistic_odometry"),
     Experiment("explore_bench", "Generalisation: the Explore-Bench maps",
                "The six Explore-Bench maps (ROS map_server maps imported as MJCF, 7 m lidar), "
                "which no policy was trained on.",
@@ -182,6 +196,29 @@ def _beside_ideal(groups, ideal) -> str:
             rows.append(row)
     return markdown_table(["scene", "method", "explored", "ET (s)", "IoU", "ideal: explored",
                            "ideal: ET (s)", "ideal: IoU"], rows)
+
+
+# The realistic setting's companion sweeps: nearest with the same sensing, localised
+# otherwise.
+LOCALIZATION_RUNS = {"realistic_truth": "ground truth", "realistic_odometry": "odometry"}
+
+
+def _by_localization(settings: dict[str, dict], method: str = "nearest") -> str:
+    """Explored runs, ET, IoU and pose error of ``method`` on each scene under each
+    localisation (``settings``: label -> the sweep's groups)."""
+    rows = []
+    scenes = dict.fromkeys(scene for groups in settings.values() for scene in groups)
+    for scene in scenes:
+        for label, groups in settings.items():
+            runs = groups.get(scene, {}).get(method, [])
+            if not runs:
+                continue
+            explored = sum(r["metrics"]["end_reason"] == "explored" for r in runs)
+            rows.append([scene, label, f"{explored}/{len(runs)}"] + [
+                format_mean_std([r["metrics"].get(key) for r in runs])
+                for key in ("exploration_time_s", "iou", "pose_error_rmse_m")])
+    return markdown_table(["scene", "localisation", "explored", "ET (s)", "IoU",
+                           "pose RMSE (m)"], rows)
 
 
 def _lingering_rule(episode: dict) -> str:
@@ -421,6 +458,13 @@ def build_report(data_dir: str | os.PathLike, out: str | os.PathLike,
         if exp.name == "realistic" and "table1" in summaries:
             lines += ["Beside the ideal setting (Table 1's runs: ideal lidar, ground-truth "
                       "pose):", "", _beside_ideal(groups, _groups(summaries["table1"])), ""]
+        if exp.name == "realistic" and LOCALIZATION_RUNS.keys() & summaries.keys():
+            lines += ["nearest with the same sensing, by where the robot believes it is "
+                      "(the companion sweeps below):", "",
+                      _by_localization({"scan matching": groups} | {
+                          label: _groups(summaries[name])
+                          for name, label in LOCALIZATION_RUNS.items() if name in summaries}),
+                      ""]
         ran = {m for methods in groups.values() for m in methods}
         absent = tuple(m for m in exp.methods if m not in ran)
         if absent:
@@ -451,7 +495,7 @@ def _section(name: str, summary, groups, figures: Path, rel: str) -> list[str]:
         return [relative_table(groups), "", reference_table(summary), "",
                 _other_ends(groups, episode=summary.get("episode")), ""] + \
             ([note, ""] if note else [])
-    if name == "realistic":
+    if name in ("realistic", "realistic_odometry"):  # At the true pose the error is 0.
         return [_table(groups), "", _other_ends(groups, episode=summary.get("episode")), "",
                 "Pose error of the robot's estimate (metres; RMSE and maximum over each "
                 "run's scans):", "", _pose_table(groups), ""]
