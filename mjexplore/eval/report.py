@@ -184,6 +184,12 @@ def _pose_table(groups) -> str:
     return markdown_table(["scene", "method", "runs", "pose RMSE (m)", "pose max (m)"], rows)
 
 
+def _explored(runs: list[dict[str, Any]]) -> str:
+    """'k/n': runs that reached the target ratio, of all."""
+    explored = sum(r["metrics"]["end_reason"] == "explored" for r in runs)
+    return f"{explored}/{len(runs)}"
+
+
 def _beside_ideal(groups, ideal) -> str:
     """Explored runs, ET and IoU of each (scene, method) here and in the ideal setting."""
     rows = []
@@ -191,8 +197,7 @@ def _beside_ideal(groups, ideal) -> str:
         for m, runs in methods.items():
             row = [scene, METHOD_LABELS.get(m, m)]
             for runs_ in (runs, ideal.get(scene, {}).get(m, [])):
-                explored = sum(r["metrics"]["end_reason"] == "explored" for r in runs_)
-                row += [f"{explored}/{len(runs_)}",
+                row += [_explored(runs_),
                         format_mean_std([r["metrics"]["exploration_time_s"] for r in runs_]),
                         format_mean_std([r["metrics"]["iou"] for r in runs_])]
             rows.append(row)
@@ -215,8 +220,7 @@ def _by_localization(settings: dict[str, dict], method: str = "nearest") -> str:
             runs = groups.get(scene, {}).get(method, [])
             if not runs:
                 continue
-            explored = sum(r["metrics"]["end_reason"] == "explored" for r in runs)
-            rows.append([scene, label, f"{explored}/{len(runs)}"] + [
+            rows.append([scene, label, _explored(runs)] + [
                 format_mean_std([r["metrics"].get(key) for r in runs])
                 for key in ("exploration_time_s", "iou", "pose_error_rmse_m")])
     return markdown_table(["scene", "localisation", "explored", "ET (s)", "IoU",

@@ -489,7 +489,7 @@ class FusedLocalizer(ScanMatchingLocalizer):
         super().reset(pose, odom_pose)
         pose_cov = (np.diag([0.01 ** 2, 0.01 ** 2, math.radians(0.5) ** 2])
                     if covariance is None else np.array(covariance, dtype=float))
-        if keep_map and hasattr(self, "_cov"):
+        if keep_map:
             calibration_cov = self._cov[3:, 3:].copy()
         else:
             self._calibration = np.array([1.0, 1.0, 0.0])
@@ -575,10 +575,11 @@ class FusedLocalizer(ScanMatchingLocalizer):
             shape, res, origin = grid.shape, grid.resolution, tuple(grid.origin[:2])
         else:
             shape, res, origin = grid.logodds.shape, grid.config.resolution, tuple(grid.origin)
+        map_res = res
         if cfg.field == "returns":
             # The density has its own, finer cells: a wall's position below a cell of it
             # is lost (see :func:`deposit`), so they are kept well below the map's.
-            map_res, res = res, min(res, cfg.density_resolution)
+            res = min(map_res, cfg.density_resolution)
             dshape = tuple(int(math.ceil(k * map_res / res - 1e-9)) for k in shape)
             if self._density is None or self._density_geometry != (res, origin) or \
                     self._density.shape != dshape:
@@ -606,8 +607,7 @@ class FusedLocalizer(ScanMatchingLocalizer):
                                 points, noise)
         if search:
             angular = min(cfg.search_sigmas * math.sqrt(prior_cov[2, 2]), math.radians(20))
-            coarse = map_res if cfg.field == "returns" else res
-            trinary = _walls_at(field, 0.5 * coarse, coarse)
+            trinary = _walls_at(field, 0.5 * map_res, map_res)
             match = match_scan(sensor_points, trinary, self.sensor_pose, ScanMatcherConfig(
                 linear_window=window, angular_window=max(angular, math.radians(2)),
                 sigma=max(2 * cfg.field_sigma, trinary.resolution), refine_iterations=0,

@@ -149,12 +149,8 @@ def _bucket_search(cost, start, rows, cols, dist, stamp, search_id, cells, nexts
             if stamp[s] == -search_id:
                 continue
             stamp[s] = -search_id
-            if size + 8 > len(cells):
-                grown_cells = np.empty(2 * len(cells), cells.dtype)
-                grown_nexts = np.empty(2 * len(nexts), nexts.dtype)
-                grown_cells[:size] = cells[:size]
-                grown_nexts[:size] = nexts[:size]
-                cells, nexts = grown_cells, grown_nexts
+            if size + 8 > len(cells):  # Room for this cell's neighbours.
+                cells, nexts = _heap_grow(cells, nexts, size, 8)
             r0, c0 = s // cols, s % cols
             ds = dist[s]
             # _search's relaxation, written out: with an inlined helper shared by both,
