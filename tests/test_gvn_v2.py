@@ -311,6 +311,34 @@ def test_inference_reuses_encoded_ters_until_the_weights_change(monkeypatch):
     assert len(gvn.encoded.entries) == 1
 
 
+def test_batched_attention_equals_each_sample_attended_alone():
+    # GVN.attend runs a batch's samples in size groups; each sample's rows must be what
+    # attending to that sample alone gives (an empty sample included).
+    from mjexplore.policies.gvn import ATTENTION_GROUPS
+
+    gvn = _policy(SMALL_V2).features_extractor.gvn
+    n, d = SMALL_V2.max_nodes, gvn.config.hidden
+    counts = [3, 0, n, 1, 7, 2, 5, n - 1, 4, 0]
+    assert len(counts) > ATTENTION_GROUPS
+    node_mask = torch.zeros(len(counts), n)
+    for i, c in enumerate(counts):
+        node_mask[i, :c] = 1
+    real_rows = (node_mask.reshape(-1) > 0).nonzero().squeeze(1)
+    gen = torch.Generator().manual_seed(0)
+    rows = torch.randn(len(real_rows), d, generator=gen)
+    h = torch.randn(len(counts), d, generator=gen)
+    with torch.no_grad():
+        batched = gvn.attend(rows, real_rows, node_mask, h)
+        start = 0
+        for i, c in enumerate(counts):
+            if not c:
+                continue
+            alone = gvn.attend_dense(rows[None, start:start + c], torch.ones(1, c, dtype=bool),
+                                     h[i:i + 1])[0]
+            torch.testing.assert_close(batched[start:start + c], alone, atol=1e-5, rtol=1e-5)
+            start += c
+
+
 def test_v2_uses_edge_lengths_and_global_attention():
     from mjexplore.policies.gvn import LengthConv
 

@@ -119,6 +119,9 @@ def path_prior(node_features: torch.Tensor, temperature: float) -> torch.Tensor:
     return -(path + PRIOR_EXCLUDED_M * excluded.to(path.dtype)) / temperature
 
 
+ATTENTION_GROUPS = 4  # Size groups of a batch's global attention (GVN.attend).
+
+
 def real_positions(real_rows: torch.Tensor, size: int) -> torch.Tensor:
     """(size,) map from a flat slot index to its position among ``real_rows`` (R, their
     count, for padding slots)."""
@@ -280,7 +283,9 @@ class LengthConv(nn.Module):
         lengths in metres -> (R, out)."""
         r = len(target)
         edge = (target > 0).to(h.dtype)
-        neighbours = torch.cat([h.new_zeros(1, h.shape[-1]), h])[target]  # (R, K, in)
+        # index_select rather than indexing: its backward (index_add) is the cheaper one.
+        neighbours = torch.cat([h.new_zeros(1, h.shape[-1]), h]).index_select(
+            0, target.reshape(-1)).view(r, target.shape[1], -1)  # (R, K, in)
         basis = torch.exp(-((lengths[..., None] - self.centres) / self.widths).square())
         basis = basis * (edge / edge.sum(1, keepdim=True).clamp(min=1.0))[..., None]
         messages = torch.einsum("rkb,rki->rbi", basis, neighbours).reshape(r, -1)
@@ -509,9 +514,10 @@ class GVN(nn.Module):
         mean = (rows.new_zeros(m, d).index_add(0, real_rows // n, rows)
                 / node_mask.sum(-1, keepdim=True).clamp(min=1.0))
         chosen_flat = graph * n + choice.long().clamp(0, n - 1)
-        chosen = torch.cat([rows, rows.new_zeros(1, d)])[real_positions(real_rows, m * n)
-                                                         [chosen_flat]]
-        inputs = [mean[graph], chosen] if place is None else [mean[graph], chosen, place]
+        chosen = torch.cat([rows, rows.new_zeros(1, d)]).index_select(
+            0, real_positions(real_rows, m * n)[chosen_flat])
+        mean = mean.index_select(0, graph)
+        inputs = [mean, chosen] if place is None else [mean, chosen, place]
         return self.fragment(torch.cat(inputs, -1))
 
     def memory_from_fragments(self, fragments: torch.Tensor,
@@ -549,7 +555,7 @@ class GVN(nn.Module):
         current_rows = (obs["node_mask"].reshape(-1) > 0).nonzero().squeeze(1)
         # A current TER's real nodes are those of its distinct copy (equal arrays).
         copy_rows = inverse[:, 0][current_rows // n] * n + current_rows % n
-        current = rows[real_positions(real_rows, len(keep) * n)[copy_rows]]
+        current = rows.index_select(0, real_positions(real_rows, len(keep) * n)[copy_rows])
         place = None
         if self.config.features == "v2":
             place = memory_pose_features(obs["memory_pose"], obs["memory_node_features"],
@@ -588,7 +594,7 @@ class GVN(nn.Module):
         b, n = node_mask.shape
         d = rows.shape[-1]
         sample = real_rows // n
-        z = self.node_outputs(rows, h[sample])
+        z = self.node_outputs(rows, h.index_select(0, sample))
         mean = (rows.new_zeros(b, d).index_add(0, sample, z)
                 / node_mask.sum(-1, keepdim=True).clamp(min=1.0))
         # A graph without real nodes keeps the zeros it starts with (as in pool).
@@ -613,17 +619,42 @@ class GVN(nn.Module):
         """:meth:`attend_dense` for rows (R, d) at flat indices real_rows (R,) (sample * N +
         node) of a batch with node_mask (B, N) -> rows (R, d).
 
-        The dense arrays are cut after the last real node of the batch (padding trails the
-        real nodes in a padded TER, so this drops most of it).
+        The samples go through in groups of similar size (:data:`ATTENTION_GROUPS`, by their
+        node count), each group's dense arrays cut after its last real node (padding trails
+        the real nodes in a padded TER): attention's cost grows with the square of the
+        width, and a batch's TERs range from a few nodes to a few hundred.
         """
         b, n = node_mask.shape
         sample, node = real_rows // n, real_rows % n
-        width = int(node.max()) + 1 if len(node) else 0
-        dense = rows.new_zeros(b, width, rows.shape[-1])
-        dense[sample, node] = rows
-        valid = torch.zeros(b, width, dtype=torch.bool, device=rows.device)
-        valid[sample, node] = True
-        return self.attend_dense(dense, valid, h)[sample, node]
+        d = rows.shape[-1]
+        count = torch.zeros(b, dtype=torch.long, device=rows.device).scatter_reduce(
+            0, sample, node + 1, "amax")
+        groups = [members.sort().values for members in torch.tensor_split(
+            torch.argsort(count, stable=True), min(ATTENTION_GROUPS, b)) if len(members)]
+        group = torch.empty(b, dtype=torch.long, device=rows.device)
+        place = torch.empty(b, dtype=torch.long, device=rows.device)
+        for g, members in enumerate(groups):
+            group[members] = g
+            place[members] = torch.arange(len(members), device=rows.device)
+        # The rows ordered by group (then as they were): each group's are one run.
+        by_group = torch.argsort(group[sample] * (b * n) + real_rows)
+        sizes = torch.bincount(group[sample], minlength=len(groups)).tolist()
+        out = []
+        for members, picked in zip(groups, torch.split(by_group, sizes)):
+            width = int(count[members].max())
+            if width == 0:
+                continue  # Samples without nodes: no rows to attend.
+            flat = place[sample[picked]] * width + node[picked]
+            dense = rows.new_zeros(len(members) * width, d).index_copy(
+                0, flat, rows.index_select(0, picked)).view(len(members), width, d)
+            valid = torch.zeros(len(members) * width, dtype=torch.bool,
+                                device=rows.device).index_fill(0, flat, True)
+            attended = self.attend_dense(dense, valid.view(len(members), width),
+                                         h.index_select(0, members))
+            out.append(attended.reshape(-1, d).index_select(0, flat))
+        if not out:
+            return rows.new_zeros(rows.shape)
+        return rows.new_zeros(rows.shape).index_copy(0, by_group, torch.cat(out))
 
     def forward(self, obs: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
         """Batched flat observations (see :mod:`mjexplore.envs.observation`) -> (z, pooled)."""
