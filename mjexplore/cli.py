@@ -397,7 +397,9 @@ def _add_episode_args(p: argparse.ArgumentParser) -> None:
                    help="where the robot believes it is, for everything it does (mapping, "
                         "navigation, goals): the true pose, wheel odometry, or odometry "
                         "corrected by matching each scan against the map; metrics.json gets "
-                        "pose_error_rmse_m and pose_error_max_m")
+                        "pose_error_rmse_m, pose_error_max_m and pose_error_aligned_rmse_m "
+                        "(after the rigid alignment that fits the estimate best: the map's "
+                        "distortion without its frame's offset)")
     p.add_argument("--odometry-error", default="none", choices=["none", "typical"],
                    help="none (the model's exact wheel geometry) or typical (per-seed wheel "
                         "radius and track width errors, wheel slip; see sim/odometry.py)")

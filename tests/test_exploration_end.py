@@ -159,8 +159,9 @@ def test_the_robot_acts_on_its_estimate_and_the_metrics_say_how_far_off_it_was()
     # what the robot used; the metrics report the error.
     assert m["localization"] == "odometry"
     assert 0 < m["pose_error_rmse_m"] <= m["pose_error_max_m"]
+    assert m["pose_error_aligned_rmse_m"] <= m["pose_error_rmse_m"]
     truth = Episode(scene, NearestFrontier(), 3, _config(max_time=30.0)).run().metrics
-    assert truth["pose_error_max_m"] == 0.0
+    assert truth["pose_error_max_m"] == truth["pose_error_aligned_rmse_m"] == 0.0
 
 
 def test_unknown_localization_is_refused():

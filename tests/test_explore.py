@@ -3,7 +3,8 @@ import math
 import numpy as np
 import pytest
 
-from mjexplore.episode import Episode, EpisodeConfig, episode_metrics, first_time_at
+from mjexplore.episode import (Episode, EpisodeConfig, episode_metrics, first_time_at,
+                               pose_errors)
 from mjexplore.explorers import make_explorer
 from mjexplore.explorers.base import ExplorationState
 from mjexplore.navigation.navigator import NavigatorConfig
@@ -68,6 +69,24 @@ def test_metrics_on_a_scripted_trajectory():
     assert m["exploration_ratio"] == pytest.approx(1.0)
     assert m["t80_s"] == pytest.approx(6.5) and m["t985_s"] == pytest.approx(10.0)
     assert m["collisions"] == 2 and m["mean_speed_mps"] == pytest.approx(0.4)
+
+
+def test_aligned_pose_error_sets_the_frame_aside_and_keeps_the_distortion():
+    rng = np.random.default_rng(0)
+    truth = np.cumsum(rng.normal(size=(200, 2)), axis=0)
+    # The same trajectory in a frame turned by 2 degrees and shifted: a large error as is,
+    # none once aligned.
+    a = np.radians(2.0)
+    turned = truth @ np.array([[np.cos(a), np.sin(a)], [-np.sin(a), np.cos(a)]]) + (0.3, -0.2)
+    m = pose_errors(turned, truth)
+    assert m["pose_error_rmse_m"] > 0.3 and m["pose_error_aligned_rmse_m"] < 1e-6
+    # A distortion (a 1 % scale) stays; no rotation fits it away.
+    scaled = pose_errors(truth * 1.01, truth)
+    spread = np.sqrt(((truth - truth.mean(0)) ** 2).sum(1).mean())
+    assert scaled["pose_error_aligned_rmse_m"] == pytest.approx(0.01 * spread, rel=1e-3)
+    # A mirror image is not a rotation: it is not aligned away.
+    assert pose_errors(truth * (1, -1), truth)["pose_error_aligned_rmse_m"] > 1.0
+    assert pose_errors(np.zeros((0, 2)), np.zeros((0, 2)))["pose_error_max_m"] == 0.0
 
 
 class FarGoal:

@@ -83,9 +83,18 @@ def _realistic_section(sweep, tmp_path, companion: str) -> tuple[str, str, dict]
 
 
 def test_the_realistic_setting_shows_pose_errors_beside_the_ideal_one(sweep, tmp_path):
-    _, section, _ = _realistic_section(sweep, tmp_path, "table1")
-    assert "| scene | method | runs | pose RMSE (m) | pose max (m) |" in section
-    assert "| train_loop | nearest | 2 | 0.000 +- 0.000 | 0.000 +- 0.000 |" in section
+    _, section, summary = _realistic_section(sweep, tmp_path, "table1")
+    assert ("| scene | method | runs | pose RMSE (m) | pose max (m) | pose RMSE aligned (m) |"
+            in section)
+    assert "| train_loop | nearest | 2 | 0.000 +- 0.000 | 0.000 +- 0.000 | 0.000 +- 0.000 |" \
+        in section
+    # Runs from before the aligned error existed: no such column.
+    for run in summary["runs"]:
+        del run["metrics"]["pose_error_aligned_rmse_m"]
+    write_summary(summary, tmp_path / "data" / "realistic.json")
+    text = build_report(tmp_path / "data", tmp_path / "results.md").read_text()
+    assert "| scene | method | runs | pose RMSE (m) | pose max (m) |\n" in text
+    assert "aligned" not in text
     beside = section[section.index("Beside the ideal setting"):]
     assert "| train_loop | potential |" in beside and beside.count("| train_loop |") == 2
     assert "by where the robot believes it is" not in section  # No companion sweep yet.
@@ -94,7 +103,8 @@ def test_the_realistic_setting_shows_pose_errors_beside_the_ideal_one(sweep, tmp
 def test_the_realistic_setting_shows_nearest_under_each_localization(sweep, tmp_path):
     text, section, summary = _realistic_section(sweep, tmp_path, "realistic_odometry")
     table = section[section.index("by where the robot believes it is"):]
-    assert "| scene | localisation | explored | ET (s) | IoU | pose RMSE (m) |" in table
+    assert ("| scene | localisation | explored | ET (s) | IoU | pose RMSE (m) | "
+            "pose RMSE aligned (m) |") in table
     nearest = [r for r in summary["runs"] if r["method"] == "nearest"]
     explored = sum(r["metrics"]["end_reason"] == "explored" for r in nearest)
     assert f"| train_loop | scan matching | {explored}/{len(nearest)} |" in table

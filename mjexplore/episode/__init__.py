@@ -4,7 +4,7 @@ and training build on it; it imports nothing above it."""
 
 from mjexplore.episode.engine import (END_REASONS, Episode, EpisodeConfig, EpisodeResult,
                                       Interrupted)
-from mjexplore.episode.metrics import MILESTONES, episode_metrics, first_time_at
+from mjexplore.episode.metrics import MILESTONES, episode_metrics, first_time_at, pose_errors
 
 __all__ = ["END_REASONS", "Episode", "EpisodeConfig", "EpisodeResult", "Interrupted",
-           "MILESTONES", "episode_metrics", "first_time_at"]
+           "MILESTONES", "episode_metrics", "first_time_at", "pose_errors"]

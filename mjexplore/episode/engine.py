@@ -46,7 +46,7 @@ from mjexplore.navigation.navigator import Navigator, NavigatorConfig, NavStatus
 from mjexplore.navigation.planner import Costmap, PlannerConfig
 from mjexplore.errors import UserInputError
 from mjexplore.scenes.scene import SceneFiles, check_start
-from mjexplore.episode.metrics import KnownCounter, episode_metrics
+from mjexplore.episode.metrics import KnownCounter, episode_metrics, pose_errors
 from mjexplore.sim.kinematics import KinematicsLog
 from mjexplore.sim.simulator import SimConfig
 from mjexplore.sim.world import make_world
@@ -206,7 +206,7 @@ class Episode:
             self.localizer = ScanMatchingLocalizer(self.sim.pose, odom_pose=self.sim.odom_pose)
         if self.localizer is not None:
             self._seen = OccupancyMapper.like(gt, MapperConfig(resolution=gt.resolution))
-        self._pose_errors: list[float] = []
+        self._positions: list[tuple[float, float, float, float]] = []  # Estimate, truth.
         self.tracker = TopologyTracker(gt.shape, cfg.topology, gt)
         self.reference = observable_ground_truth(gt)
         self.counter = KnownCounter(self.reference)
@@ -286,7 +286,7 @@ class Episode:
         scan = self._deskewed(scan, slice(8, 11))
         if self.config.localization == "scan_matching":
             loc.correct(scan, self.mapper)
-        self._pose_errors.append(float(np.hypot(*(loc.pose[:2] - truth[:2]))))
+        self._positions.append((loc.pose[0], loc.pose[1], truth[0], truth[1]))
         return scan, loc.sensor_pose
 
     def _integrate(self, scan) -> None:
@@ -612,10 +612,9 @@ class Episode:
                                   self.sim.collisions, self.end_reason or "running")
         metrics["exploration_ratio_check"] = round(
             exploration_ratio(self._seen.grid, self.reference), 5)
-        errors = np.array(self._pose_errors or [0.0])
         metrics["localization"] = self.config.localization
-        metrics["pose_error_rmse_m"] = round(float(np.sqrt(np.mean(errors ** 2))), 4)
-        metrics["pose_error_max_m"] = round(float(errors.max()), 4)
+        positions = np.array(self._positions, np.float64).reshape(-1, 4)
+        metrics.update(pose_errors(positions[:, :2], positions[:, 2:]))
         metrics["decisions"] = len(self.goals)
         metrics["fallbacks"] = self.fallbacks
         metrics["reoffers"] = self.reoffers

@@ -46,6 +46,39 @@ def episode_metrics(curve: np.ndarray, log: KinematicsLog, final_iou: float,
     }
 
 
+def pose_errors(estimated: np.ndarray, truth: np.ndarray) -> dict[str, float]:
+    """Position errors of an estimated trajectory, as is and after the rigid alignment that
+    fits it best to the truth.
+
+    The aligned error is the absolute trajectory error of SLAM benchmarks (Sturm et al.,
+    "A benchmark for the evaluation of RGB-D SLAM systems", IROS 2012: least-squares
+    rotation and translation, Umeyama's closed form in 2-D): what stays once the estimate's
+    frame (a heading error at the start turns the whole map) is set aside, i.e. the
+    distortion of the trajectory and of the map built along it.
+
+    Args:
+        estimated: (n, 2) estimated (x, y) of ``base_link`` in ``map``, metres.
+        truth: (n, 2) the true positions at the same instants.
+
+    Returns:
+        ``pose_error_rmse_m``, ``pose_error_max_m`` and ``pose_error_aligned_rmse_m``
+        (metres; all 0 without samples).
+    """
+    estimated = np.asarray(estimated, np.float64).reshape(-1, 2)
+    truth = np.asarray(truth, np.float64).reshape(-1, 2)
+    if len(truth) == 0:
+        return {"pose_error_rmse_m": 0.0, "pose_error_max_m": 0.0,
+                "pose_error_aligned_rmse_m": 0.0}
+    raw = np.hypot(*(estimated - truth).T)
+    est_c, truth_c = estimated - estimated.mean(0), truth - truth.mean(0)
+    u, _, vt = np.linalg.svd(truth_c.T @ est_c)
+    flip = np.diag([1.0, np.sign(np.linalg.det(u @ vt))])  # A rotation, never a reflection.
+    aligned = np.hypot(*(est_c @ (u @ flip @ vt).T - truth_c).T)
+    return {"pose_error_rmse_m": round(float(np.sqrt(np.mean(raw ** 2))), 4),
+            "pose_error_max_m": round(float(raw.max()), 4),
+            "pose_error_aligned_rmse_m": round(float(np.sqrt(np.mean(aligned ** 2))), 4)}
+
+
 class KnownCounter:
     """Exploration ratio kept up to date from the cells the mapper reports as changed."""
 

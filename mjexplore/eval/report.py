@@ -176,12 +176,22 @@ def _table(groups, rename=None) -> str:
     return markdown_table(header, rows)
 
 
+def _aligned_column(*sweeps) -> list[tuple[str, str]]:
+    """[(metric, column label)] of the aligned pose error when a run of the sweeps' groups
+    has it (runs from before it existed do not), else []."""
+    if any("pose_error_aligned_rmse_m" in r["metrics"] for groups in sweeps
+           for methods in groups.values() for runs in methods.values() for r in runs):
+        return [("pose_error_aligned_rmse_m", "pose RMSE aligned (m)")]
+    return []
+
+
 def _pose_table(groups) -> str:
+    columns = [("pose_error_rmse_m", "pose RMSE (m)"),
+               ("pose_error_max_m", "pose max (m)")] + _aligned_column(groups)
     rows = [[scene, METHOD_LABELS.get(m, m), len(runs)] +
-            [format_mean_std([r["metrics"].get(key) for r in runs])
-             for key in ("pose_error_rmse_m", "pose_error_max_m")]
+            [format_mean_std([r["metrics"].get(key) for r in runs]) for key, _ in columns]
             for scene, methods in groups.items() for m, runs in methods.items()]
-    return markdown_table(["scene", "method", "runs", "pose RMSE (m)", "pose max (m)"], rows)
+    return markdown_table(["scene", "method", "runs"] + [label for _, label in columns], rows)
 
 
 def _explored(runs: list[dict[str, Any]]) -> str:
@@ -215,16 +225,17 @@ def _by_localization(settings: dict[str, dict], method: str = "nearest") -> str:
     localisation (``settings``: label -> the sweep's groups)."""
     rows = []
     scenes = dict.fromkeys(scene for groups in settings.values() for scene in groups)
+    columns = [("exploration_time_s", "ET (s)"), ("iou", "IoU"),
+               ("pose_error_rmse_m", "pose RMSE (m)")] + _aligned_column(*settings.values())
     for scene in scenes:
         for label, groups in settings.items():
             runs = groups.get(scene, {}).get(method, [])
             if not runs:
                 continue
             rows.append([scene, label, _explored(runs)] + [
-                format_mean_std([r["metrics"].get(key) for r in runs])
-                for key in ("exploration_time_s", "iou", "pose_error_rmse_m")])
-    return markdown_table(["scene", "localisation", "explored", "ET (s)", "IoU",
-                           "pose RMSE (m)"], rows)
+                format_mean_std([r["metrics"].get(key) for r in runs]) for key, _ in columns])
+    return markdown_table(["scene", "localisation", "explored"] +
+                          [label for _, label in columns], rows)
 
 
 def _lingering_rule(episode: dict) -> str:
@@ -502,9 +513,14 @@ def _section(name: str, summary, groups, figures: Path, rel: str) -> list[str]:
                 _other_ends(groups, episode=summary.get("episode")), ""] + \
             ([note, ""] if note else [])
     if name in ("realistic", "realistic_odometry"):  # At the true pose the error is 0.
+        aligned = ("; the aligned RMSE after the rotation and translation that fit the "
+                   "estimated trajectory best to the true one, the absolute trajectory error "
+                   "of SLAM benchmarks: the distortion of the trajectory and its map without "
+                   "the offset of their frame, which IoU counts in full"
+                   ) if _aligned_column(groups) else ""
         return [_table(groups), "", _other_ends(groups, episode=summary.get("episode")), "",
                 "Pose error of the robot's estimate (metres; RMSE and maximum over each "
-                "run's scans):", "", _pose_table(groups), ""]
+                f"run's scans{aligned}):", "", _pose_table(groups), ""]
     rename = ABLATION_NAMES if name == "ablation" else None
     lines = [_table(groups, rename), "", _other_ends(groups, rename, summary.get("episode")),
              ""]
