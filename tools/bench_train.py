@@ -15,7 +15,9 @@ update on it (n_epochs over shuffled minibatches: forward, backward and optimize
 each timed per collected decision; in the grid world (``train_decisions_per_s``) and, in
 the same run, in the kinematic world training/gvn.yaml names
 (``train_decisions_per_s_kinematic``; ``grid_over_kinematic`` their ratio, issue 16's
-target 6, with train_decisions_per_s >= 100). Prints one JSON line.
+target 6, with train_decisions_per_s >= 100). Then the same round of the recipe trained
+now, training/gvn_v2.yaml as it stands (v2 network with global attention, a critic with
+its own encoder, minibatches of consecutive decisions): ``v2_*``. Prints one JSON line.
 
 Target (issue 5): topology + policy at most 8 ms per decision; ARiADNE's own environment
 spends about 390 ms per decision on this machine. Target (issue 16): the update at most
@@ -116,6 +118,14 @@ def ppo_round(dynamics: str) -> dict[str, float]:
     return timed_round(config, model_setup=load_shipped)
 
 
+def v2_round() -> dict[str, float]:
+    """One rollout and PPO update of training/gvn_v2.yaml as it stands (fresh weights)."""
+    from mjexplore.explorers.gvn import DEFAULT_WEIGHTS
+    from mjexplore.training import load_train_config, ppo_round as timed_round
+
+    return timed_round(load_train_config(DEFAULT_WEIGHTS.parent / "gvn_v2.yaml"))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", default="loop_with_corridor,maze")
@@ -166,6 +176,11 @@ def main() -> None:
                train_decisions_per_s_kinematic=round(kin_rate, 2),
                grid_over_kinematic=round(n / (rollout + update) / kin_rate, 2),
                ppo_bench_wall_s=round(time.perf_counter() - t, 1))
+    v2 = v2_round()
+    n, rollout, update = v2["decisions"], v2["rollout_s"], v2["update_s"]
+    out.update(v2_rollout_ms_per_decision=round(rollout / n * 1e3, 2),
+               v2_update_ms_per_decision=round(update / n * 1e3, 2),
+               v2_train_decisions_per_s=round(n / (rollout + update), 2))
     out["decisions"] = "GVN policy, seed 0, " + ",".join(scenes)
     print(json.dumps(out))
 
