@@ -286,7 +286,8 @@ class Episode:
         scan = self._deskewed(scan, slice(8, 11))
         if self.config.localization == "scan_matching":
             loc.correct(scan, self.mapper)
-        self._positions.append((loc.pose[0], loc.pose[1], truth[0], truth[1]))
+        estimate = loc.pose
+        self._positions.append((estimate[0], estimate[1], truth[0], truth[1]))
         return scan, loc.sensor_pose
 
     def _integrate(self, scan) -> None:

@@ -516,8 +516,7 @@ class GVN(nn.Module):
         chosen_flat = graph * n + choice.long().clamp(0, n - 1)
         chosen = torch.cat([rows, rows.new_zeros(1, d)]).index_select(
             0, real_positions(real_rows, m * n)[chosen_flat])
-        mean = mean.index_select(0, graph)
-        inputs = [mean, chosen] if place is None else [mean, chosen, place]
+        inputs = [mean.index_select(0, graph), chosen] + ([] if place is None else [place])
         return self.fragment(torch.cat(inputs, -1))
 
     def memory_from_fragments(self, fragments: torch.Tensor,
