@@ -337,6 +337,9 @@ def test_batched_attention_equals_each_sample_attended_alone():
                                      h[i:i + 1])[0]
             torch.testing.assert_close(batched[start:start + c], alone, atol=1e-5, rtol=1e-5)
             start += c
+        # No samples, or none with a node: no rows.
+        for b in (0, 2):
+            assert gvn.attend(rows[:0], real_rows[:0], torch.zeros(b, n), h[:b]).shape == (0, d)
 
 
 def test_v2_uses_edge_lengths_and_global_attention():

@@ -628,8 +628,9 @@ class GVN(nn.Module):
         d = rows.shape[-1]
         count = torch.zeros(b, dtype=torch.long, device=rows.device).scatter_reduce(
             0, sample, node + 1, "amax")
+        by_size = torch.argsort(count, stable=True)
         groups = [members.sort().values for members in torch.tensor_split(
-            torch.argsort(count, stable=True), min(ATTENTION_GROUPS, b)) if len(members)]
+            by_size, max(min(ATTENTION_GROUPS, b), 1)) if len(members)]
         group = torch.empty(b, dtype=torch.long, device=rows.device)
         place = torch.empty(b, dtype=torch.long, device=rows.device)
         for g, members in enumerate(groups):
