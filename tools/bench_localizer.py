@@ -31,6 +31,7 @@ import numpy as np  # noqa: E402
 
 from bench_topology import stats  # noqa: E402 (tools/, beside this script)
 
+from mjexplore.episode.metrics import pose_errors  # noqa: E402
 from mjexplore.navigation.wander import WanderController  # noqa: E402
 from mjexplore.mapping.localization import FusedLocalizer, LocalizerConfig  # noqa: E402
 from mjexplore.mapping.occupancy import OccupancyMapper  # noqa: E402
@@ -62,7 +63,7 @@ def record(scene: str, seconds: float, seed: int):
 def replay(sim, run, config: LocalizerConfig):
     loc = FusedLocalizer(run[0][2], odom_pose=run[0][1], config=config)
     mapper = OccupancyMapper.like(sim.scene.ground_truth)
-    correcting, integrating, errors = [], [], []
+    correcting, integrating, positions = [], [], []
     for scan, odom, truth in run:
         loc.advance(odom)
         t0 = time.perf_counter()
@@ -72,8 +73,15 @@ def replay(sim, run, config: LocalizerConfig):
         t2 = time.perf_counter()
         correcting.append(t1 - t0)
         integrating.append(t2 - t1)
-        errors.append(float(np.hypot(*(loc.pose[:2] - truth[:2]))))
-    return correcting, integrating, np.array(errors)
+        positions.append((*loc.pose[:2], *truth[:2]))
+    positions = np.array(positions)
+    return correcting, integrating, positions[:, :2], positions[:, 2:]
+
+
+def track_errors(estimated: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """RMS and final position error of an estimated track (n, 2) against the truth, m."""
+    final = round(float(np.hypot(*(estimated[-1] - truth[-1]))), 4)
+    return pose_errors(estimated, truth)["pose_error_rmse_m"], final
 
 
 def main() -> None:
@@ -87,8 +95,10 @@ def main() -> None:
     fine = LocalizerConfig.for_lidar(lidar)
     coarse = LocalizerConfig.for_lidar(lidar, density_resolution=0.05)
     replay(sim, run[:10], fine)  # Warm-up: numba compilation is not timed.
-    fine_ms, integrate_ms, fine_err = replay(sim, run, fine)
-    coarse_ms, _, coarse_err = replay(sim, run, coarse)
+    fine_ms, integrate_ms, *fine_track = replay(sim, run, fine)
+    coarse_ms, _, *coarse_track = replay(sim, run, coarse)
+    fine_rmse, fine_final = track_errors(*fine_track)
+    coarse_rmse, coarse_final = track_errors(*coarse_track)
     f_med, f_p99 = stats(fine_ms)
     c_med, c_p99 = stats(coarse_ms)
     i_med, i_p99 = stats(integrate_ms)
@@ -102,10 +112,10 @@ def main() -> None:
         "integrate_ms_median": i_med,
         "integrate_ms_p99": i_p99,
         "correct_over_5cm": round(f_med / c_med, 3),
-        "pose_error_rmse_m": round(float(np.sqrt(np.mean(fine_err ** 2))), 4),
-        "pose_error_rmse_m_5cm": round(float(np.sqrt(np.mean(coarse_err ** 2))), 4),
-        "pose_error_final_m": round(float(fine_err[-1]), 4),
-        "pose_error_final_m_5cm": round(float(coarse_err[-1]), 4),
+        "pose_error_rmse_m": fine_rmse,
+        "pose_error_rmse_m_5cm": coarse_rmse,
+        "pose_error_final_m": fine_final,
+        "pose_error_final_m_5cm": coarse_final,
     }))
 
 
