@@ -240,7 +240,9 @@ def cmd_explore(args: argparse.Namespace) -> int:
     if args.policy is not None:
         if not args.explorer.startswith(("gvn", "cnn")):
             raise UserInputError("--policy applies to the learned explorers only: gvn, "
-                                 "gvn_v2, gvn_unmasked, gvn_naive, gvn_none or cnn.")
+                                 "gvn_v2, cnn, cnn_v2 and the masking ablation's gvn_unmasked, "
+                                 "gvn_naive, gvn_none, gvn_v2_unmasked, gvn_v2_naive, "
+                                 "gvn_v2_none.")
         kwargs["policy"] = str(args.policy)
     make_explorer(args.explorer, **kwargs)  # Fails early on a bad name or weights file.
     video = _video_config(args) if args.video is not None else None
@@ -496,9 +498,10 @@ def build_parser() -> argparse.ArgumentParser:
                          help="canonical scene name, scene folder, MJCF or map_server YAML")
     explore.add_argument("--explorer", default="nearest",
                          help="nearest, explore_lite, frontier_tsp, rrt, potential, oracle "
-                              "(the ground-truth bound), cnn, gvn or gvn_v2 (the v2 "
-                              "recipe's policy); the masking ablation's gvn_unmasked, "
-                              "gvn_naive, gvn_none")
+                              "(the ground-truth bound), cnn, gvn, or the v2 recipe's "
+                              "gvn_v2 and cnn_v2; the masking ablation's gvn_unmasked, "
+                              "gvn_naive, gvn_none and (v2 recipe) gvn_v2_unmasked, "
+                              "gvn_v2_naive, gvn_v2_none")
     explore.add_argument("--policy", type=Path, default=None,
                          help="weights for a learned explorer, gvn* or cnn (default: the "
                          "shipped training/*_policy.safetensors it names)")

@@ -685,3 +685,20 @@ def test_nearest_node_rule_takes_the_nearest_valid_reachable_node():
     obs = {"node_features": features.reshape(-1), "node_mask": (np.arange(12) < 4) * 1.0}
     valid = np.array([False, True, True, True] + [False] * 8)  # Node 0 is not a frontier.
     assert NearestNodeRule().predict(obs, action_masks=valid)[0] == 2
+
+
+def test_actor_logits_run_the_actors_encoder_alone_and_match_sb3s_distribution(monkeypatch):
+    from mjexplore.policies.weights import actor_logits, load_policy
+
+    policy, _ = load_policy(REPO / "training" / "gvn_v2_policy.safetensors")
+    assert not policy.share_features_extractor  # The critic has an encoder of its own.
+    obs = {k: torch.as_tensor(v)[None]
+           for k, v in policy.observation_space.sample().items()}
+    with torch.no_grad():
+        expected = policy.get_distribution(obs).distribution.probs
+        calls = []
+        monkeypatch.setattr(policy.vf_features_extractor, "forward",
+                            lambda o: calls.append(o) or torch.zeros(1))
+        logits = actor_logits(policy, obs)
+    assert not calls
+    torch.testing.assert_close(torch.softmax(logits, -1), expected)

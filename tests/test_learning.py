@@ -447,15 +447,21 @@ def test_train_config_round_trip_and_errors(tmp_path):
         load_train_config(path)
 
 
-def test_ablation_configs_differ_from_the_shipped_one_only_in_masking():
+@pytest.mark.parametrize("recipe,budget", [("gvn", 27648), ("gvn_v2", 16384)])
+def test_ablation_configs_differ_from_the_shipped_one_only_in_masking(recipe, budget):
     import dataclasses
 
-    shipped = load_train_config(REPO / "training" / "gvn.yaml")
-    for name, masking, valid in (("gvn_naive", "naive", "frontiers"),
-                                 ("gvn_none", "none", "all_nodes")):
+    from mjexplore.policies.weights import read_policy_weights
+
+    shipped = load_train_config(REPO / "training" / f"{recipe}.yaml")
+    # The budget: the shipped policy's decisions.
+    _, meta = read_policy_weights(REPO / "training" / f"{recipe}_policy.safetensors")
+    assert meta["provenance"]["num_timesteps"] == budget
+    for name, masking, valid in ((f"{recipe}_naive", "naive", "frontiers"),
+                                 (f"{recipe}_none", "none", "all_nodes")):
         config = load_train_config(REPO / "training" / f"{name}.yaml")
         assert (config.policy.masking, config.env.valid_actions) == (masking, valid)
-        assert config.total_steps == 27648  # The shipped policy's budget.
+        assert config.total_steps == budget
         same = dataclasses.replace(
             config, total_steps=shipped.total_steps,
             policy=dataclasses.replace(config.policy, masking="iam"),
@@ -716,10 +722,11 @@ def test_cli_refuses_bad_policy_weights(tmp_path):
 
 
 def test_shipped_policy_explorers_say_how_to_make_their_missing_policy(tmp_path, monkeypatch):
-    from mjexplore.explorers import gvn, make_explorer
+    from mjexplore.explorers import cnn, gvn, make_explorer
 
     monkeypatch.setattr(gvn, "DEFAULT_WEIGHTS", tmp_path / "gvn_policy.safetensors")
-    for name in ("gvn_naive", "gvn_none", "gvn_v2"):
+    monkeypatch.setattr(cnn, "DEFAULT_WEIGHTS", tmp_path / "cnn_policy.safetensors")
+    for name in ("gvn_naive", "gvn_none", "gvn_v2", "gvn_v2_naive", "gvn_v2_none", "cnn_v2"):
         with pytest.raises(UserInputError, match=f"training/{name}.yaml"):
             make_explorer(name)
 

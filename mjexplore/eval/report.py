@@ -23,8 +23,9 @@ from mjexplore.eval.summaries import KINEMATIC_FIELDS, KINEMATICS_DT, ratio_curv
 from mjexplore.eval.sweep import MEAN_STD_NOTE, format_mean_std, markdown_table, summary_table
 from mjexplore.io.atomic import write_text_atomic
 
-METHOD_ORDER = ("nearest", "explore_lite", "frontier_tsp", "rrt", "potential", "cnn", "gvn_none",
-                "gvn_naive", "gvn_unmasked", "gvn", "gvn_v2", "oracle")
+METHOD_ORDER = ("nearest", "explore_lite", "frontier_tsp", "rrt", "potential", "cnn", "cnn_v2",
+                "gvn_none", "gvn_naive", "gvn_unmasked", "gvn", "gvn_v2_none", "gvn_v2_naive",
+                "gvn_v2_unmasked", "gvn_v2", "oracle")
 # The paper's claim (Sec. "Comparison with baselines"): gvn is faster than the potential field
 # by this range of percentages to the given exploration ratio.
 PAPER_SPEEDUP = {"t80_s": (7.0, 11.1), "t985_s": (4.0, 16.2)}
@@ -32,6 +33,9 @@ ABLATION_NAMES = {"gvn_none": "no masking (trained and run without)",
                   "gvn_naive": "naive masking (trained with it)",
                   "gvn_unmasked": "masking removed (IAM-trained, run unmasked)",
                   "gvn": "masking (IAM)"}
+# The same four variants trained with the v2 recipe (training/gvn_v2*.yaml).
+ABLATION_NAMES |= {f"gvn_v2{k[3:]}": v for k, v in ABLATION_NAMES.items()}
+ABLATIONS = {"ablation": "gvn", "ablation_v2": "gvn_v2"}  # Experiment -> its IAM method.
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,9 +84,10 @@ EXPERIMENTS = (
                "The v2 recipe's policy (training/gvn_v2.yaml: time-to-explore reward, path "
                "costs and reachability per node, a residual on the nearest-node rule; "
                "trained in the grid world on generated layouts, selected on held-out ones) "
-               "beside nearest-frontier and the potential field, run by the same revision in "
-               "full physics on Table 1's scenes, 10 runs each.",
-               ("nearest", "potential", "gvn_v2"),
+               "beside nearest-frontier, the potential field and the CNN baseline trained "
+               "with the same recipe and budget (training/cnn_v2.yaml), run by the same "
+               "revision in full physics on Table 1's scenes, 10 runs each.",
+               ("nearest", "potential", "cnn_v2", "gvn_v2"),
                f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 10 "
                "--workers 2 --out runs/gvn_v2"),
     Experiment("ablation", "Table 2: invalid action masking",
@@ -93,6 +98,14 @@ EXPERIMENTS = (
                ("gvn_none", "gvn_naive", "gvn_unmasked", "gvn"),
                "mjexplore bench --scenes loop_with_corridor,maze --explorers {explorers} "
                "--seeds 5 --workers 2 --out runs/ablation"),
+    Experiment("ablation_v2", "Table 2 under the v2 recipe",
+               "The same ablation with policies trained by the v2 recipe (training/gvn_v2.yaml "
+               "and its masking variants gvn_v2_naive.yaml and gvn_v2_none.yaml: the same "
+               "reward, layouts, budget, seed and model selection), on the loop and maze "
+               "scenes, 5 runs each.",
+               ("gvn_v2_none", "gvn_v2_naive", "gvn_v2_unmasked", "gvn_v2"),
+               "mjexplore bench --scenes loop_with_corridor,maze --explorers {explorers} "
+               "--seeds 5 --workers 2 --out runs/ablation_v2"),
     Experiment("lobby_real", "Table 3 and Fig. 9: the real-robot setting",
                "The paper's robot experiment in simulation: the 17.5 x 4 m lobby with the real "
                "profile (0.18 m/s, 1.8 rad/s, 5 m lidar; decisions event-driven, as everywhere), "
@@ -392,6 +405,50 @@ def relative_table(groups, baseline: str = "nearest", places: str = "maps") -> s
                            f"PL / {baseline} PL"], rows)
 
 
+def _variant(method: str) -> str:
+    """A masking variant's name without its explanation ('naive masking')."""
+    return ABLATION_NAMES.get(method, method).split(" (")[0]
+
+
+def masking_verdict(groups, iam: str) -> str:
+    """Whether IAM (method ``iam``) is the best masking variant on each scene: the variant
+    with the most runs that reached the target ratio, then the lowest mean ET, is best. A
+    lead smaller than the larger of the two runs' standard deviations is called
+    inconclusive."""
+    parts, best_on = [], 0
+    scenes = [s for s, methods in groups.items() if iam in methods and len(methods) > 1]
+    for scene in scenes:
+        methods = groups[scene]
+
+        def rank(m):
+            runs = methods[m]
+            return (-sum(r["metrics"]["end_reason"] == "explored" for r in runs),
+                    float(np.mean([r["metrics"]["exploration_time_s"] for r in runs])))
+
+        order = sorted(methods, key=rank)
+        first, second = order[0], order[1]
+        et = {m: rank(m)[1] for m in (first, second)}
+        spread = max(float(np.std([r["metrics"]["exploration_time_s"] for r in methods[m]]))
+                     for m in (first, second))
+        close = rank(first)[0] == rank(second)[0] and et[second] - et[first] < spread
+        doubt = " (within the runs' spread: not conclusive)" if close else ""
+        if first == iam:
+            best_on += 1
+            parts.append(f"on {scene} IAM is best: {et[iam]:.1f} s against "
+                         f"{_variant(second)}'s {et[second]:.1f} s{doubt}")
+        else:
+            parts.append(f"on {scene} IAM is not best: {_variant(first)} "
+                         f"is ({et[first]:.1f} s against IAM's {rank(iam)[1]:.1f} s, "
+                         f"ranked {order.index(iam) + 1} of {len(order)}){doubt}")
+    if not scenes:
+        return "IAM did not run beside another variant: no verdict."
+    overall = ("IAM is best on every scene" if best_on == len(scenes) else
+               "IAM is not best on any scene" if best_on == 0 else
+               f"IAM is best on {best_on} of {len(scenes)} scenes")
+    return (f"Is IAM best? {overall} (best: the most runs that reached 98.5 %, then the "
+            f"lowest mean ET): " + "; ".join(parts) + ".")
+
+
 def reference_table(summary: dict[str, Any]) -> str:
     """Path lengths on the ARiADNE maps beside the greedy reference (metres)."""
     ref = {Path(r["map"]).stem: r for r in summary.get("reference") or []}
@@ -521,9 +578,11 @@ def _section(name: str, summary, groups, figures: Path, rel: str) -> list[str]:
         return [_table(groups), "", _other_ends(groups, episode=summary.get("episode")), "",
                 "Pose error of the robot's estimate (metres; RMSE and maximum over each "
                 f"run's scans{aligned}):", "", _pose_table(groups), ""]
-    rename = ABLATION_NAMES if name == "ablation" else None
+    rename = ABLATION_NAMES if name in ABLATIONS else None
     lines = [_table(groups, rename), "", _other_ends(groups, rename, summary.get("episode")),
              ""]
+    if name in ABLATIONS:
+        lines += [masking_verdict(groups, ABLATIONS[name]), ""]
     note = _unfinished_note(summary)
     if note:
         lines += [note, ""]
@@ -568,4 +627,4 @@ def _section(name: str, summary, groups, figures: Path, rel: str) -> list[str]:
     return lines
 
 
-__all__ = ["EXPERIMENTS", "build_report", "claims_table"]
+__all__ = ["EXPERIMENTS", "build_report", "claims_table", "masking_verdict"]

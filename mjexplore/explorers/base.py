@@ -9,6 +9,7 @@ behind the same interface, so one harness evaluates them all.
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 from typing import Callable, Protocol
 
 import numpy as np
@@ -110,6 +111,21 @@ def register(name: str):
         return cls
 
     return wrap
+
+
+def shipped_policy(path: Path, name: str) -> Path:
+    """``path``, the weights file that ``--explorer name`` runs by default.
+
+    Raises:
+        UserInputError: The file is not there yet (says how to train and export it).
+    """
+    if not path.is_file():
+        raise UserInputError(
+            f"--explorer {name} runs the policy in {path}, which is not there yet: train it "
+            f"with 'mjexplore train --config training/{name}.yaml --out runs/train/{name}', "
+            f"then 'python tools/export_policy.py runs/train/{name}/checkpoints/step_N.pt "
+            f"{path}' (or pass --policy).")
+    return path
 
 
 def make_explorer(name: str, **kwargs) -> Explorer:

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mjexplore.explorers.base import ExplorationState, register
+from mjexplore.explorers.base import ExplorationState, register, shipped_policy
 
 DEFAULT_WEIGHTS = Path(__file__).resolve().parents[2] / "training" / "cnn_policy.safetensors"
 
@@ -51,3 +51,14 @@ class CnnExplorer:
                 action = int(self.rng.choice(len(p), p=p / p.sum()))
         goal, _ = d.act(action)
         return goal
+
+
+@register("cnn_v2")
+class CnnV2Explorer(CnnExplorer):
+    """The CNN baseline trained with the v2 recipe (training/cnn_v2.yaml), its weights
+    ``training/cnn_v2_policy.safetensors``."""
+
+    def __init__(self, policy: str | os.PathLike | None = None,
+                 deterministic: bool = True) -> None:
+        super().__init__(policy or shipped_policy(
+            DEFAULT_WEIGHTS.with_name("cnn_v2_policy.safetensors"), "cnn_v2"), deterministic)

@@ -25,7 +25,7 @@ import torch
 
 from mjexplore.envs.decisions import TerDecisions
 from mjexplore.errors import UserInputError
-from mjexplore.explorers.base import ExplorationState, register
+from mjexplore.explorers.base import ExplorationState, register, shipped_policy
 from mjexplore.policies.weights import actor_logits
 
 DEFAULT_WEIGHTS = Path(__file__).resolve().parents[2] / "training" / "gvn_policy.safetensors"
@@ -116,6 +116,23 @@ class GvnExplorer:
         return goal
 
 
+def _shipped_weights(name: str) -> Path:
+    return shipped_policy(DEFAULT_WEIGHTS.with_name(f"{name}_policy.safetensors"), name)
+
+
+class _ShippedGvnExplorer(GvnExplorer):
+    """A GVN explorer whose default weights are ``training/{weights}_policy.safetensors``,
+    run with the mask or without it (``masked``)."""
+
+    weights: str
+    masked: bool
+
+    def __init__(self, policy: str | os.PathLike | None = None,
+                 deterministic: bool = True) -> None:
+        super().__init__(policy or _shipped_weights(self.weights), masking=self.masked,
+                         deterministic=deterministic)
+
+
 @register("gvn_unmasked")
 class GvnUnmaskedExplorer(GvnExplorer):
     """The paper's "masking removed" ablation: a policy trained with masking, run without
@@ -126,46 +143,50 @@ class GvnUnmaskedExplorer(GvnExplorer):
         super().__init__(policy, masking=False, deterministic=deterministic)
 
 
-def _shipped_weights(name: str) -> Path:
-    path = DEFAULT_WEIGHTS.with_name(f"{name}_policy.safetensors")
-    if not path.is_file():
-        raise UserInputError(
-            f"--explorer {name} runs the policy in {path}, which is not there yet: train it "
-            f"with 'mjexplore train --config training/{name}.yaml --out runs/train/{name}', "
-            f"then 'python tools/export_policy.py runs/train/{name}/checkpoints/step_N.pt "
-            f"{path}' (or pass --policy).")
-    return path
+@register("gvn_naive")
+class GvnNaiveExplorer(_ShippedGvnExplorer):
+    """The "naive masking" ablation: a policy trained with masked sampling but an unmasked
+    gradient (training/gvn_naive.yaml), run with the mask."""
+
+    weights, masked = "gvn_naive", True
+
+
+@register("gvn_none")
+class GvnNoMaskingExplorer(_ShippedGvnExplorer):
+    """The "without IAM" ablation: a policy trained with every TER node valid and no mask
+    (training/gvn_none.yaml), run the same way."""
+
+    weights, masked = "gvn_none", False
 
 
 @register("gvn_v2")
-class GvnV2Explorer(GvnExplorer):
+class GvnV2Explorer(_ShippedGvnExplorer):
     """The v2 recipe's GVN (training/gvn_v2.yaml: time reward, path-aware features, a
     residual on the nearest-node rule), its shipped weights
     ``training/gvn_v2_policy.safetensors``, run with the mask."""
 
-    def __init__(self, policy: str | os.PathLike | None = None,
-                 deterministic: bool = True) -> None:
-        super().__init__(policy or _shipped_weights("gvn_v2"), masking=True,
-                         deterministic=deterministic)
+    weights, masked = "gvn_v2", True
 
 
-@register("gvn_naive")
-class GvnNaiveExplorer(GvnExplorer):
-    """The "naive masking" ablation: a policy trained with masked sampling but an unmasked
-    gradient (training/gvn_naive.yaml), run with the mask."""
+@register("gvn_v2_unmasked")
+class GvnV2UnmaskedExplorer(_ShippedGvnExplorer):
+    """The masking ablation under the v2 recipe, "masking removed": gvn_v2's policy run
+    without the mask."""
 
-    def __init__(self, policy: str | os.PathLike | None = None,
-                 deterministic: bool = True) -> None:
-        super().__init__(policy or _shipped_weights("gvn_naive"), masking=True,
-                         deterministic=deterministic)
+    weights, masked = "gvn_v2", False
 
 
-@register("gvn_none")
-class GvnNoMaskingExplorer(GvnExplorer):
-    """The "without IAM" ablation: a policy trained with every TER node valid and no mask
-    (training/gvn_none.yaml), run the same way."""
+@register("gvn_v2_naive")
+class GvnV2NaiveExplorer(_ShippedGvnExplorer):
+    """The masking ablation under the v2 recipe, "naive masking"
+    (training/gvn_v2_naive.yaml), run with the mask."""
 
-    def __init__(self, policy: str | os.PathLike | None = None,
-                 deterministic: bool = True) -> None:
-        super().__init__(policy or _shipped_weights("gvn_none"), masking=False,
-                         deterministic=deterministic)
+    weights, masked = "gvn_v2_naive", True
+
+
+@register("gvn_v2_none")
+class GvnV2NoMaskingExplorer(_ShippedGvnExplorer):
+    """The masking ablation under the v2 recipe, "without IAM" (training/gvn_v2_none.yaml:
+    every TER node valid, no mask), run the same way."""
+
+    weights, masked = "gvn_v2_none", False

@@ -108,6 +108,7 @@ class Navigator:
         self.path: np.ndarray | None = None
         self._path_x = self._path_y = self._segments = np.zeros(0)
         self._path_cells = np.zeros(0, np.int64)
+        self._checked = None  # (costmap, version) the path was last found traversable on.
         self.status = NavStatus.IDLE
         self._last_plan = -math.inf
         self._anchor = None
@@ -148,6 +149,7 @@ class Navigator:
             if self.config.replan_when_blocked:
                 rc = costmap.grid.world_to_cell(path)
                 self._path_cells = rc[:, 0] * costmap.grid.shape[1] + rc[:, 1]
+                self._checked = costmap, costmap.version
 
     def lingering(self, pose: np.ndarray, t: float) -> bool:
         """True once the robot has stayed near one spot for ``linger_time`` seconds."""
@@ -180,7 +182,10 @@ class Navigator:
             return 0.0, 0.0
         due = t - self._last_plan >= 1.0 / self.config.replan_rate_hz - 1e-9
         if not due and self.config.replan_when_blocked:
-            due = bool((costmap_fn().cost[self._path_cells] < 0).any())
+            costmap = costmap_fn()
+            if self._checked != (costmap, costmap.version):  # Costs changed since.
+                due = bool((costmap.cost[self._path_cells] < 0).any())
+                self._checked = costmap, costmap.version
         if due:
             self._replan(costmap_fn(), pose, t)
             if self.status != NavStatus.ACTIVE:

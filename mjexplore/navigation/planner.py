@@ -256,10 +256,12 @@ class Costmap:
             int(math.ceil(math.sqrt(2) * (1.0 + self.config.wall_penalty))) + 2, -1, np.int64)
         self._no_targets = np.zeros(1, np.bool_)
         self._hypot_table = np.zeros(0)  # Built by the first A* search.
+        self.version = 0  # Counts the updates: costs are unchanged while it stays.
         self.update(None)
 
     def update(self, cells: np.ndarray | None) -> None:
         """Recomputes the cost of ``cells`` (flat indices); None: every cell."""
+        self.version += 1
         cfg = self.config
         cells = np.arange(self.cost.size) if cells is None else np.asarray(cells, np.int64)
         free = is_free(self.grid.data.reshape(-1)[cells])

@@ -124,8 +124,9 @@ def load_policy(path: str | os.PathLike, expected_kind: str | None = None):
 
 def actor_logits(policy: torch.nn.Module, obs: dict[str, torch.Tensor]) -> torch.Tensor:
     """The actor's unmasked logits (B, A) for a batch of observation tensors, whether the
-    critic shares the actor's encoder or has its own (``share_features_extractor``)."""
-    features = policy.extract_features(obs)
-    if not policy.share_features_extractor:
-        features = features[0]  # (actor's, critic's)
+    critic shares the actor's encoder or has its own (``share_features_extractor``; then
+    only the actor's runs, as in SB3's ``get_distribution``)."""
+    from stable_baselines3.common.policies import BasePolicy
+
+    features = BasePolicy.extract_features(policy, obs, policy.pi_features_extractor)
     return policy.action_net(policy.mlp_extractor.forward_actor(features))
