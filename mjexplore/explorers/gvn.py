@@ -24,7 +24,6 @@ import numpy as np
 import torch
 
 from mjexplore.envs.decisions import TerDecisions
-from mjexplore.errors import UserInputError
 from mjexplore.explorers.base import ExplorationState, register, shipped_policy
 from mjexplore.policies.weights import actor_logits
 
