@@ -3,14 +3,14 @@
 # (so the runs record that revision, clean, whatever the checkout holds meanwhile).
 #
 # Usage: tools/rerun_results.sh REV WORKERS [table1 gvn_v2 explore_bench ariadne ablation
-#        lobby_real realistic realistic_truth realistic_odometry]
+#        ablation_v2 lobby_real realistic realistic_truth realistic_odometry]
 # Runs go to runs/rerun_REV/<experiment>; started again, bench skips the finished episodes.
 # Then: mjexplore collect runs/rerun_REV/<experiment> --experiment <experiment> and
 # mjexplore report. Needs ../shared/data (the Explore-Bench and ARiADNE maps).
 set -eu
 [ $# -ge 2 ] || { echo "usage: $0 REV WORKERS [EXPERIMENT...]" >&2; exit 2; }
 REV=$(git rev-parse --short "$1"); W=$2; shift 2
-EXPERIMENTS=${*:-table1 gvn_v2 explore_bench ariadne ablation lobby_real realistic realistic_truth realistic_odometry}
+EXPERIMENTS=${*:-table1 gvn_v2 explore_bench ariadne ablation ablation_v2 lobby_real realistic realistic_truth realistic_odometry}
 ROOT=$(git rev-parse --show-toplevel)
 SHARED=$(cd "$ROOT/../shared" && pwd)
 WT=$ROOT/runs/wt_$REV
@@ -27,7 +27,8 @@ for e in $EXPERIMENTS; do
   case $e in
     table1) mj bench --scenes loop_with_corridor,maze,office --explorers $ALL --seeds 10 \
               --workers "$W" --out "$OUT/table1" ;;
-    gvn_v2) mj bench --scenes loop_with_corridor,maze,office --explorers nearest,potential,gvn_v2 \
+    gvn_v2) mj bench --scenes loop_with_corridor,maze,office \
+              --explorers nearest,potential,cnn_v2,gvn_v2 \
               --seeds 10 --workers "$W" --out "$OUT/gvn_v2" ;;
     explore_bench) mj bench --scenes "$EB" --explorers $ALL --seeds 2 --lidar-range 7 \
               --workers "$W" --out "$OUT/explore_bench" ;;
@@ -41,6 +42,9 @@ for e in $EXPERIMENTS; do
     ablation) mj bench --scenes loop_with_corridor,maze \
               --explorers gvn_none,gvn_naive,gvn_unmasked,gvn --seeds 5 --workers "$W" \
               --out "$OUT/ablation" ;;
+    ablation_v2) mj bench --scenes loop_with_corridor,maze \
+              --explorers gvn_v2_none,gvn_v2_naive,gvn_v2_unmasked,gvn_v2 --seeds 5 \
+              --workers "$W" --out "$OUT/ablation_v2" ;;
     lobby_real) mj bench --scenes lobby --explorers gvn,potential,nearest --profile real \
               --seeds 5 --workers 1 --out "$OUT/lobby_real" ;;
     ariadne)
