@@ -447,16 +447,17 @@ def test_train_config_round_trip_and_errors(tmp_path):
         load_train_config(path)
 
 
-@pytest.mark.parametrize("recipe,budget", [("gvn", 27648), ("gvn_v2", 16384)])
+@pytest.mark.parametrize("recipe,budget", [("gvn", 27648), ("gvn_v2", 8704)])
 def test_ablation_configs_differ_from_the_shipped_one_only_in_masking(recipe, budget):
     import dataclasses
 
     from mjexplore.policies.weights import read_policy_weights
 
     shipped = load_train_config(REPO / "training" / f"{recipe}.yaml")
-    # The budget: the shipped policy's decisions.
+    # The budget: the decisions the shipped policy was trained for (its weights are the
+    # best held-out checkpoint up to there).
     _, meta = read_policy_weights(REPO / "training" / f"{recipe}_policy.safetensors")
-    assert meta["provenance"]["num_timesteps"] == budget
+    assert meta["provenance"]["num_timesteps"] <= budget
     for name, masking, valid in ((f"{recipe}_naive", "naive", "frontiers"),
                                  (f"{recipe}_none", "none", "all_nodes")):
         config = load_train_config(REPO / "training" / f"{name}.yaml")

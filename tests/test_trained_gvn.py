@@ -3,8 +3,10 @@ saw: a regression in the policy, its features or the env fails here (simulated t
 wall).
 
 These eight layouts pin what the shipped weights do, not a general lead: on the 32 layouts
-past the model-selection set (these eight among them) they took 355.5 s on average against
-the rule's 351.3 (15 faster, 16 slower, one tie; all explored), at revision 2d0a79d."""
+past the model-selection set (these eight among them) they took 300.4 s on average against
+the rule's 307.9 (20 faster, 12 slower; a mean difference of -7.5 +- 5.8 s, standard error;
+all explored), on these eight 324.8 against 346.3, at revision fa7005e (weights trained at
+e744d64)."""
 
 from pathlib import Path
 
