@@ -585,7 +585,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Keep what the report needs from a sweep's run folders (metrics, ratio "
                     "curves every 2 s, kinematic statistics) in DATA/EXPERIMENT.json, small "
                     "enough to commit. Experiments the report knows: table1, gvn_v2, "
-                    "ablation, lobby_real, realistic, explore_bench, ariadne.")
+                    "ablation, ablation_v2, lobby_real, realistic, realistic_truth, "
+                    "realistic_odometry, explore_bench, ariadne.")
     co.add_argument("sweep", type=Path, help="the sweep's --out folder")
     co.add_argument("--experiment", required=True, help="summary name (e.g. table1)")
     co.add_argument("--data", type=Path, default=Path("docs/results/data"),

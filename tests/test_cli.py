@@ -22,6 +22,14 @@ def test_help_for_every_command():
         assert proc.returncode == 0 and "usage" in proc.stdout
 
 
+def test_collect_help_names_every_experiment_the_report_knows():
+    from mjexplore.eval.report import EXPERIMENTS
+
+    text = " ".join(run("collect", "--help").stdout.split())
+    known = text.split("Experiments the report knows: ")[1].split(".")[0]
+    assert sorted(known.split(", ")) == sorted(exp.name for exp in EXPERIMENTS)
+
+
 def test_scene_gen_writes_all_outputs(tmp_path):
     proc = run("scene-gen", "maze", "--seed", "3", "--size", "12x10", "--out", str(tmp_path / "s"))
     assert proc.returncode == 0, proc.stderr

@@ -102,7 +102,10 @@ EXPERIMENTS = (
                "The same ablation with policies trained by the v2 recipe (training/gvn_v2.yaml "
                "and its masking variants gvn_v2_naive.yaml and gvn_v2_none.yaml: the same "
                "reward, layouts, budget, seed and model selection), on the loop and maze "
-               "scenes, 5 runs each.",
+               "scenes, 5 runs each. With every TER node valid, the nearest-node prior the "
+               "v2 actor starts from favours the node with the shortest path from the "
+               "robot, usually one within zeta of where it stands: such a goal is reached at "
+               "once and the next decision follows at the next control period.",
                ("gvn_v2_none", "gvn_v2_naive", "gvn_v2_unmasked", "gvn_v2"),
                "mjexplore bench --scenes loop_with_corridor,maze --explorers {explorers} "
                "--seeds 5 --workers 2 --out runs/ablation_v2"),
