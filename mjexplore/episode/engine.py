@@ -221,8 +221,6 @@ class Episode:
         explorer.reset(np.random.default_rng(seed))
         self.goal: np.ndarray | None = None
         self._goal_window: tuple[tuple, tuple[slice, slice]] | None = None  # (goal, cells)
-        self._scans_mapped = 0
-        self._goal_open: tuple[tuple, int, bool] | None = None  # (goal, scans mapped, open)
         self._decision_due = False
         self._best_distance = math.inf
         self._best_time = 0.0
@@ -306,7 +304,6 @@ class Episode:
             changed = self.mapper.integrate(scan, sensor_pose)
         else:
             changed = self.mapper.integrate(true_scan)
-        self._scans_mapped += 1
         self.tracker.observe(grid, changed)
         if self._costmap is not None:
             self._costmap.update(np.concatenate([changed[:, 0] * grid.shape[1] + changed[:, 1],
@@ -331,19 +328,14 @@ class Episode:
             verdict = self.explorer.goal_open(self.mapper.grid)
             if verdict is not None:
                 return verdict
-        # Asked every control period: the cells around the goal are found once per goal,
-        # and looked at again only when a scan has been mapped since.
+        # Asked every control period: the cells around the goal are found once per goal.
         goal = tuple(self.goal)
-        if self._goal_open is not None and self._goal_open[:2] == (goal, self._scans_mapped):
-            return self._goal_open[2]
         if self._goal_window is None or self._goal_window[0] != goal:
             grid = self.mapper.grid
             r, c = grid.world_to_cell(self.goal)
             k = max(1, int(round(0.3 / grid.resolution)))
             self._goal_window = goal, np.s_[max(r - k, 0):r + k + 1, max(c - k, 0):c + k + 1]
-        verdict = bool((self.mapper.state[self._goal_window[1]] < 0).any())
-        self._goal_open = goal, self._scans_mapped, verdict
-        return verdict
+        return bool((self.mapper.state[self._goal_window[1]] < 0).any())
 
     def decision_state(self) -> ExplorationState:
         """What the explorer sees now (frontiers already filtered by the blacklist)."""
