@@ -30,7 +30,7 @@ for e in $EXPERIMENTS; do
     gvn_v2) mj bench --scenes loop_with_corridor,maze,office \
               --explorers nearest,potential,cnn_v2,gvn_v2 \
               --seeds 10 --workers "$W" --out "$OUT/gvn_v2" ;;
-    explore_bench) mj bench --scenes "$EB" --explorers $ALL --seeds 2 --lidar-range 7 \
+    explore_bench) mj bench --scenes "$EB" --explorers $ALL,cnn_v2,gvn_v2 --seeds 2 --lidar-range 7 \
               --workers "$W" --out "$OUT/explore_bench" ;;
     realistic) mj bench --scenes loop_with_corridor,maze,office --explorers $ALL --seeds 5 \
               --lidar-model lds01 --odometry-error typical --localization scan_matching \

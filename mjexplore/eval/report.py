@@ -151,8 +151,8 @@ EXPERIMENTS = (
     Experiment("explore_bench", "Generalisation: the Explore-Bench maps",
                "The six Explore-Bench maps (ROS map_server maps imported as MJCF, 7 m lidar), "
                "which no policy was trained on.",
-               ("nearest", "explore_lite", "frontier_tsp", "rrt", "potential", "cnn", "gvn",
-                "oracle"),
+               ("nearest", "explore_lite", "frontier_tsp", "rrt", "potential", "cnn", "cnn_v2",
+                "gvn", "gvn_v2", "oracle"),
                f"mjexplore bench --scenes {EXPLORE_BENCH} --explorers {{explorers}} --seeds 2 "
                "--lidar-range 7 --workers 2 --out runs/explore_bench"),
     Experiment("ariadne", "Generalisation: the ARiADNE test maps",
