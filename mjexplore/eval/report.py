@@ -101,8 +101,8 @@ EXPERIMENTS = (
     Experiment("ablation_v2", "Table 2 under the v2 recipe",
                "The same ablation with policies trained by the v2 recipe (training/gvn_v2.yaml "
                "and its masking variants gvn_v2_naive.yaml and gvn_v2_none.yaml: the same "
-               "reward, layouts, seed and budget, each run's weights at its end), on the "
-               "loop and maze "
+               "reward, layouts, seed and budget: each policy's weights after the same "
+               "number of decisions), on the loop and maze "
                "scenes, 5 runs each. With every TER node valid, the nearest-node prior the "
                "v2 actor starts from favours the node with the shortest path from the "
                "robot, usually one within zeta of where it stands: such a goal is reached at "
