@@ -138,7 +138,7 @@ def test_claims_compare_gvn_with_the_potential_field_as_the_paper_does():
     assert faster == [True, False]
 
 
-def _ends(method: str, times: list[float], explored: int | None = None) -> list[dict]:
+def _ends(times: list[float], explored: int | None = None) -> list[dict]:
     explored = len(times) if explored is None else explored
     return [{"metrics": {"exploration_time_s": t,
                          "end_reason": "explored" if i < explored else "lingering"}}
@@ -146,18 +146,18 @@ def _ends(method: str, times: list[float], explored: int | None = None) -> list[
 
 
 def test_the_masking_ablation_says_plainly_whether_iam_is_best():
-    groups = {"loop": {"gvn_v2_naive": _ends("n", [100.0, 102.0]),
-                       "gvn_v2": _ends("i", [90.0, 92.0])},
+    groups = {"loop": {"gvn_v2_naive": _ends([100.0, 102.0]),
+                       "gvn_v2": _ends([90.0, 92.0])},
               # IAM faster, but one of its runs stopped short: naive masking is best.
-              "maze": {"gvn_v2_naive": _ends("n", [300.0, 300.0]),
-                       "gvn_v2": _ends("i", [200.0, 200.0], explored=1)}}
+              "maze": {"gvn_v2_naive": _ends([300.0, 300.0]),
+                       "gvn_v2": _ends([200.0, 200.0], explored=1)}}
     text = masking_verdict(groups, "gvn_v2")
     assert text.startswith("Is IAM best? IAM is best on 1 of 2 scenes")
     assert "on loop IAM is best: 91.0 s against naive masking's 101.0 s;" in text
     assert "on maze IAM is not best: naive masking is (300.0 s against IAM's 200.0 s, " \
            "ranked 2 of 2)." in text
     # A lead within the runs' spread is no verdict to trust.
-    close = {"loop": {"gvn_none": _ends("x", [100.0, 120.0]), "gvn": _ends("i", [105.0, 106.0])}}
+    close = {"loop": {"gvn_none": _ends([100.0, 120.0]), "gvn": _ends([105.0, 106.0])}}
     assert "(within the runs' spread: not conclusive)" in masking_verdict(close, "gvn")
     assert masking_verdict(close, "gvn").startswith("Is IAM best? IAM is best on every scene")
 

@@ -125,6 +125,11 @@ def ppo_round(dynamics: str, n_envs: int | None = None) -> dict[str, float]:
     return timed_round(config, model_setup=load_shipped)
 
 
+def _rate(round_: dict[str, float]) -> float:
+    """Decisions per second of wall time of a PPO round (rollout and update)."""
+    return round_["decisions"] / (round_["rollout_s"] + round_["update_s"])
+
+
 def v2_round() -> dict[str, float]:
     """One rollout and PPO update of training/gvn_v2.yaml as it stands (fresh weights)."""
     from mjexplore.explorers.gvn import DEFAULT_WEIGHTS
@@ -175,25 +180,24 @@ def main() -> None:
     kinematic = ppo_round("kinematic")
     ppo = ppo_round("grid")
     n, rollout, update = ppo["decisions"], ppo["rollout_s"], ppo["update_s"]
-    kin_rate = kinematic["decisions"] / (kinematic["rollout_s"] + kinematic["update_s"])
+    rate, kin_rate = _rate(ppo), _rate(kinematic)
     out.update(rollout_ms_per_decision=round(rollout / n * 1e3, 2),
                update_ms_per_decision=round(update / n * 1e3, 2), update_target_ms=10.0,
                update_share_of_training=round(update / (rollout + update), 3),
-               train_decisions_per_s=round(n / (rollout + update), 2),
+               train_decisions_per_s=round(rate, 2),
                train_decisions_per_s_kinematic=round(kin_rate, 2),
-               grid_over_kinematic=round(n / (rollout + update) / kin_rate, 2),
+               grid_over_kinematic=round(rate / kin_rate, 2),
                ppo_bench_wall_s=round(time.perf_counter() - t, 1))
     # Two envs per core: while one env of a core waits for the slower env of its step,
     # the other works (a decision takes from one to hundreds of control periods).
-    doubled = ppo_round("grid", n_envs=4)
-    rate4 = doubled["decisions"] / (doubled["rollout_s"] + doubled["update_s"])
+    rate4 = _rate(ppo_round("grid", n_envs=4))
     out.update(train_decisions_per_s_4envs=round(rate4, 2),
-               four_envs_over_two=round(rate4 / (n / (rollout + update)), 2))
+               four_envs_over_two=round(rate4 / rate, 2))
     v2 = v2_round()
-    n, rollout, update = v2["decisions"], v2["rollout_s"], v2["update_s"]
-    out.update(v2_rollout_ms_per_decision=round(rollout / n * 1e3, 2),
-               v2_update_ms_per_decision=round(update / n * 1e3, 2),
-               v2_train_decisions_per_s=round(n / (rollout + update), 2))
+    n = v2["decisions"]
+    out.update(v2_rollout_ms_per_decision=round(v2["rollout_s"] / n * 1e3, 2),
+               v2_update_ms_per_decision=round(v2["update_s"] / n * 1e3, 2),
+               v2_train_decisions_per_s=round(_rate(v2), 2))
     out["decisions"] = "GVN policy, seed 0, " + ",".join(scenes)
     print(json.dumps(out))
 

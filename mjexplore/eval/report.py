@@ -422,27 +422,24 @@ def masking_verdict(groups, iam: str) -> str:
     parts, best_on = [], 0
     scenes = [s for s, methods in groups.items() if iam in methods and len(methods) > 1]
     for scene in scenes:
-        methods = groups[scene]
-
-        def rank(m):
-            runs = methods[m]
-            return (-sum(r["metrics"]["end_reason"] == "explored" for r in runs),
-                    float(np.mean([r["metrics"]["exploration_time_s"] for r in runs])))
-
-        order = sorted(methods, key=rank)
+        # Per variant: (-runs explored, mean ET, std ET); sorting puts the best first.
+        stats = {}
+        for m, runs in groups[scene].items():
+            times = [r["metrics"]["exploration_time_s"] for r in runs]
+            stats[m] = (-sum(r["metrics"]["end_reason"] == "explored" for r in runs),
+                        float(np.mean(times)), float(np.std(times)))
+        order = sorted(stats, key=lambda m: stats[m][:2])
         first, second = order[0], order[1]
-        et = {m: rank(m)[1] for m in (first, second)}
-        spread = max(float(np.std([r["metrics"]["exploration_time_s"] for r in methods[m]]))
-                     for m in (first, second))
-        close = rank(first)[0] == rank(second)[0] and et[second] - et[first] < spread
+        (explored1, et1, std1), (explored2, et2, std2) = stats[first], stats[second]
+        close = explored1 == explored2 and et2 - et1 < max(std1, std2)
         doubt = " (within the runs' spread: not conclusive)" if close else ""
         if first == iam:
             best_on += 1
-            parts.append(f"on {scene} IAM is best: {et[iam]:.1f} s against "
-                         f"{_variant(second)}'s {et[second]:.1f} s{doubt}")
+            parts.append(f"on {scene} IAM is best: {et1:.1f} s against "
+                         f"{_variant(second)}'s {et2:.1f} s{doubt}")
         else:
             parts.append(f"on {scene} IAM is not best: {_variant(first)} "
-                         f"is ({et[first]:.1f} s against IAM's {rank(iam)[1]:.1f} s, "
+                         f"is ({et1:.1f} s against IAM's {stats[iam][1]:.1f} s, "
                          f"ranked {order.index(iam) + 1} of {len(order)}){doubt}")
     if not scenes:
         return "IAM did not run beside another variant: no verdict."
