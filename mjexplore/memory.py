@@ -19,6 +19,7 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import logging
+import os
 
 log = logging.getLogger(__name__)
 
@@ -52,3 +53,16 @@ def reuse_freed_memory() -> bool:
     """Makes glibc serve every block from the heap and keep up to 1 GiB of freed memory
     there, for a training learner (see the module docstring); True if set."""
     return _mallopt(((M_MMAP_MAX, 0), (M_TRIM_THRESHOLD, LEARNER_TRIM_BYTES)))
+
+
+def init_episode_worker() -> None:
+    """Sets up a worker process that runs episodes, one per core: one thread for OpenMP and
+    numba (libraries loaded later; torch, if already loaded, gets ``set_num_threads(1)``)
+    and a bounded heap (:func:`bound_heap_growth`)."""
+    import sys
+
+    os.environ["OMP_NUM_THREADS"] = "1"
+    os.environ["NUMBA_NUM_THREADS"] = "1"
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(1)
+    bound_heap_growth()

@@ -37,7 +37,7 @@ from mjexplore.episode import EpisodeConfig
 from mjexplore.imitation import ImitationConfig
 from mjexplore.io.atomic import write_bytes_atomic, write_text_atomic
 from mjexplore.io.provenance import git_revision
-from mjexplore.memory import reuse_freed_memory
+from mjexplore.memory import init_episode_worker, reuse_freed_memory
 from mjexplore.policies.registry import layout_of
 from mjexplore.policies.weights import read_policy_weights, save_policy_weights
 
@@ -111,8 +111,8 @@ class PolicyConfig:
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class EvalConfig:
-    """Periodic evaluation on held-out scenes (deterministic policy, main process); the best
-    evaluated weights are kept (model selection).
+    """Periodic evaluation on held-out scenes (deterministic policy, in as many processes as
+    the run has envs); the best evaluated weights are kept (model selection).
 
     Select on held-out generated layouts (``procedural``), never on a scene results are
     reported on (the paper's evaluation scenes, the lobby, Explore-Bench, ARiADNE): a
@@ -440,21 +440,64 @@ def heldout_env(config: TrainConfig, scene: str) -> ExplorationEnv:
                                               episode=config.eval.episode))
 
 
-def evaluate_policy_episodes(policy, config: TrainConfig,
-                             scenes: tuple[str, ...] | None = None) -> list[dict[str, Any]]:
+def evaluate_policy_episodes(policy, config: TrainConfig, scenes: tuple[str, ...] | None = None,
+                             workers: int = 1) -> list[dict[str, Any]]:
     """Runs the policy deterministically on the held-out scenes (or ``scenes``, with the
-    evaluation's episode settings); their episode metrics."""
-    results = []
-    for scene in config.eval.scene_list() if scenes is None else scenes:
-        env = heldout_env(config, scene)
-        obs, _ = env.reset(seed=config.eval.seed)
-        while True:
-            action, _ = policy.predict(obs, deterministic=True, action_masks=env.action_masks())
-            obs, _, terminated, truncated, info = env.step(int(action))
-            if terminated or truncated:
-                results.append({"scene": scene, **info["episode_metrics"]})
-                break
-    return results
+    evaluation's episode settings); their episode metrics, in the scenes' order.
+
+    Args:
+        policy: An SB3 policy of ``config`` (on any device) or any object with SB3's
+            ``predict(obs, deterministic, action_masks)``.
+        config: The run's settings.
+        scenes: Scenes to evaluate instead of the held-out ones.
+        workers: Processes that run the episodes (one scene each at a time); a network
+            runs there on the CPU with one thread, so the results equal one process's.
+    """
+    scenes = config.eval.scene_list() if scenes is None else tuple(scenes)
+    if workers <= 1 or len(scenes) <= 1:
+        return [_heldout_episode(policy, config, scene) for scene in scenes]
+    import multiprocessing
+
+    if isinstance(policy, torch.nn.Module):
+        portable = (dict((k, v.detach().cpu()) for k, v in policy.state_dict().items()),
+                    policy.observation_space, policy.action_space)
+    else:
+        portable = policy
+    ctx = multiprocessing.get_context("spawn")
+    with ctx.Pool(min(workers, len(scenes)), initializer=_eval_worker_init,
+                  initargs=(config, portable)) as pool:
+        return pool.map(_eval_worker_episode, scenes, chunksize=1)
+
+
+def _heldout_episode(policy, config: TrainConfig, scene: str) -> dict[str, Any]:
+    env = heldout_env(config, scene)
+    obs, _ = env.reset(seed=config.eval.seed)
+    while True:
+        action, _ = policy.predict(obs, deterministic=True, action_masks=env.action_masks())
+        obs, _, terminated, truncated, info = env.step(int(action))
+        if terminated or truncated:
+            return {"scene": scene, **info["episode_metrics"]}
+
+
+_EVAL_WORKER: dict[str, Any] = {}
+
+
+def _eval_worker_init(config: TrainConfig, portable) -> None:
+    init_episode_worker()
+    policy = portable
+    if isinstance(portable, tuple):
+        from mjexplore.policies.registry import policy_class
+
+        state, observation_space, action_space = portable
+        policy = policy_class(config.kind)(observation_space, action_space, lambda _: 0.0,
+                                           **_policy_kwargs(config))
+        policy.load_state_dict(state)
+        policy.set_training_mode(False)
+    _EVAL_WORKER.update(config=config, policy=policy)
+
+
+def _eval_worker_episode(scene: str) -> dict[str, Any]:
+    return _heldout_episode(_EVAL_WORKER["policy"], _EVAL_WORKER["config"], scene)
 
 
 class NearestNodeRule:
@@ -586,7 +629,9 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
                 self._evaluate(n)
 
         def _evaluate(self, n: int) -> None:
-            results = evaluate_policy_episodes(self.model.policy, config)
+            # The env workers wait meanwhile: the evaluation takes as many processes.
+            results = evaluate_policy_episodes(self.model.policy, config,
+                                               workers=config.n_envs)
             self.logger.record("eval/exploration_time_s",
                                float(np.mean([r["exploration_time_s"] for r in results])))
             self.logger.record("eval/exploration_ratio",

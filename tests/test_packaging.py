@@ -121,3 +121,12 @@ def test_test_extras_do_not_cover_package_code(tmp_path):
     module.write_text("def f():\n    from skimage.morphology import skeletonize\n")
     assert "skimage" in uncovered([module], declared())
     assert uncovered([module], declared(["test"])) == {}
+
+
+def test_a_copy_without_git_history_names_its_revision(monkeypatch):
+    from mjexplore.io.provenance import git_revision
+
+    monkeypatch.setenv("MJEXPLORE_GIT_REVISION", "c8129f1")
+    assert git_revision() == "c8129f1-copy"
+    monkeypatch.delenv("MJEXPLORE_GIT_REVISION")
+    assert not git_revision().endswith("-copy")

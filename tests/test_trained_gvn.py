@@ -29,8 +29,18 @@ def test_shipped_v2_policy_is_faster_than_the_rule_on_eight_unseen_layouts():
     # The held-out generator seeds past the model-selection set: layouts of the training
     # families and sizes that neither training nor the choice of these weights saw.
     scenes = config.eval.unseen_scenes(UNSEEN)
-    learned = evaluate_policy_episodes(policy, config, scenes)
-    rule = evaluate_policy_episodes(NearestNodeRule(), config, scenes)
+    learned = evaluate_policy_episodes(policy, config, scenes, workers=2)
+    rule = evaluate_policy_episodes(NearestNodeRule(), config, scenes, workers=2)
     assert all(r["end_reason"] == "explored" for r in learned + rule)
     times = np.array([[r["exploration_time_s"] for r in runs] for runs in (learned, rule)])
     assert times[0].mean() < times[1].mean(), times
+
+
+@pytest.mark.slow
+def test_evaluation_in_worker_processes_equals_one_process():
+    policy, meta = load_policy(WEIGHTS, expected_kind="gvn")
+    config = from_dict(TrainConfig, meta["provenance"]["config"])
+    scenes = config.eval.scene_list()[:3]
+    serial = evaluate_policy_episodes(policy, config, scenes)
+    assert evaluate_policy_episodes(policy, config, scenes, workers=2) == serial
+    assert [r["scene"] for r in serial] == list(scenes)

@@ -17,7 +17,6 @@ import io
 import json
 import logging
 import multiprocessing
-import os
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +29,7 @@ from mjexplore.eval.plots import kinematics_figure, ratio_figure
 from mjexplore.eval.run import write_run
 from mjexplore.io.atomic import write_text_atomic
 from mjexplore.io.provenance import git_revision
+from mjexplore.memory import init_episode_worker
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.sim.kinematics import KinematicsLog
 
@@ -149,7 +149,7 @@ def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Pa
             bar.update()
     else:
         ctx = multiprocessing.get_context("spawn")
-        with ctx.Pool(workers, initializer=_single_thread) as pool:
+        with ctx.Pool(workers, initializer=init_episode_worker) as pool:
             for metrics in pool.imap_unordered(_run_job, args):
                 results.append(metrics)
                 bar.update()
@@ -157,13 +157,6 @@ def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Pa
     write_summary(out, jobs)
     return results
 
-
-def _single_thread() -> None:
-    os.environ["OMP_NUM_THREADS"] = "1"
-    os.environ["NUMBA_NUM_THREADS"] = "1"
-    from mjexplore.memory import bound_heap_growth
-
-    bound_heap_growth()
 
 
 def read_ratio_curve(folder: Path) -> np.ndarray:

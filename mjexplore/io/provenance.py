@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 from pathlib import Path
 
@@ -10,7 +11,15 @@ REPO = Path(__file__).resolve().parents[2]
 
 def git_revision() -> str:
     """The checked-out commit (with ``-dirty`` if there are uncommitted changes), or
-    'unknown' outside a git checkout."""
+    'unknown' outside a git checkout.
+
+    A copy of a commit's files without its history (a container image, a cluster node)
+    names its commit in the environment variable ``MJEXPLORE_GIT_REVISION``, which is then
+    returned as it is, with ``-copy`` appended.
+    """
+    named = os.environ.get("MJEXPLORE_GIT_REVISION", "").strip()
+    if named:
+        return f"{named}-copy"
     try:
         rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True,
                              text=True, timeout=10, check=True).stdout.strip()
