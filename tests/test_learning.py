@@ -581,7 +581,7 @@ def test_resumed_training_keeps_the_best_weights_of_the_first_part(tmp_path, mon
 
     ratios = iter([0.95, 0.90])  # Evaluations at 8 steps, then at 24 after the resume.
 
-    def fake_eval(policy, config):
+    def fake_eval(policy, config, workers=1):
         return [{"scene": "train_loop", "exploration_time_s": 100.0, "path_length_m": 50.0,
                  "exploration_ratio": next(ratios), "end_reason": "explored"}]
 

@@ -52,7 +52,7 @@ for e in $EXPERIMENTS; do
         d=$OUT/ariadne_scenes/$(basename "$f" .png)
         [ -d "$d" ] || mj scene-gen --from-map "$f" --resolution 0.1 --out "$d" > /dev/null
       done
-      mj bench --scenes "$(ls -d "$OUT"/ariadne_scenes/* | paste -sd,)" --explorers $ALL \
+      mj bench --scenes "$(ls -d "$OUT"/ariadne_scenes/* | paste -sd,)" --explorers $ALL,cnn_v2,gvn_v2 \
         --seeds 1 --lidar-range 8 --workers "$W" --out "$OUT/ariadne" ;;
     *) echo "unknown experiment $e" >&2; exit 2 ;;
   esac

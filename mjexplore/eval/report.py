@@ -162,8 +162,8 @@ EXPERIMENTS = (
                "completion tests differ: ARiADNE's greedy run stops when its graph has no "
                "utility left (99.9 % of the free pixels seen on average), an mjexplore episode "
                "at 98.5 % of the observable free space; the last 1.5 % costs path.",
-               ("nearest", "explore_lite", "frontier_tsp", "rrt", "potential", "cnn", "gvn",
-                "oracle"),
+               ("nearest", "explore_lite", "frontier_tsp", "rrt", "potential", "cnn", "cnn_v2",
+                "gvn", "gvn_v2", "oracle"),
                "for f in ../shared/data/ariadne_test/img_*.png; do mjexplore scene-gen "
                "--from-map $f --resolution 0.1 --out runs/ariadne_scenes/$(basename $f .png); "
                "done; mjexplore bench --scenes $(ls -d runs/ariadne_scenes/* | paste -sd,) "
