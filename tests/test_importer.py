@@ -115,3 +115,21 @@ def test_ariadne_image_imports_with_marker_start(tmp_path):
     free_fraction = grid.free.mean()
     assert 0.10 < free_fraction < 0.40
     assert not math.isnan(meta["start"][2])
+
+
+def test_imported_scene_cache_is_rebuilt_when_the_import_code_changes(tmp_path, monkeypatch):
+    """The cache key of an imported map covers the code and robot model that build the
+    scene, so a scene imported by older code is never reused."""
+    from mjexplore.scenes import canonical
+
+    image = tmp_path / "m.pgm"
+    image.write_bytes(b"P5\n2 2\n255\n" + bytes([254, 254, 254, 0]))
+    yaml_path = tmp_path / "m.yaml"
+    yaml_path.write_text("image: m.pgm\nresolution: 0.1\norigin: [0, 0, 0]\n")
+    code = tmp_path / "importer_copy.py"
+    code.write_text("# version 1\n")
+    monkeypatch.setattr(canonical, "IMPORT_CODE", canonical.IMPORT_CODE + (code,))
+    before = canonical._import_digest(yaml_path, None)
+    assert canonical._import_digest(yaml_path, None) == before
+    code.write_text("# version 2\n")
+    assert canonical._import_digest(yaml_path, None) != before

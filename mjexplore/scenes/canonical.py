@@ -14,6 +14,7 @@ from pathlib import Path
 import yaml
 
 from mjexplore.errors import UserInputError
+from mjexplore.robot import ROBOT_XML, turtlebot3
 from mjexplore.scenes.scene import SceneFiles, load_scene_files
 
 SCENES_DIR = Path(os.environ.get("MJEXPLORE_SCENES",
@@ -77,9 +78,19 @@ def canonical_names(role: str | None = None) -> list[str]:
     return [n for n, c in CANONICAL_SCENES.items() if role is None or c.role == role]
 
 
+# The files that decide what an import builds (its code and the robot model it places): a
+# change to any of them makes earlier imports stale.
+IMPORT_CODE = tuple(Path(__file__).with_name(name) for name in (
+    "importer.py", "map_server.py", "scene.py", "mesh.py", "rectangles.py")) + (
+    Path(turtlebot3.__file__), ROBOT_XML)
+
+
 def _import_digest(path: Path, start) -> str:
-    """Cache key of an imported map: its YAML, its image and the start pose rule."""
+    """Cache key of an imported map: its YAML, its image, the start pose rule and the code
+    that imports it (``IMPORT_CODE``)."""
     digest = hashlib.sha256(path.read_bytes())
+    for module in IMPORT_CODE:
+        digest.update(module.read_bytes())
     try:
         image = yaml.safe_load(path.read_text()).get("image")
         digest.update((path.parent / image).read_bytes())
