@@ -20,6 +20,7 @@ import ctypes
 import ctypes.util
 import logging
 import os
+import sys
 
 log = logging.getLogger(__name__)
 
@@ -59,8 +60,6 @@ def init_episode_worker() -> None:
     """Sets up a worker process that runs episodes, one per core: one thread for OpenMP and
     numba (libraries loaded later; torch, if already loaded, gets ``set_num_threads(1)``)
     and a bounded heap (:func:`bound_heap_growth`)."""
-    import sys
-
     os.environ["OMP_NUM_THREADS"] = "1"
     os.environ["NUMBA_NUM_THREADS"] = "1"
     if "torch" in sys.modules:

@@ -20,6 +20,7 @@ import functools
 import io
 import json
 import logging
+import multiprocessing
 import random
 import time
 from pathlib import Path
@@ -39,7 +40,8 @@ from mjexplore.io.atomic import write_bytes_atomic, write_text_atomic
 from mjexplore.io.provenance import git_revision
 from mjexplore.memory import init_episode_worker, reuse_freed_memory
 from mjexplore.policies.registry import layout_of
-from mjexplore.policies.weights import read_policy_weights, save_policy_weights
+from mjexplore.policies.weights import (build_policy, read_policy_weights,
+                                        save_policy_weights)
 
 log = logging.getLogger(__name__)
 
@@ -419,6 +421,15 @@ def _policy_kwargs(config: TrainConfig) -> dict[str, Any]:
     return kwargs
 
 
+def _fresh_policy(config: TrainConfig):
+    """A new policy network of ``config`` for inference."""
+    from mjexplore.policies.registry import decisions_for
+
+    decisions = decisions_for(config.kind, layout_of(config.kind, config.env))
+    return build_policy(config.kind, decisions.observation_space, decisions.action_space,
+                        _policy_kwargs(config))
+
+
 def _warm_start(policy, config: TrainConfig, out: Path) -> None:
     """Clones the oracle into ``policy`` (a fresh run only); the figures go to
     ``imitation.json``."""
@@ -456,11 +467,8 @@ def evaluate_policy_episodes(policy, config: TrainConfig, scenes: tuple[str, ...
     scenes = config.eval.scene_list() if scenes is None else tuple(scenes)
     if workers <= 1 or len(scenes) <= 1:
         return [_heldout_episode(policy, config, scene) for scene in scenes]
-    import multiprocessing
-
-    if isinstance(policy, torch.nn.Module):
-        portable = (dict((k, v.detach().cpu()) for k, v in policy.state_dict().items()),
-                    policy.observation_space, policy.action_space)
+    if isinstance(policy, torch.nn.Module):  # Its weights: rebuilt on the CPU there.
+        portable = {k: v.detach().cpu() for k, v in policy.state_dict().items()}
     else:
         portable = policy
     ctx = multiprocessing.get_context("spawn")
@@ -485,13 +493,9 @@ _EVAL_WORKER: dict[str, Any] = {}
 def _eval_worker_init(config: TrainConfig, portable) -> None:
     init_episode_worker()
     policy = portable
-    if isinstance(portable, tuple):
-        from mjexplore.policies.registry import policy_class
-
-        state, observation_space, action_space = portable
-        policy = policy_class(config.kind)(observation_space, action_space, lambda _: 0.0,
-                                           **_policy_kwargs(config))
-        policy.load_state_dict(state)
+    if isinstance(portable, dict):
+        policy = _fresh_policy(config)
+        policy.load_state_dict(portable)
         policy.set_training_mode(False)
     _EVAL_WORKER.update(config=config, policy=policy)
 
@@ -680,18 +684,14 @@ def export_checkpoint(checkpoint: str | Path, out: str | Path,
     provenance. ``git_revision_override`` corrects the recorded revision of checkpoints
     written before it was fixed at the start of training."""
     from mjexplore.config import from_dict
-    from mjexplore.policies.registry import decisions_for, policy_class
-
     state = load_checkpoint(Path(checkpoint))
     config = from_dict(TrainConfig, json.loads(state["config"]))
-    layout = layout_of(config.kind, config.env)
-    decisions = decisions_for(config.kind, layout)
-    policy = policy_class(config.kind)(decisions.observation_space, decisions.action_space,
-                                       lambda _: 0.0, **_policy_kwargs(config))
+    policy = _fresh_policy(config)
     policy.load_state_dict(state["policy"])
     provenance = {"git_revision": git_revision_override or state["git_revision"],
                   "config": to_dict(config),
                   "num_timesteps": int(state["num_timesteps"]),
                   "checkpoint": Path(checkpoint).name}
-    save_policy_weights(out, policy, config.kind, _policy_kwargs(config), layout, provenance)
+    save_policy_weights(out, policy, config.kind, _policy_kwargs(config),
+                        layout_of(config.kind, config.env), provenance)
     return provenance

@@ -158,7 +158,6 @@ def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Pa
     return results
 
 
-
 def read_ratio_curve(folder: Path) -> np.ndarray:
     """A run folder's exploration ratio as (N, 2) rows of (t s, ratio)."""
     return np.loadtxt(folder / "ratio.csv", delimiter=",", skiprows=1, ndmin=2)

@@ -83,6 +83,13 @@ def read_policy_weights(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor
     return tensors, decoded
 
 
+def build_policy(kind: str, observation_space, action_space, policy_kwargs: dict[str, Any]):
+    """A fresh policy network of ``kind`` for inference (no learning-rate schedule)."""
+    from mjexplore.policies.registry import policy_class
+
+    return policy_class(kind)(observation_space, action_space, lambda _: 0.0, **policy_kwargs)
+
+
 def load_policy(path: str | os.PathLike, expected_kind: str | None = None):
     """Rebuilds the policy stored at ``path`` in evaluation mode.
 
@@ -93,7 +100,7 @@ def load_policy(path: str | os.PathLike, expected_kind: str | None = None):
         UserInputError: unreadable file, another kind of policy, or weights that do not
             fit the network they describe.
     """
-    from mjexplore.policies.registry import decisions_for, policy_class
+    from mjexplore.policies.registry import decisions_for
 
     tensors, meta = read_policy_weights(path)
     if expected_kind is not None and meta["kind"] != expected_kind:
@@ -102,8 +109,8 @@ def load_policy(path: str | os.PathLike, expected_kind: str | None = None):
     decisions = decisions_for(meta["kind"], meta["layout"])
     meta["decisions"] = decisions
     try:
-        policy = policy_class(meta["kind"])(decisions.observation_space, decisions.action_space,
-                                            lambda _: 0.0, **meta["policy_kwargs"])
+        policy = build_policy(meta["kind"], decisions.observation_space, decisions.action_space,
+                              meta["policy_kwargs"])
     except (TypeError, ValueError) as exc:
         raise UserInputError(f"{str(path)!r} describes a network this version cannot build "
                              f"({exc}).") from None
