@@ -228,7 +228,8 @@ def _episode_config(args: argparse.Namespace):
     return EpisodeConfig(max_time=args.max_time, target_ratio=args.target_ratio,
                          localization=args.localization,
                          sim=SimConfig(profile=args.profile, lidar=lidar,
-                                       odometry_error=args.odometry_error))
+                                       odometry_error=args.odometry_error,
+                                       odometry_heading=args.odometry_heading))
 
 
 def cmd_explore(args: argparse.Namespace) -> int:
@@ -404,7 +405,13 @@ def _add_episode_args(p: argparse.ArgumentParser) -> None:
                         "distortion without its frame's offset)")
     p.add_argument("--odometry-error", default="none", choices=["none", "typical"],
                    help="none (the model's exact wheel geometry) or typical (per-seed wheel "
-                        "radius and track width errors, wheel slip; see sim/odometry.py)")
+                        "radius and track width errors, wheel slip, and with "
+                        "--odometry-heading imu the gyro's scale, bias and noise; see "
+                        "sim/odometry.py)")
+    p.add_argument("--odometry-heading", default="wheels", choices=["wheels", "imu"],
+                   help="where the odometry's heading comes from: the wheels, or the IMU's "
+                        "gyro as on the real Turtlebot3 (turtlebot3_node's use_imu); the "
+                        "scan_matching localiser then estimates the gyro's bias")
     p.add_argument("--lidar-noise", type=float, default=None,
                    help="the ideal lidar's Gaussian range noise std in metres (0.01)")
     _add_lidar_model_arg(p)
@@ -586,7 +593,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "curves every 2 s, kinematic statistics) in DATA/EXPERIMENT.json, small "
                     "enough to commit. Experiments the report knows: table1, gvn_v2, "
                     "ablation, ablation_v2, lobby_real, realistic, realistic_truth, "
-                    "realistic_odometry, explore_bench, ariadne.")
+                    "realistic_odometry, realistic_imu, explore_bench, ariadne.")
     co.add_argument("sweep", type=Path, help="the sweep's --out folder")
     co.add_argument("--experiment", required=True, help="summary name (e.g. table1)")
     co.add_argument("--data", type=Path, default=Path("docs/results/data"),

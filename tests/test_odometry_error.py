@@ -8,8 +8,9 @@ from mjexplore.errors import UserInputError
 from mjexplore.robot import TURTLEBOT3_WAFFLE
 from mjexplore.scenes.importer import scene_from_grid
 from mjexplore.scenes.scene import write_scene
-from mjexplore.sim.odometry import (ODOMETRY_ERRORS, WheelOdometry, compose_pose,
-                                    odom_in_map, odometry_error, relative_pose)
+from mjexplore.sim.odometry import (ODOMETRY_ERRORS, WheelOdometry, compose_pose, gyro,
+                                    odom_in_map, odometry_error, relative_pose,
+                                    wheel_odometry)
 from mjexplore.sim.simulator import SimConfig, Simulator
 
 RUN_M = 10.0
@@ -95,6 +96,67 @@ def test_error_spread_matches_the_documented_magnitudes():
     assert np.std(ends[:, 0] - RUN_M) == pytest.approx(along, rel=0.15)
     assert np.std(ends[:, 1]) == pytest.approx(cross, rel=0.15)
     assert np.hypot(ends[:, 0] - RUN_M, ends[:, 1]).max() <= TYPICAL.straight_drift_bound(RUN_M)
+
+
+def test_gyro_heading_spread_matches_the_documented_magnitudes():
+    """300 robots with a gyro heading stand still for 100 s, then turn in place by 2 pi
+    while their wheels slip and their track width is off: the heading errors are the
+    gyro's (bias and noise, then its scale), not the wheels'."""
+    r, b = TURTLEBOT3_WAFFLE.wheel_radius, TURTLEBOT3_WAFFLE.wheel_separation
+    still, turned, wheels_only = [], [], []
+    for seed in range(300):
+        errors = odometry_error("typical", seed)
+        odom = WheelOdometry(error=errors, gyro=gyro("typical", seed))
+        wheels = WheelOdometry(error=errors)
+        for o in (odom, wheels):
+            o.reset(np.zeros(2), 0.0, true_yaw=0.5)
+        for k in range(1, 2001):  # 100 s at 20 Hz.
+            odom.update(np.zeros(2), k * 0.05, true_yaw=0.5)
+        still.append(odom.pose[2])
+        start = odom.pose[2]
+        for k in range(1, 201):  # 2 pi in 10 s.
+            yaw = 0.5 + 2 * math.pi * k / 200
+            angle = (2 * math.pi * k / 200) * b / 2 / r
+            for o in (odom, wheels):
+                o.update(np.array([-angle, angle]), 100.0 + k * 0.05, true_yaw=yaw)
+        turned.append(odom.pose[2] - start - odom.gyro.bias * 10.0)
+        wheels_only.append(wheels.pose[2])
+    still = np.array(still)
+    turned = np.array([math.remainder(t - 2 * math.pi, 2 * math.pi) for t in turned])
+    assert np.std(still) == pytest.approx(TYPICAL.gyro_heading_std(100.0), rel=0.15)
+    assert np.std(turned) == pytest.approx(2 * math.pi * TYPICAL.gyro_scale_std, rel=0.15)
+    # The wheels' heading over the same turn is off by their track width's and mean
+    # radius's errors.
+    wheel_turn = np.array([math.remainder(t, 2 * math.pi) for t in wheels_only])
+    assert np.std(wheel_turn) == pytest.approx(
+        2 * math.pi * math.hypot(TYPICAL.track_std, TYPICAL.wheel_scale_std), rel=0.15)
+
+
+def test_gyro_heading_in_physics_differs_between_seeds_and_keeps_the_wheel_errors(hall):
+    wheels = drive_straight(hall, seed=1, odometry_error="typical")
+    ends = []
+    for seed in (1, 2):
+        sim = drive_straight(hall, seed=seed, odometry_error="typical",
+                             odometry_heading="imu")
+        assert np.array_equal(sim.pose, wheels.pose)
+        end = odometry_in_map(sim)
+        # 10 m straight: the heading is off by the gyro's bias and noise over the run
+        # (about 21 s), not by the wheels' curvature.
+        g = sim.odometry.gyro
+        assert end[2] - sim.pose[2] == pytest.approx(
+            g.bias * sim.time, abs=3 * TYPICAL.gyro_noise_density * math.sqrt(sim.time) + 2e-4)
+        ends.append(end)
+    # Seed 1's wheels are the same with either heading: the same distance driven.
+    assert np.hypot(*(ends[0][:2] - wheels.odom_origin[:2])) == pytest.approx(
+        np.hypot(*(odometry_in_map(wheels)[:2] - wheels.odom_origin[:2])), abs=1e-3)
+    assert abs(ends[0][2] - ends[1][2]) > 1e-5
+
+
+def test_unknown_odometry_heading_is_refused():
+    with pytest.raises(UserInputError, match="wheels, imu"):
+        SimConfig(odometry_heading="compass")
+    with pytest.raises(ValueError, match="true yaw"):
+        wheel_odometry("typical", "imu", 0).reset(np.zeros(2), 0.0)
 
 
 def test_unknown_odometry_error_is_refused():

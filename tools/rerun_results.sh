@@ -3,14 +3,14 @@
 # (so the runs record that revision, clean, whatever the checkout holds meanwhile).
 #
 # Usage: tools/rerun_results.sh REV WORKERS [table1 gvn_v2 explore_bench ariadne ablation
-#        ablation_v2 lobby_real realistic realistic_truth realistic_odometry]
+#        ablation_v2 lobby_real realistic realistic_truth realistic_odometry realistic_imu]
 # Runs go to runs/rerun_REV/<experiment>; started again, bench skips the finished episodes.
 # Then: mjexplore collect runs/rerun_REV/<experiment> --experiment <experiment> and
 # mjexplore report. Needs ../shared/data (the Explore-Bench and ARiADNE maps).
 set -eu
 [ $# -ge 2 ] || { echo "usage: $0 REV WORKERS [EXPERIMENT...]" >&2; exit 2; }
 REV=$(git rev-parse --short "$1"); W=$2; shift 2
-EXPERIMENTS=${*:-table1 gvn_v2 explore_bench ariadne ablation ablation_v2 lobby_real realistic realistic_truth realistic_odometry}
+EXPERIMENTS=${*:-table1 gvn_v2 explore_bench ariadne ablation ablation_v2 lobby_real realistic realistic_truth realistic_odometry realistic_imu}
 ROOT=$(git rev-parse --show-toplevel)
 SHARED=$(cd "$ROOT/../shared" && pwd)
 WT=$ROOT/runs/wt_$REV
@@ -39,6 +39,9 @@ for e in $EXPERIMENTS; do
               --explorers nearest --seeds 5 --lidar-model lds01 --odometry-error typical \
               --localization "$([ $e = realistic_truth ] && echo ground_truth || echo odometry)" \
               --max-time 3600 --workers "$W" --out "$OUT/$e" ;;
+    realistic_imu) mj bench --scenes loop_with_corridor,maze,office --explorers nearest \
+              --seeds 5 --lidar-model lds01 --odometry-error typical --odometry-heading imu \
+              --localization scan_matching --max-time 3600 --workers "$W" --out "$OUT/$e" ;;
     ablation) mj bench --scenes loop_with_corridor,maze \
               --explorers gvn_none,gvn_naive,gvn_unmasked,gvn --seeds 5 --workers "$W" \
               --out "$OUT/ablation" ;;

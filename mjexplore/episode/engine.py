@@ -201,7 +201,8 @@ class Episode:
         if cfg.localization == "scan_matching":
             self.localizer = FusedLocalizer(
                 self.sim.pose, odom_pose=self.sim.odom_pose,
-                config=LocalizerConfig.for_lidar(self.sim.lidar.config))
+                config=LocalizerConfig.for_lidar(self.sim.lidar.config,
+                                                 cfg.sim.odometry_heading))
         elif cfg.localization != "ground_truth":
             self.localizer = ScanMatchingLocalizer(self.sim.pose, odom_pose=self.sim.odom_pose)
         if self.localizer is not None:
@@ -277,12 +278,12 @@ class Episode:
         loc = self.localizer
         rows = self.sim.kinematics_rows
         if len(rows) == 0:
-            odom, truth = self.sim.odom_pose, self.sim.pose
+            odom, truth, stamp = self.sim.odom_pose, self.sim.pose, self.sim.time
         else:
             recent = rows[-40:]
             k = int(np.argmin(np.abs(recent[:, 0] - scan.stamp)))  # Scans fall on samples.
-            odom, truth = recent[k, 8:11], recent[k, 5:8]
-        loc.advance(odom)
+            odom, truth, stamp = recent[k, 8:11], recent[k, 5:8], float(recent[k, 0])
+        loc.advance(odom, stamp)
         scan = self._deskewed(scan, slice(8, 11))
         if self.config.localization == "scan_matching":
             loc.correct(scan, self.mapper)

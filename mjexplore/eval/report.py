@@ -148,6 +148,17 @@ EXPERIMENTS = (
                f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 5 "
                "--lidar-model lds01 --odometry-error typical --localization odometry "
                "--max-time 3600 --workers 2 --out runs/realistic_odometry"),
+    Experiment("realistic_imu", "Realistic sensing with the gyro's heading",
+               "nearest in the realistic setting (LDS-01, typical odometry error, scan "
+               "matching) with the odometry's heading from the IMU's gyro, as the real "
+               "Turtlebot3's own odometry takes it (turtlebot3_node's use_imu): the wheels "
+               "give the distance, the gyro (scale, bias and noise of its class, "
+               "sim/odometry.py) the heading, and the localiser estimates the gyro's bias.",
+               ("nearest",),
+               f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 5 "
+               "--lidar-model lds01 --odometry-error typical --odometry-heading imu "
+               "--localization scan_matching --max-time 3600 --workers 2 "
+               "--out runs/realistic_imu"),
     Experiment("explore_bench", "Generalisation: the Explore-Bench maps",
                "The six Explore-Bench maps (ROS map_server maps imported as MJCF, 7 m lidar), "
                "which no policy was trained on.",
@@ -234,7 +245,8 @@ def _beside_ideal(groups, ideal) -> str:
 
 # The realistic setting's companion sweeps: nearest with the same sensing, localised
 # otherwise.
-LOCALIZATION_RUNS = {"realistic_truth": "ground truth", "realistic_odometry": "odometry"}
+LOCALIZATION_RUNS = {"realistic_truth": "ground truth", "realistic_odometry": "odometry",
+                     "realistic_imu": "scan matching, gyro heading"}
 
 
 def _by_localization(settings: dict[str, dict], method: str = "nearest") -> str:
@@ -570,7 +582,7 @@ def _section(name: str, summary, groups, figures: Path, rel: str) -> list[str]:
         return [relative_table(groups), "", reference_table(summary), "",
                 _other_ends(groups, episode=summary.get("episode")), ""] + \
             ([note, ""] if note else [])
-    if name in ("realistic", "realistic_odometry"):  # At the true pose the error is 0.
+    if name in ("realistic", "realistic_odometry", "realistic_imu"):  # Truth: no error.
         aligned = ("; the aligned RMSE after the rotation and translation that fit the "
                    "estimated trajectory best to the true one, the absolute trajectory error "
                    "of SLAM benchmarks: the distortion of the trajectory and its map without "

@@ -64,7 +64,16 @@ from mjexplore.mapping.scan_matching import (ScanMatcherConfig, ScanMatchingLoca
                                              match_scan, scan_points)
 from mjexplore.robot import TURTLEBOT3_WAFFLE, RobotGeometry
 from mjexplore.sim.lidar import LaserScan, range_noise_std
-from mjexplore.sim.odometry import compose_pose, wrap_angle
+from mjexplore.sim.odometry import HEADINGS, compose_pose, wrap_angle
+
+
+# The odometry model of a gyro heading (turtlebot3_node's use_imu): no slip in turns, so a
+# rotation is off by little beyond the scale error the state estimates (1 % per radian
+# left as margin for its drift); no heading change per metre; the bias (per second) is
+# estimated instead, with a prior twice the ``typical`` gyro's
+# (:mod:`mjexplore.sim.odometry`).
+GYRO_HEADING = {"odom_rot_rel": 0.01, "odom_rot_per_m": 0.0,
+                "calibration_std": (0.0, 0.03, math.radians(0.01))}
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -100,13 +109,19 @@ class LocalizerConfig:
             that is finer).
         calibration_std: Prior standard deviations of the odometry's systematic errors
             the localiser estimates: distance scale (dimensionless), rotation scale
-            (dimensionless) and heading change per metre driven (rad/m). A zero keeps
+            (dimensionless) and heading change per metre driven (rad/m; with
+            ``heading='imu'``, per second: the gyro's bias, rad/s). A zero keeps
             that error out of the state (all zero: no self-calibration). The rotation
             terms' defaults are twice the ``typical`` odometry error's
             (:mod:`mjexplore.sim.odometry`). The distance scale is left out by default:
             the matcher's own lag along the direction of travel (about 0.5 % of the
             distance with the LDS-01's noise) fed into it, and the estimate learnt a 2 %
             scale error on exact odometry.
+        heading: Where the odometry's heading comes from: 'wheels' or 'imu' (a gyro,
+            :class:`~mjexplore.sim.odometry.Gyro`: its errors grow with time and the
+            angle turned, not with the distance driven).
+        gyro_noise_density: With ``heading='imu'``, the gyro's rate noise density,
+            rad/s/sqrt(Hz): the heading's variance grows by its square per second.
     """
 
     occupied_logodds: float = 1.0
@@ -129,6 +144,8 @@ class LocalizerConfig:
     truncation_sigmas: float = 2.5
     density_resolution: float = 0.02
     calibration_std: tuple[float, float, float] = (0.0, 0.03, 0.015)
+    heading: str = "wheels"
+    gyro_noise_density: float = math.radians(0.01)
 
     def __post_init__(self) -> None:
         positive = (self.field_sigma, self.range_noise_std, self.max_distance,
@@ -140,27 +157,32 @@ class LocalizerConfig:
                 0 <= self.min_inliers <= 1 and self.iterations >= 1 and
                 self.field in ("returns", "map") and self.min_density > 0 and
                 self.truncation_sigmas >= 0 and self.density_resolution > 0 and
-                len(self.calibration_std) == 3 and
+                len(self.calibration_std) == 3 and self.heading in HEADINGS and
+                self.gyro_noise_density >= 0 and
                 all(v >= 0 and math.isfinite(v) for v in self.calibration_std)):
             raise UserInputError(
                 "localizer config needs field_sigma, range_noise_std, max_distance, "
                 "gate_sigmas and search_sigmas > 0, the odometry and relative noise terms "
                 ">= 0, scan_correlation >= 1, min_points >= 3, min_inliers in [0, 1], "
                 "iterations >= 1, field 'returns' or 'map', min_density > 0, "
-                "truncation_sigmas >= 0, density_resolution > 0 and three finite "
-                "calibration_std >= 0.")
+                "truncation_sigmas >= 0, density_resolution > 0, three finite "
+                f"calibration_std >= 0, heading one of {', '.join(HEADINGS)} and "
+                "gyro_noise_density >= 0.")
 
     def wall_density(self, resolution: float) -> float:
         """``min_density`` for a density of cells of side ``resolution`` (metres)."""
         return self.min_density * resolution / 0.05
 
     @classmethod
-    def for_lidar(cls, lidar, **overrides) -> LocalizerConfig:
+    def for_lidar(cls, lidar, heading: str = "wheels", **overrides) -> LocalizerConfig:
         """The settings with the range noise of a lidar model
-        (:class:`~mjexplore.sim.lidar.LidarConfig`)."""
-        return cls(**{"range_noise_std": max(lidar.noise_std, 0.005),
-                      "range_noise_rel": lidar.noise_rel,
-                      "range_noise_from": lidar.noise_rel_from, **overrides})
+        (:class:`~mjexplore.sim.lidar.LidarConfig`), for an odometry whose heading comes
+        from ``heading`` ('wheels', or 'imu': the gyro's noise model, see
+        :data:`GYRO_HEADING`)."""
+        sensors = {"range_noise_std": max(lidar.noise_std, 0.005),
+                   "range_noise_rel": lidar.noise_rel, "range_noise_from": lidar.noise_rel_from,
+                   "heading": heading, **(GYRO_HEADING if heading == "imu" else {})}
+        return cls(**{**sensors, **overrides})
 
 
 # ---------------------------------------------------------------------------- kernels
@@ -509,7 +531,8 @@ class FusedLocalizer(ScanMatchingLocalizer):
     @property
     def calibration(self) -> np.ndarray:
         """The odometry's estimated systematic errors: (distance scale, rotation scale,
-        heading change per metre driven in rad/m); (1, 1, 0) is an exact odometry."""
+        heading change per metre driven in rad/m, or with a gyro heading per second: minus
+        its bias in rad/s); (1, 1, 0) is an exact odometry."""
         return self._calibration.copy()
 
     @property
@@ -517,24 +540,29 @@ class FusedLocalizer(ScanMatchingLocalizer):
         """Standard deviations of :attr:`calibration`."""
         return np.sqrt(np.diag(self._cov)[3:])
 
-    def predict(self, odom_delta: tuple[float, float, float] | np.ndarray) -> None:
+    def predict(self, odom_delta: tuple[float, float, float] | np.ndarray,
+                dt: float = 0.0) -> None:
         """Moves the estimate by an odometry increment (x, y, yaw) given in the previous
-        ``base_link`` frame, corrected by the estimated calibration, and grows the
-        covariance by the increment's and the calibration's."""
+        ``base_link`` frame and taken over ``dt`` seconds, corrected by the estimated
+        calibration, and grows the covariance by the increment's and the calibration's."""
         cfg = self.config
         dx, dy, dth = (float(v) for v in odom_delta)
         dist = math.hypot(dx, dy)
-        driven = math.copysign(dist, dx)  # Reversing turns the heading error back.
-        scale, rot_scale, per_metre = self._calibration
-        ux, uy, uth = scale * dx, scale * dy, rot_scale * dth + per_metre * driven
+        gyro = cfg.heading == "imu"
+        # The third calibration term's unit: seconds for a gyro's bias; for the wheels'
+        # radius ratio metres driven, signed (reversing turns the heading error back).
+        unit = dt if gyro else math.copysign(dist, dx)
+        scale, rot_scale, drift = self._calibration
+        ux, uy, uth = scale * dx, scale * dy, rot_scale * dth + drift * unit
         c, s = math.cos(self._pose[2]), math.sin(self._pose[2])
         jacobian = np.eye(6)
         jacobian[:2, 2] = (-s * ux - c * uy, c * ux - s * uy)
         jd = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        jacobian[:3, 3:] = jd @ np.array([[dx, 0.0, 0.0], [dy, 0.0, 0.0], [0.0, dth, driven]])
+        jacobian[:3, 3:] = jd @ np.array([[dx, 0.0, 0.0], [dy, 0.0, 0.0], [0.0, dth, unit]])
         trans = (cfg.odom_trans_rel * dist) ** 2 + 1e-8
         q = np.diag([trans, trans, (cfg.odom_rot_rel * dth) ** 2 +
-                     (cfg.odom_rot_per_m * dist) ** 2 + 1e-8])
+                     (cfg.odom_rot_per_m * dist) ** 2 +
+                     (cfg.gyro_noise_density ** 2 * dt if gyro else 0.0) + 1e-8])
         self._cov = jacobian @ self._cov @ jacobian.T
         self._cov[:3, :3] += jd @ q @ jd.T
         self._pose = compose_pose(self._pose, (ux, uy, uth))

@@ -565,6 +565,7 @@ class ScanMatchingLocalizer:
         """Restarts at ``pose`` (``map``); ``odom_pose`` is the odometry's reading there."""
         self._pose = np.array(pose, dtype=float)
         self._last_odom = None if odom_pose is None else np.array(odom_pose, dtype=float)
+        self._last_stamp: float | None = None
         self.last_match: MatchResult | None = None
         self.matches = 0
         self.rejections = 0
@@ -579,18 +580,27 @@ class ScanMatchingLocalizer:
         """Estimated (x, y, yaw) of ``base_scan`` in ``map`` (for the mapper)."""
         return sensor_pose_of(self._pose, self.geometry)
 
-    def predict(self, odom_delta: tuple[float, float, float] | np.ndarray) -> None:
+    def predict(self, odom_delta: tuple[float, float, float] | np.ndarray,
+                dt: float = 0.0) -> None:
         """Moves the estimate by an odometry increment (x, y, yaw) given in the previous
-        ``base_link`` frame (``relative_pose(odom_before, odom_after)``)."""
+        ``base_link`` frame (``relative_pose(odom_before, odom_after)``), taken over ``dt``
+        seconds (not used here; the fused localiser's gyro bias needs it)."""
+        del dt
         self._pose = compose_pose(self._pose, odom_delta)
 
-    def advance(self, odom_pose: tuple[float, float, float] | np.ndarray) -> None:
+    def advance(self, odom_pose: tuple[float, float, float] | np.ndarray,
+                stamp: float | None = None) -> None:
         """Moves the estimate by the odometry's change since the last call (or reset with
-        ``odom_pose``); the first call only records ``odom_pose`` (``odom`` frame)."""
+        ``odom_pose``); the first call only records ``odom_pose`` (``odom`` frame).
+        ``stamp``: the reading's simulated time in seconds (the increment's duration is
+        taken between two stamped calls, else 0)."""
         odom_pose = np.array(odom_pose, dtype=float)
+        dt = 0.0 if stamp is None or self._last_stamp is None else stamp - self._last_stamp
         if self._last_odom is not None:
-            self.predict(relative_pose(self._last_odom, odom_pose))
+            self.predict(relative_pose(self._last_odom, odom_pose), max(dt, 0.0))
         self._last_odom = odom_pose
+        if stamp is not None:
+            self._last_stamp = float(stamp)
 
     def map_to_odom(self, odom_pose: tuple[float, float, float] | np.ndarray) -> np.ndarray:
         """The ``map -> odom`` transform (x, y, yaw) that puts ``odom_pose`` (``base_link``

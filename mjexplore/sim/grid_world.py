@@ -53,7 +53,6 @@ from mjexplore.scenes.scene import PHYSICS_TIMESTEP, SceneFiles, load_scene_file
 from mjexplore.sim.kinematics import KinematicsRecorder
 from mjexplore.sim.lidar import LaserScan, LidarConfig, measure_ranges
 from mjexplore.sim.motion import kinematic_step, mean_ramp_twist, ramp_command, wall_clearance
-from mjexplore.sim.odometry import WheelOdometry, odometry_error
 from mjexplore.sim.robot_world import RobotWorld
 from mjexplore.sim.simulator import (BASE_BODY, COLLISION_GAP_S, NO_IMU, SimConfig,
                                      _steps_per)
@@ -257,8 +256,7 @@ class GridWorld(RobotWorld):
         self._rng = np.random.default_rng(self.config.seed)
         self.lidar = GridLidar(self.scene.ground_truth, lidar_cfg, self._rng)
         self._skew = lidar_cfg.motion_skew
-        self.odometry = WheelOdometry(TURTLEBOT3_WAFFLE, odometry_error(
-            self.config.odometry_error, self.config.seed))
+        self.odometry = self.config.make_odometry()
         self._kinematics = KinematicsRecorder()
         self._model: mujoco.MjModel | None = None
         self._data: mujoco.MjData | None = None
@@ -337,7 +335,7 @@ class GridWorld(RobotWorld):
         self.collisions = 0
         self._in_contact = self._blocked = False
         self._last_contact = -math.inf
-        self.odometry.reset(self._wheels, 0.0)
+        self.odometry.reset(self._wheels, 0.0, true_yaw=self._pose[2])
         self._kinematics.clear()
         self.lidar.clear_history()
         self._sample()
@@ -408,7 +406,7 @@ class GridWorld(RobotWorld):
 
     def _sample(self) -> None:
         t = self.time
-        self.odometry.update(self._wheels, t)
+        self.odometry.update(self._wheels, t, true_yaw=self._pose[2])
         self._kinematics.record(t, *self._twist, self._cmd, self._pose,
                                 self.odometry.pose_tuple, NO_IMU)
         if self._skew:

@@ -38,6 +38,25 @@ The ``typical`` magnitudes are this model's assumptions, sized from the robot's 
 Systematic draws are normal, clipped to three standard deviations, so
 :meth:`OdometryErrorConfig.straight_drift_bound` is a bound on them.
 
+**Heading from the gyro** (``heading='imu'``): the Turtlebot3's own odometry
+(``turtlebot3_node``, ``odometry.use_imu: true`` in its Waffle parameters) takes the
+distance from the wheels and the heading from the IMU, whose yaw does not slip when the
+wheels skid in a turn. Its gyro (the OpenCR board's MPU-9250, its offsets calibrated at
+start-up while the robot stands still) is modelled as the yaw the base really turned
+between samples, with three errors (``gyro_*``):
+
+* a scale factor error, drawn per robot: the datasheet's sensitivity tolerance of +-3 %
+  taken as three standard deviations (1 %) [5];
+* a bias left after the start-up calibration, drawn per robot and constant over an
+  episode: 0.005 deg/s at one standard deviation, the bias instability measured for
+  MEMS gyros of its class (10-20 deg/h in Allan-variance studies) [6];
+* white rate noise, an angle random walk: the datasheet's noise density of
+  0.01 (deg/s)/sqrt(Hz) [5].
+
+Its draws come from a stream of their own, so a wheel-heading run's errors are the same
+with or without it. The gyro's rate is integrated exactly between samples, as the IMU's
+own fusion at its much higher rate would.
+
 References:
     [1] J. Borenstein, L. Feng, "Measurement and correction of systematic odometry errors
         in mobile robots", IEEE Trans. Robotics and Automation 12(6), 1996 (UMBmark).
@@ -46,6 +65,10 @@ References:
     [3] R. Siegwart, I. Nourbakhsh, D. Scaramuzza, "Introduction to Autonomous Mobile
         Robots", 2nd ed., MIT Press 2011, section 5.2.4.
     [4] S. Thrun, W. Burgard, D. Fox, "Probabilistic Robotics", MIT Press 2005, section 5.4.
+    [5] InvenSense, "MPU-9250 Product Specification", PS-MPU-9250A-01 rev. 1.1, 2016,
+        table 1 (gyroscope sensitivity scale factor tolerance, rate noise spectral density).
+    [6] N. El-Sheimy, H. Hou, X. Niu, "Analysis and modeling of inertial sensors using
+        Allan variance", IEEE Trans. Instrumentation and Measurement 57(1), 2008.
 """
 
 from __future__ import annotations
@@ -62,6 +85,10 @@ from mjexplore.robot import TURTLEBOT3_WAFFLE, RobotGeometry
 SYSTEMATIC_CLIP = 3.0
 # Mixed into the simulator's seed so the odometry's draws never share the lidar's stream.
 ODOMETRY_STREAM = 0x0D0E
+# The gyro's own stream: a wheel-heading run draws the same wheel errors without it.
+GYRO_STREAM = 0x6F10
+# Where the odometry's heading comes from.
+HEADINGS = ("wheels", "imu")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -78,6 +105,10 @@ class OdometryErrorConfig:
             dimensionless.
         slip_variance: ``k``: variance of a wheel's travel error per metre of its travel,
             in m^2/m (metres).
+        gyro_scale_std: Standard deviation of the gyro's scale factor error,
+            dimensionless (used when the heading comes from the IMU).
+        gyro_bias_std: Standard deviation of the gyro's residual bias, rad/s.
+        gyro_noise_density: The gyro's rate noise density, rad/s/sqrt(Hz).
     """
 
     name: str = "custom"
@@ -85,12 +116,17 @@ class OdometryErrorConfig:
     wheel_ratio_std: float = 0.0
     track_std: float = 0.0
     slip_variance: float = 0.0
+    gyro_scale_std: float = 0.0
+    gyro_bias_std: float = 0.0
+    gyro_noise_density: float = 0.0
 
     def __post_init__(self) -> None:
-        values = (self.wheel_scale_std, self.wheel_ratio_std, self.track_std, self.slip_variance)
+        values = (self.wheel_scale_std, self.wheel_ratio_std, self.track_std, self.slip_variance,
+                  self.gyro_scale_std, self.gyro_bias_std, self.gyro_noise_density)
         if not all(v >= 0 and math.isfinite(v) for v in values):
             raise UserInputError("odometry error magnitudes must be finite and >= 0.")
-        if max(self.wheel_scale_std, self.wheel_ratio_std, self.track_std) * SYSTEMATIC_CLIP >= 0.5:
+        if max(self.wheel_scale_std, self.wheel_ratio_std, self.track_std,
+               self.gyro_scale_std) * SYSTEMATIC_CLIP >= 0.5:
             raise UserInputError("odometry systematic errors must stay below 1/6 (16.7 %): "
                                  "a larger one is not an odometry error but a wrong robot.")
 
@@ -98,7 +134,15 @@ class OdometryErrorConfig:
     def is_none(self) -> bool:
         """True when the odometry is exact (no error of any kind)."""
         return not any((self.wheel_scale_std, self.wheel_ratio_std, self.track_std,
-                        self.slip_variance))
+                        self.slip_variance, self.gyro_scale_std, self.gyro_bias_std,
+                        self.gyro_noise_density))
+
+    def gyro_heading_std(self, duration: float) -> float:
+        """Standard deviation of the gyro's heading error (radians) after ``duration``
+        seconds standing still or driving straight: its bias and its angle random walk
+        (the scale error needs a turn)."""
+        return math.hypot(self.gyro_bias_std * duration,
+                          self.gyro_noise_density * math.sqrt(duration))
 
     def straight_drift_std(self, distance: float,
                            geometry: RobotGeometry = TURTLEBOT3_WAFFLE) -> tuple[float, float]:
@@ -132,7 +176,9 @@ class OdometryErrorConfig:
 ODOMETRY_ERRORS: dict[str, OdometryErrorConfig] = {
     "none": OdometryErrorConfig(name="none"),
     "typical": OdometryErrorConfig(name="typical", wheel_scale_std=0.01, wheel_ratio_std=0.002,
-                                   track_std=0.015, slip_variance=1e-6),
+                                   track_std=0.015, slip_variance=1e-6, gyro_scale_std=0.01,
+                                   gyro_bias_std=math.radians(0.005),
+                                   gyro_noise_density=math.radians(0.01)),
 }
 
 
@@ -199,6 +245,41 @@ def odometry_error(spec: str | OdometryErrorConfig, seed: int) -> OdometryError 
     return OdometryError(config, np.random.default_rng((int(seed), ODOMETRY_STREAM)))
 
 
+class Gyro:
+    """One robot's yaw-rate gyro: its scale factor and bias drawn at construction (clipped
+    at three standard deviations), its rate noise at every increment.
+
+    Args:
+        config: Error magnitudes (``gyro_*``; all zero: an exact gyro).
+        rng: Generator for the two draws and the noise (one normal per increment when
+            ``gyro_noise_density`` > 0).
+
+    Attributes:
+        scale: The gyro's reading per radian turned.
+        bias: Its reading standing still, rad/s.
+    """
+
+    def __init__(self, config: OdometryErrorConfig, rng: np.random.Generator) -> None:
+        self.rng = rng
+        scale, bias = np.clip(rng.standard_normal(2), -SYSTEMATIC_CLIP, SYSTEMATIC_CLIP)
+        self.scale = 1.0 + float(scale) * config.gyro_scale_std
+        self.bias = float(bias) * config.gyro_bias_std
+        self._density = config.gyro_noise_density
+
+    def increment(self, turned: float, dt: float) -> float:
+        """The yaw (radians) the gyro integrates over ``dt`` seconds in which the base
+        turned by ``turned`` radians."""
+        angle = self.scale * turned + self.bias * dt
+        if self._density > 0 and dt > 0:
+            angle += self._density * math.sqrt(dt) * float(self.rng.standard_normal())
+        return angle
+
+
+def gyro(spec: str | OdometryErrorConfig, seed: int) -> Gyro:
+    """The gyro of a robot, its errors drawn from ``seed`` (a stream of their own)."""
+    return Gyro(odometry_error_config(spec), np.random.default_rng((int(seed), GYRO_STREAM)))
+
+
 class WheelOdometry:
     """Differential-drive dead reckoning in the ``odom`` frame.
 
@@ -206,18 +287,23 @@ class WheelOdometry:
         geometry: Wheel radius and separation used by the odometry (the robot's nominal
             dimensions).
         error: The robot's odometry errors; None for exact odometry.
+        gyro: With a gyro the heading is the gyro's (``turtlebot3_node``'s ``use_imu``)
+            and :meth:`reset` and :meth:`update` need the base's true yaw; None: the
+            heading comes from the wheels.
     """
 
     def __init__(self, geometry: RobotGeometry = TURTLEBOT3_WAFFLE,
-                 error: OdometryError | None = None) -> None:
+                 error: OdometryError | None = None, gyro: Gyro | None = None) -> None:
         self.geometry = geometry
         self.error = error
+        self.gyro = gyro
         self._separation = geometry.wheel_separation * (1.0 if error is None else
                                                         error.track_scale)
         self._pose = (0.0, 0.0, 0.0)
         self._twist = (0.0, 0.0)
         self._last_angles: tuple[float, float] | None = None
         self._last_time = 0.0
+        self._last_yaw = 0.0
 
     @property
     def pose(self) -> np.ndarray:
@@ -234,15 +320,21 @@ class WheelOdometry:
         return np.array(self._twist)
 
     def reset(self, wheel_angles: np.ndarray, stamp: float,
-              pose: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
-        """Starts integrating from ``pose`` with the current wheel angles (radians)."""
+              pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
+              true_yaw: float | None = None) -> None:
+        """Starts integrating from ``pose`` with the current wheel angles (radians) and,
+        with a gyro, the base's true yaw (radians, any frame)."""
         self._pose = tuple(float(v) for v in pose)
         self._twist = (0.0, 0.0)
         self._last_angles = (float(wheel_angles[0]), float(wheel_angles[1]))
         self._last_time = stamp
+        if self.gyro is not None:
+            self._last_yaw = _required_yaw(true_yaw)
 
-    def update(self, wheel_angles: np.ndarray, stamp: float) -> None:
-        """Integrates the motion since the last update (exact for constant curvature)."""
+    def update(self, wheel_angles: np.ndarray, stamp: float,
+               true_yaw: float | None = None) -> None:
+        """Integrates the motion since the last update (exact for constant curvature);
+        ``true_yaw`` (radians, the frame of :meth:`reset`'s) is what the gyro turns by."""
         assert self._last_angles is not None, "call reset() first"
         left, right = float(wheel_angles[0]), float(wheel_angles[1])
         r = self.geometry.wheel_radius
@@ -251,16 +343,35 @@ class WheelOdometry:
         self._last_angles = (left, right)
         if self.error is not None:
             d_left, d_right = self.error.wheel_travel(d_left, d_right)
+        dt = stamp - self._last_time
         ds = 0.5 * (d_left + d_right)
-        dtheta = (d_right - d_left) / self._separation
+        if self.gyro is None:
+            dtheta = (d_right - d_left) / self._separation
+        else:
+            true_yaw = _required_yaw(true_yaw)
+            dtheta = self.gyro.increment(wrap_angle(true_yaw - self._last_yaw), max(dt, 0.0))
+            self._last_yaw = true_yaw
         x, y, yaw = self._pose
         heading = yaw + 0.5 * dtheta
         yaw = (yaw + dtheta + math.pi) % (2 * math.pi) - math.pi
         self._pose = (x + ds * math.cos(heading), y + ds * math.sin(heading), yaw)
-        dt = stamp - self._last_time
         if dt > 0:
             self._twist = (ds / dt, dtheta / dt)
         self._last_time = stamp
+
+
+def _required_yaw(true_yaw: float | None) -> float:
+    if true_yaw is None:
+        raise ValueError("odometry with a gyro needs the base's true yaw at every sample")
+    return float(true_yaw)
+
+
+def wheel_odometry(error: str | OdometryErrorConfig, heading: str, seed: int,
+                   geometry: RobotGeometry = TURTLEBOT3_WAFFLE) -> WheelOdometry:
+    """A robot's odometry: its wheels' errors (``error``, a preset or a config) and, with
+    ``heading='imu'`` (else 'wheels'), the heading of its gyro, all drawn from ``seed``."""
+    return WheelOdometry(geometry, odometry_error(error, seed),
+                         gyro(error, seed) if heading == "imu" else None)
 
 
 def odom_in_map(origin: np.ndarray, odom: np.ndarray) -> np.ndarray:

@@ -44,8 +44,8 @@ from mjexplore.sim.lidar import Lidar, LidarConfig, LaserScan
 from mjexplore.sim.motion import BODY_CENTRE_X, BODY_RADIUS  # noqa: F401 (re-exported)
 from mjexplore.sim.motion import kinematic_step, mean_ramp_twist, ramp_command, wall_clearance
 from mjexplore.sim.robot_world import RobotWorld
-from mjexplore.sim.odometry import (OdometryErrorConfig, WheelOdometry, odometry_error,
-                                    odometry_error_config)
+from mjexplore.sim.odometry import (HEADINGS, OdometryErrorConfig, WheelOdometry,
+                                    odometry_error_config, wheel_odometry)
 
 BASE_BODY = "base_link"
 SCAN_SITE = "base_scan"
@@ -109,6 +109,9 @@ class SimConfig:
             turtlebot3_gazebo's 0.1 lets the wheels slip above about 0.6 m/s^2.
         odometry_error: The wheel odometry's errors: 'none' (exact geometry), 'typical'
             or an :class:`~mjexplore.sim.odometry.OdometryErrorConfig`; drawn from ``seed``.
+        odometry_heading: Where the odometry's heading comes from: 'wheels' (their
+            difference over the track width) or 'imu' (the gyro, as ``turtlebot3_node``
+            with ``use_imu``; its errors are ``odometry_error``'s ``gyro_*``).
         scan_travel: Grid world only (a training setting): scans by travel
             (:class:`ScanTravel`); None scans at the lidar's rate.
     """
@@ -120,10 +123,14 @@ class SimConfig:
     dynamics: str = "physics"
     wheel_friction: float = 1.0
     odometry_error: str | OdometryErrorConfig = "none"
+    odometry_heading: str = "wheels"
     scan_travel: ScanTravel | None = None
 
     def __post_init__(self) -> None:
         odometry_error_config(self.odometry_error)  # Refuses an unknown preset now.
+        if self.odometry_heading not in HEADINGS:
+            raise UserInputError(f"odometry_heading {self.odometry_heading!r} is unknown: use "
+                                 f"one of {', '.join(HEADINGS)}.")
         if self.scan_travel is not None and self.dynamics != "grid":
             raise UserInputError(f"scan_travel is a grid-world setting; the {self.dynamics} "
                                  "world scans at the lidar's rate: drop scan_travel or use "
@@ -136,6 +143,10 @@ class SimConfig:
 
     def resolved_lidar(self) -> LidarConfig:
         return self.lidar or LidarConfig(range_max=motion_profile(self.profile).lidar_range)
+
+    def make_odometry(self) -> WheelOdometry:
+        """The robot's odometry, its errors drawn from ``seed``."""
+        return wheel_odometry(self.odometry_error, self.odometry_heading, self.seed)
 
 
 def _steps_per(period: float, timestep: float, what: str) -> int:
@@ -214,8 +225,7 @@ class Simulator(RobotWorld):
         self._rng = np.random.default_rng(self.config.seed)
         self.lidar = Lidar(m, SCAN_SITE, lidar_cfg, self._rng)
         self._skew = lidar_cfg.motion_skew
-        self.odometry = WheelOdometry(TURTLEBOT3_WAFFLE, odometry_error(
-            self.config.odometry_error, self.config.seed))
+        self.odometry = self.config.make_odometry()
         self._kinematics = KinematicsRecorder()
         self._clearance: np.ndarray | None = None
         if self.config.dynamics == "grid":
@@ -289,7 +299,7 @@ class Simulator(RobotWorld):
         self._in_contact = False
         self._last_contact = -math.inf
         self._kinematic_contact = False
-        self.odometry.reset(d.qpos[self._wheel_qpos], 0.0)
+        self.odometry.reset(d.qpos[self._wheel_qpos], 0.0, true_yaw=yaw)
         self._kinematics.clear()
         self.lidar.clear_history()
         self._sample()
@@ -369,9 +379,9 @@ class Simulator(RobotWorld):
         t = self.time
         qpos = d.qpos
         left, right = qpos[self._wheel_qpos[0]], qpos[self._wheel_qpos[1]]
-        self.odometry.update((left, right), t)
         x, y, _, qw, qx, qy, qz = qpos[self._qpos0:self._qpos0 + 7].tolist()
         yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+        self.odometry.update((left, right), t, true_yaw=yaw)
         vx, vy, _, _, _, wz = d.qvel[self._qvel0:self._qvel0 + 6].tolist()
         v = vx * math.cos(yaw) + vy * math.sin(yaw)
         if self._imu_adr is None or self._clearance is not None:
