@@ -77,7 +77,7 @@ def test_self_calibration_learns_a_track_width_and_a_wheel_radius_error():
 def test_gyro_heading_calibration_learns_the_bias():
     """A gyro heading whose bias turns it 0.015 degrees a second (three times the typical
     gyro's) and 2 % short in turns: with ``heading='imu'`` the localiser learns the bias
-    per second, not per metre, and its heading ends within a degree (18 degrees off
+    per second, not per metre, and its heading ends within 1.5 degrees (18 degrees off
     uncalibrated)."""
     gt = corridor()
     back = [(0.0, 0.0, math.pi / 10)] * 10 + [(0.1, 0.0, 0.0)] * 200  # Turn, drive back.
@@ -96,12 +96,35 @@ def test_gyro_heading_calibration_learns_the_bias():
         ends[name] = loc
     _, rot_scale, per_second = ends["calibrated"].calibration
     assert rot_scale == pytest.approx(1.02, abs=0.006)
-    assert per_second == pytest.approx(-bias, abs=0.3 * bias)
+    assert per_second == pytest.approx(-bias, abs=0.4 * bias)
 
     def heading_error(loc):
         return abs(math.degrees(wrap_angle(loc.pose[2] - truth[-1][2])))
 
-    assert heading_error(ends["calibrated"]) < 1.0 < 5.0 < heading_error(ends["not"])
+    assert heading_error(ends["calibrated"]) < 1.5 < 5.0 < heading_error(ends["not"])
+
+
+def test_gyro_setting_lags_less_down_a_corridor():
+    """Exact odometry down the corridor: each scan matched against the density its
+    predecessors built. The estimate falls behind the truth (a wall's newly seen end pulls
+    the scan back); with the gyro heading's lower ``min_density`` by about half as much."""
+    gt = corridor()
+    truth = route((1.0, 2.0, 0.0), [(0.1, 0.0, 0.0)] * 250)
+    lag = {}
+    for min_density in (1.5, 0.5):
+        ends = []
+        for seed in range(3):
+            config = LocalizerConfig.for_lidar(LDS01, "imu", min_density=min_density)
+            loc = FusedLocalizer(truth[0], config=config)
+            lidar = GridLidar(gt, LDS01, np.random.default_rng(seed))
+            loc.correct(lidar.scan(*truth[0], 0.0), gt)
+            for k in range(1, len(truth)):
+                loc.predict(relative_pose(truth[k - 1], truth[k]), 0.2)
+                loc.correct(lidar.scan(*truth[k], 0.2 * k), gt)
+            ends.append(truth[-1][0] - loc.pose[0])
+        lag[min_density] = np.mean(ends) / 25.0
+    assert LocalizerConfig.for_lidar(LDS01, "imu").min_density == 0.5
+    assert 0.0 < lag[0.5] < 0.0025 < lag[1.5]
 
 
 def test_calibration_settings_are_checked():
