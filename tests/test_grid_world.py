@@ -170,6 +170,31 @@ def test_odometry_equals_the_integrated_pose(box_room):
     assert world.kinematics().path_length() > 2.5
 
 
+@pytest.mark.parametrize("dynamics", ["grid", "kinematic"])
+def test_gyro_heading_turns_with_the_base_in_the_training_worlds(box_room, dynamics):
+    """With an exact gyro the odometry's heading is the true one, whatever the wheels'
+    track width error; with the typical gyro it is off by its scale and bias only."""
+    folder, _ = box_room
+    for error, tolerance in (("none", 1e-9), ("typical", None)):
+        world = make_world(folder, SimConfig(dynamics=dynamics, odometry_heading="imu",
+                                             odometry_error=error, seed=4))
+        world.reset((3.2, 2.2, 0.4))
+        turned = 0.0
+        for k in range(40):
+            before = world.pose[2]
+            world.command(0.0, 1.0)
+            world.step(0.1)
+            turned += math.remainder(world.pose[2] - before, 2 * math.pi)
+        heading = world.odom_pose[2]  # The odom frame starts at the reset pose.
+        g = world.odometry.gyro
+        expected = g.scale * turned + g.bias * world.time
+        if tolerance is None:  # The rate noise over 4 s, three standard deviations.
+            tolerance = 3 * math.radians(0.01) * math.sqrt(world.time)
+        assert math.remainder(heading - expected, 2 * math.pi) == pytest.approx(
+            0.0, abs=tolerance)
+        assert abs(turned) > 3.0
+
+
 def test_lds01_in_the_grid_world_matches_the_kinematic_one(box_room):
     """Motion skew, range noise and dropouts: the same readings as the kinematic world
     (beams within a skew chunk's travel, the same draws)."""
