@@ -72,10 +72,11 @@ from mjexplore.sim.odometry import HEADINGS, compose_pose, wrap_angle
 # per radian left as margin for its drift); no heading change per metre; the bias (per
 # second) is estimated instead, with a prior twice the ``typical`` gyro's
 # (:mod:`mjexplore.sim.odometry`). And walls enter the field after a third of the returns
-# the wheels' setting waits for: a wall seen by fewer returns than ``min_density`` is weak
-# in the field, and the newly seen end of a wall then pulls the scan back towards its part
-# seen longer. Down a corridor with pillars and exact odometry (LDS-01) the estimate lags
-# 0.35 % of the distance at 1.5 and 0.19 % at 0.5. With the gyro it measured better in
+# the wheels' setting waits for: below ``min_density`` a wall's likelihood is scaled by how
+# often it was seen, which, while new ground is mapped, holds the estimate back. Down a
+# corridor with pillars and exact odometry (LDS-01) it lags 0.35 % of the distance at 1.5
+# and 0.19 % at 0.5 (0.07 % and 0.045 % with the returns deposited at the true poses: the
+# loop of mapping and matching makes most of it). With the gyro it measured better in
 # episodes (the README's localisation section); with the wheels' heading, whose errors are
 # larger, no better, so their default stays.
 GYRO_HEADING = {"odom_rot_rel": 0.01, "odom_rot_per_m": 0.0,

@@ -48,8 +48,8 @@ between samples, with three errors (``gyro_*``):
 * a scale factor error, drawn per robot: the datasheet's sensitivity tolerance of +-3 %
   taken as three standard deviations (1 %) [5];
 * a bias left after the start-up calibration, drawn per robot and constant over an
-  episode: 0.005 deg/s at one standard deviation, the bias instability measured for
-  MEMS gyros of its class (10-20 deg/h in Allan-variance studies) [6];
+  episode: 0.005 deg/s (18 deg/h) at one standard deviation, this model's assumption of
+  the order of a consumer MEMS gyro's bias instability (an Allan-variance quantity [6]);
 * white rate noise, an angle random walk: the datasheet's noise density of
   0.01 (deg/s)/sqrt(Hz) [5].
 
