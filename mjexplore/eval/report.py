@@ -153,7 +153,9 @@ EXPERIMENTS = (
                "matching) with the odometry's heading from the IMU's gyro, as the real "
                "Turtlebot3's own odometry takes it (turtlebot3_node's use_imu): the wheels "
                "give the distance, the gyro (scale, bias and noise of its class, "
-               "sim/odometry.py) the heading, and the localiser estimates the gyro's bias.",
+               "sim/odometry.py) the heading; the localiser estimates the gyro's bias and "
+               "takes a wall into its field after fewer returns (min_density 0.5, the "
+               "gyro heading's setting).",
                ("nearest",),
                f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 5 "
                "--lidar-model lds01 --odometry-error typical --odometry-heading imu "
