@@ -6,22 +6,39 @@
 #        ablation_v2 lobby_real realistic realistic_truth realistic_odometry realistic_imu]
 # Runs go to runs/rerun_REV/<experiment>; started again, bench skips the finished episodes.
 # Then: mjexplore collect runs/rerun_REV/<experiment> --experiment <experiment> and
-# mjexplore report. Needs ../shared/data (the Explore-Bench and ARiADNE maps).
+# mjexplore report. Needs ../shared/data (the Explore-Bench and ARiADNE maps), or the folder
+# MJEXPLORE_SHARED names.
+#
+# In a copy without git history (a machine the checkout was copied to), it runs in place:
+# MJEXPLORE_GIT_REVISION must name the commit the copy holds (every run records it) and be
+# given as REV; MJEXPLORE_PYTHON is the interpreter (default python3 there, .venv's here).
 set -eu
 [ $# -ge 2 ] || { echo "usage: $0 REV WORKERS [EXPERIMENT...]" >&2; exit 2; }
-REV=$(git rev-parse --short "$1"); W=$2; shift 2
+if ROOT=$(git rev-parse --show-toplevel 2> /dev/null); then
+  REV=$(git rev-parse --short "$1")
+  WT=$ROOT/runs/wt_$REV
+  [ -d "$WT" ] || git -C "$ROOT" worktree add --detach "$WT" "$REV"
+  PY=${MJEXPLORE_PYTHON:-$ROOT/.venv/bin/python}
+else
+  [ "${MJEXPLORE_GIT_REVISION:-}" = "$1" ] || {
+    echo "no git history here: set MJEXPLORE_GIT_REVISION=$1 (the commit this copy holds)" >&2
+    exit 2; }
+  REV=${1:0:7}; ROOT=$PWD; WT=$ROOT; PY=${MJEXPLORE_PYTHON:-python3}
+fi
+W=$2; shift 2
 EXPERIMENTS=${*:-table1 gvn_v2 explore_bench ariadne ablation ablation_v2 lobby_real realistic realistic_truth realistic_odometry realistic_imu}
-ROOT=$(git rev-parse --show-toplevel)
-SHARED=$(cd "$ROOT/../shared" && pwd)
-WT=$ROOT/runs/wt_$REV
+SHARED=$(cd "${MJEXPLORE_SHARED:-$ROOT/../shared}" && pwd)
 OUT=$ROOT/runs/rerun_$REV
-[ -d "$WT" ] || git -C "$ROOT" worktree add --detach "$WT" "$REV"
-ln -sfn "$SHARED" "$ROOT/runs/shared"  # ../shared as seen from the worktree.
 mkdir -p "$OUT"
-mj() { (cd "$WT" && PYTHONPATH="$WT" "$ROOT/.venv/bin/python" -c \
+if [ "$WT" != "$ROOT" ]; then
+  ln -sfn "$SHARED" "$ROOT/runs/shared"  # ../shared as seen from the worktree.
+  EB=$(ls "$SHARED"/data/explore_bench/*.yaml | sed "s#$SHARED#../shared#" | paste -sd,)
+else
+  EB=$(ls "$SHARED"/data/explore_bench/*.yaml | paste -sd,)
+fi
+mj() { (cd "$WT" && PYTHONPATH="$WT${PYTHONPATH:+:$PYTHONPATH}" "$PY" -c \
     'import sys; from mjexplore.cli import main; sys.exit(main(sys.argv[1:]))' "$@"); }
 ALL=nearest,explore_lite,frontier_tsp,rrt,potential,cnn,gvn,oracle
-EB=$(ls "$SHARED"/data/explore_bench/*.yaml | sed "s#$SHARED#../shared#" | paste -sd,)
 for e in $EXPERIMENTS; do
   echo "== $e $(date -u +%FT%TZ)"
   case $e in
