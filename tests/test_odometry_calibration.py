@@ -77,11 +77,11 @@ def test_self_calibration_learns_a_track_width_and_a_wheel_radius_error():
 def test_gyro_heading_calibration_learns_the_bias():
     """A gyro heading whose bias turns it 0.015 degrees a second (three times the typical
     gyro's) and 2 % short in turns: with ``heading='imu'`` the localiser learns the bias
-    per second, not per metre, and its heading ends within 1.5 degrees (18 degrees off
+    per second, not per metre, and its heading ends within 1.5 degrees (over 5 degrees off
     uncalibrated)."""
     gt = corridor()
     back = [(0.0, 0.0, math.pi / 10)] * 10 + [(0.1, 0.0, 0.0)] * 200  # Turn, drive back.
-    truth = route((1.0, 2.0, 0.0), spin_and_drive(20.0) + back)
+    truth = route((1.0, 2.0, 0.0), (spin_and_drive(20.0) + back) * 2)  # 224 s, 80 m.
     bias, dt = math.radians(0.015), 0.2
     ends = {}
     for name, calibration in (("calibrated", (0.0, 0.03, math.radians(0.01))),
@@ -96,7 +96,9 @@ def test_gyro_heading_calibration_learns_the_bias():
         ends[name] = loc
     _, rot_scale, per_second = ends["calibrated"].calibration
     assert rot_scale == pytest.approx(1.02, abs=0.006)
-    assert per_second == pytest.approx(-bias, abs=0.4 * bias)
+    # A scan's information counts a quarter (scan_correlation 4): after 224 s about half
+    # of the bias is learnt, the rest held back by its prior (0.01 deg/s).
+    assert -1.3 * bias < per_second < -0.4 * bias
 
     def heading_error(loc):
         return abs(math.degrees(wrap_angle(loc.pose[2] - truth[-1][2])))
