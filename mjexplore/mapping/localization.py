@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import types
 
 import cv2
 import numba
@@ -82,9 +83,10 @@ from mjexplore.sim.odometry import HEADINGS, compose_pose, wrap_angle
 # measured better in episodes (the README's localisation section); with the wheels'
 # heading, whose errors are larger, min_density 0.5 measured no better, so their defaults
 # stay.
-GYRO_HEADING = {"odom_rot_rel": 0.01, "odom_rot_per_m": 0.0,
-                "calibration_std": (0.0, 0.03, math.radians(0.01)), "min_density": 0.5,
-                "scan_correlation": 4.0}
+GYRO_HEADING = types.MappingProxyType({
+    "odom_rot_rel": 0.01, "odom_rot_per_m": 0.0,
+    "calibration_std": (0.0, 0.03, math.radians(0.01)), "min_density": 0.5,
+    "scan_correlation": 4.0})
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
