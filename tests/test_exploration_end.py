@@ -164,6 +164,21 @@ def test_the_robot_acts_on_its_estimate_and_the_metrics_say_how_far_off_it_was()
     assert truth["pose_error_max_m"] == truth["pose_error_aligned_rmse_m"] == 0.0
 
 
+def test_an_estimate_off_the_map_ends_the_episode_as_lost(tmp_path):
+    config = _config(localization="odometry", max_time=60.0)
+    episode = Episode(_two_rooms(tmp_path, gap_to_the_east=True), NearestFrontier(), 0, config)
+    for _ in range(20):
+        episode.step()
+    episode.localizer.reset((-5.0, -5.0, 0.0), odom_pose=episode.sim.odom_pose)  # Off the map.
+    episode.goal = None  # A decision is due now.
+    m = episode.run().metrics
+    assert m["end_reason"] == "lost"
+    # With the true pose the same start explores on.
+    truth = Episode(_two_rooms(tmp_path, gap_to_the_east=True), NearestFrontier(), 0,
+                    _config(max_time=20.0)).run().metrics
+    assert truth["end_reason"] == "time_limit"
+
+
 def test_unknown_localization_is_refused():
     from mjexplore.errors import UserInputError
 

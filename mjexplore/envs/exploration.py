@@ -21,14 +21,15 @@ from mjexplore.scenes.scene import SceneFiles, load_scene_files
 
 VALID_ACTIONS = ("frontiers", "all_nodes")
 DECISIONS = ("ter", "grid")
-TERMINAL_REASONS = ("explored", "no_frontiers", "tipped_over")
+TERMINAL_REASONS = ("explored", "no_frontiers", "lost", "tipped_over")
 TRAIN_FAMILIES = ("office", "maze", "loop", "corridor", "rooms", "loop+rooms",
                   "corridor+rooms", "maze+loop")
 
 
 REWARD_KINDS = ("time", "paper")
 # Ends short of the target that the time reward charges for: the map is left unfinished.
-SHORT_ENDS = ("no_frontiers", "lingering", "tipped_over", "time_limit", "physics_fault")
+SHORT_ENDS = ("no_frontiers", "lost", "lingering", "tipped_over", "time_limit",
+              "physics_fault")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -44,7 +45,7 @@ class RewardConfig:
     with dt the simulated seconds the step took (the drive to the chosen node), dG_info the
     area of the observable ground truth first seen during it (m^2), and u = max(0, 1 -
     ratio / target) the share of the map left unexplored when the episode ends short of
-    the target (``no_frontiers``, ``lingering``, ``tipped_over``, ``time_limit``,
+    the target (``no_frontiers``, ``lost``, ``lingering``, ``tipped_over``, ``time_limit``,
     ``physics_fault``; not at ``decision_limit``, an artificial cut PPO bootstraps over).
     The undiscounted return is -time_scale (T + decision_s N - gain_s_per_m2 G + ...): an
     episode that explores the same map in less time, with the same decisions, returns

@@ -15,7 +15,9 @@ robot failed to get to it ``max_attempts`` times with the map around it unchange
 the robot stood at it without seeing past it.
 
 The episode ends when the exploration ratio reaches the target (98.5 % by default:
-``explored``), when no frontier is reachable in that sense (``no_frontiers``), when the
+``explored``), when no frontier is reachable in that sense (``no_frontiers``; ``lost``
+when the robot's own estimate lies off its map or inside a wall, so that nothing can be
+planned from it, which only a localiser's estimate can), when the
 robot stays on one spot though it has tried ``linger_strikes`` goals there
 (``lingering``, the paper's "terminated unexpectedly"), tips over (``tipped_over``), when
 the physics fails (``physics_fault``: non-finite state or MuJoCo's instability reset; the
@@ -54,7 +56,7 @@ from mjexplore.topology.frontiers import frontier_mask
 from mjexplore.topology.pipeline import TopologyConfig, TopologyTracker
 
 LOCALIZATIONS = ("ground_truth", "odometry", "scan_matching")
-END_REASONS = ("explored", "no_frontiers", "lingering", "tipped_over", "time_limit",
+END_REASONS = ("explored", "no_frontiers", "lost", "lingering", "tipped_over", "time_limit",
                "decision_limit", "physics_fault", "interrupted")
 
 
@@ -567,10 +569,16 @@ class Episode:
             if self._decision_scan():
                 return False
             if not self._decide():
-                self.end_reason = "no_frontiers"
+                self.end_reason = "lost" if self._lost() else "no_frontiers"
                 return False
         self.control()
         return True
+
+    def _lost(self) -> bool:
+        """True when the robot's estimate has no traversable cell of its map near it (off
+        the map, or inside a wall): planning from it fails whatever is left to explore."""
+        return (self.localizer is not None and
+                self.costmap().nearest_traversable(self.pose[:2]) < 0)
 
     def _decision_scan(self) -> bool:
         """Maps the scan that a world scanning by travel (the grid world's ``scan_travel``)

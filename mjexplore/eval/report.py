@@ -295,8 +295,11 @@ def _other_ends(groups, rename=None, episode: dict | None = None) -> str:
     if not parts:
         return "Every run reached the target ratio."
     rule = _lingering_rule(episode or {})
+    lost = ("; lost: the robot's estimate off its own map or inside a wall"
+            if any("lost x" in part for part in parts) else "")
     return (f"Runs that ended before the target ratio (lingering: {rule}; "
-            "no_frontiers: none left reachable; time_limit: the cap): " + "; ".join(parts) + ".")
+            f"no_frontiers: none left reachable{lost}; time_limit: the cap): " +
+            "; ".join(parts) + ".")
 
 
 def _unfinished_note(summary: dict[str, Any]) -> str | None:
