@@ -1,5 +1,6 @@
 """The grid world: the kinematic world's motion and readings without MuJoCo."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -11,6 +12,7 @@ from mjexplore.scenes.generate import generate_scene
 from mjexplore.scenes.scene import clearance, load_scene_files, write_scene
 from mjexplore.sim.grid_world import GridWorld
 from mjexplore.sim.lidar import LidarConfig, lidar_model
+from mjexplore.sim.odometry import ODOMETRY_ERRORS
 from mjexplore.sim.simulator import BODY_CENTRE_X, BODY_RADIUS, SimConfig, Simulator
 from mjexplore.sim.world import make_world
 
@@ -172,10 +174,13 @@ def test_odometry_equals_the_integrated_pose(box_room):
 
 @pytest.mark.parametrize("dynamics", ["grid", "kinematic"])
 def test_gyro_heading_turns_with_the_base_in_the_training_worlds(box_room, dynamics):
-    """With an exact gyro the odometry's heading is the true one, whatever the wheels'
-    track width error; with the typical gyro it is off by its scale and bias only."""
+    """With an exact gyro the odometry's heading is the true one though the wheels' track
+    width and radii are off; with the typical gyro it is off by its scale and bias only."""
     folder, _ = box_room
-    for error, tolerance in (("none", 1e-9), ("typical", None)):
+    typical = ODOMETRY_ERRORS["typical"]
+    exact_gyro = dataclasses.replace(typical, gyro_scale_std=0.0, gyro_bias_std=0.0,
+                                     gyro_noise_density=0.0)
+    for error in (exact_gyro, typical):
         world = make_world(folder, SimConfig(dynamics=dynamics, odometry_heading="imu",
                                              odometry_error=error, seed=4))
         world.reset((3.2, 2.2, 0.4))
@@ -188,11 +193,13 @@ def test_gyro_heading_turns_with_the_base_in_the_training_worlds(box_room, dynam
         heading = world.odom_pose[2]  # The odom frame starts at the reset pose.
         g = world.odometry.gyro
         expected = g.scale * turned + g.bias * world.time
-        if tolerance is None:  # The rate noise over 4 s, three standard deviations.
-            tolerance = 3 * math.radians(0.01) * math.sqrt(world.time)
+        # The rate noise over the turn, three standard deviations.
+        tolerance = 3 * error.gyro_noise_density * math.sqrt(world.time) + 1e-9
         assert math.remainder(heading - expected, 2 * math.pi) == pytest.approx(
             0.0, abs=tolerance)
         assert abs(turned) > 3.0
+    # The wheels alone would have read the same turn off by their track width's error.
+    assert world.odometry.error.track_scale != 1.0
 
 
 def test_lds01_in_the_grid_world_matches_the_kinematic_one(box_room):

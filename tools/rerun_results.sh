@@ -52,13 +52,15 @@ for e in $EXPERIMENTS; do
     realistic) mj bench --scenes loop_with_corridor,maze,office --explorers $ALL --seeds 5 \
               --lidar-model lds01 --odometry-error typical --localization scan_matching \
               --max-time 3600 --workers "$W" --out "$OUT/realistic" ;;
-    realistic_truth|realistic_odometry) mj bench --scenes loop_with_corridor,maze,office \
-              --explorers nearest --seeds 5 --lidar-model lds01 --odometry-error typical \
-              --localization "$([ $e = realistic_truth ] && echo ground_truth || echo odometry)" \
-              --max-time 3600 --workers "$W" --out "$OUT/$e" ;;
-    realistic_imu) mj bench --scenes loop_with_corridor,maze,office --explorers nearest \
-              --seeds 5 --lidar-model lds01 --odometry-error typical --odometry-heading imu \
-              --localization scan_matching --max-time 3600 --workers "$W" --out "$OUT/$e" ;;
+    realistic_truth|realistic_odometry|realistic_imu)
+      case $e in
+        realistic_truth) LOCALIZE="--localization ground_truth" ;;
+        realistic_odometry) LOCALIZE="--localization odometry" ;;
+        realistic_imu) LOCALIZE="--odometry-heading imu --localization scan_matching" ;;
+      esac
+      mj bench --scenes loop_with_corridor,maze,office --explorers nearest --seeds 5 \
+        --lidar-model lds01 --odometry-error typical $LOCALIZE --max-time 3600 \
+        --workers "$W" --out "$OUT/$e" ;;
     ablation) mj bench --scenes loop_with_corridor,maze \
               --explorers gvn_none,gvn_naive,gvn_unmasked,gvn --seeds 5 --workers "$W" \
               --out "$OUT/ablation" ;;

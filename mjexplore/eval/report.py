@@ -284,10 +284,12 @@ def _other_ends(groups, rename=None, episode: dict | None = None) -> str:
     summary's episode settings, for what ``lingering`` meant)."""
     rename = rename or METHOD_LABELS
     parts = []
+    ended: set[str] = set()
     for scene, methods in groups.items():
         for m, runs in methods.items():
             reasons = [r["metrics"]["end_reason"] for r in runs
                        if r["metrics"]["end_reason"] != "explored"]
+            ended.update(reasons)
             if reasons:
                 counts = ", ".join(f"{reason} x{reasons.count(reason)}"
                                    for reason in sorted(set(reasons)))
@@ -296,7 +298,7 @@ def _other_ends(groups, rename=None, episode: dict | None = None) -> str:
         return "Every run reached the target ratio."
     rule = _lingering_rule(episode or {})
     lost = ("; lost: the robot's estimate off its own map or inside a wall"
-            if any("lost x" in part for part in parts) else "")
+            if "lost" in ended else "")
     return (f"Runs that ended before the target ratio (lingering: {rule}; "
             f"no_frontiers: none left reachable{lost}; time_limit: the cap): " +
             "; ".join(parts) + ".")
@@ -588,7 +590,8 @@ def _section(name: str, summary, groups, figures: Path, rel: str) -> list[str]:
         return [relative_table(groups), "", reference_table(summary), "",
                 _other_ends(groups, episode=summary.get("episode")), ""] + \
             ([note, ""] if note else [])
-    if name in ("realistic", "realistic_odometry", "realistic_imu"):  # Truth: no error.
+    # The setting and its companions that localise themselves (at the true pose: no error).
+    if name == "realistic" or name in LOCALIZATION_RUNS.keys() - {"realistic_truth"}:
         aligned = ("; the aligned RMSE after the rotation and translation that fit the "
                    "estimated trajectory best to the true one, the absolute trajectory error "
                    "of SLAM benchmarks: the distortion of the trajectory and its map without "
