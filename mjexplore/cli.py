@@ -356,6 +356,16 @@ def cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_train_pockets(args: argparse.Namespace) -> int:
+    from mjexplore.pocket_training import load_pocket_config, train_pockets
+
+    config = load_pocket_config(args.config)
+    if args.episodes is not None:
+        config = dataclasses.replace(config, episodes=args.episodes)
+    print(json.dumps(train_pockets(config, args.out, workers=args.workers)))
+    return 0
+
+
 def cmd_collect(args: argparse.Namespace) -> int:
     from mjexplore.eval.summaries import (collect_sweep, merge_summaries, read_summary,
                                           write_summary)
@@ -586,6 +596,18 @@ def build_parser() -> argparse.ArgumentParser:
                          "on more than one machine'); may change on --resume")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
     tr.set_defaults(func=cmd_train)
+
+    tp = sub.add_parser(
+        "train-pockets", help="train the frontier-pocket predictor the v3 GVN reads",
+        description="Collect map patches of frontiers and their true pockets on generated "
+                    "layouts, fit the predictor (see training/pockets.yaml) and write "
+                    "pockets.safetensors and fit.json into --out.")
+    tp.add_argument("--config", type=Path, required=True, help="pocket-training YAML")
+    tp.add_argument("--out", type=Path, required=True, help="output folder")
+    tp.add_argument("--workers", type=_count, default=2, help="collection processes")
+    tp.add_argument("--episodes", type=_count, default=None, metavar="N",
+                    help="collection episodes (replaces the config's episodes)")
+    tp.set_defaults(func=cmd_train_pockets)
 
     co = sub.add_parser(
         "collect", help="summarise a bench sweep for the results report",

@@ -1,0 +1,194 @@
+"""Which frontiers lead to almost nothing: a learned predictor of the pocket behind one.
+
+Most frontiers of a partial indoor map open onto a pocket of unseen free space smaller
+than half a square metre: the corner behind a door leaf, the strip behind a wall end,
+grazing gaps. Nearest-frontier drives to each of them in turn, while the lidar would see
+most of them from the places it has to go anyway, and the episode's target ratio (98.5 %)
+leaves the rest unseen. Knowing the pocket's size is most of what the ground-truth oracle
+knows: on generated layouts nearest-frontier that skips frontiers whose *true* pocket is
+below 0.5 m^2 explores in about 0.78 x nearest's time (the oracle 0.74 x).
+
+The true pocket of a frontier (:func:`pocket_areas`: the unexplored free space of the
+ground truth connected to it, the paper's information gain in m^2) needs the ground truth.
+:class:`PocketNet` predicts from the partial map alone whether it is small: its input is a
+6.4 m square patch of the map around the frontier (:func:`frontier_patches`: free and
+occupied shares and the frontier's own cells, resampled to 0.1 m cells whatever the map's
+resolution), and the frontier's length. It is trained on patches and true pockets from
+generated layouts (:mod:`mjexplore.pocket_training`), and :class:`PocketPredictor` serves it
+to the decision space, which gives each TER frontier node the probability as a feature.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from torch import nn
+
+from mjexplore.errors import UserInputError
+from mjexplore.io.atomic import write_bytes_atomic
+from mjexplore.maps import GridMap
+from mjexplore.topology.frontiers import Frontier, information_gain
+
+PATCH_CELLS = 64  # Patch side, cells.
+PATCH_RESOLUTION = 0.1  # Patch cell side, metres (a 6.4 m square).
+PATCH_CHANNELS = ("free", "occupied", "frontier")
+FORMAT = "mjexplore-pockets-v1"
+
+
+def frontier_patches(grid: GridMap, frontiers: list[Frontier]) -> np.ndarray:
+    """Map patches centred on each frontier's cells, at ``PATCH_RESOLUTION``.
+
+    Each patch covers ``PATCH_CELLS * PATCH_RESOLUTION`` metres a side around the mean of
+    the frontier's cells, axis-aligned with the map (rows along +y); outside the map reads
+    as unknown. Channels (``PATCH_CHANNELS``): the share of free cells, of occupied cells
+    and of the frontier's own cells in each patch cell (area resampling), times 255.
+
+    Returns:
+        uint8 (n, 3, PATCH_CELLS, PATCH_CELLS).
+    """
+    out = np.zeros((len(frontiers), len(PATCH_CHANNELS), PATCH_CELLS, PATCH_CELLS), np.uint8)
+    if not frontiers:
+        return out
+    side = max(1, int(round(PATCH_CELLS * PATCH_RESOLUTION / grid.resolution)))
+    half = side // 2
+    data = grid.data
+    layers = np.zeros((2, data.shape[0] + side, data.shape[1] + side), np.float32)
+    layers[0, half:half + data.shape[0], half:half + data.shape[1]] = data == 0
+    layers[1, half:half + data.shape[0], half:half + data.shape[1]] = data > 0
+    own = np.zeros((side, side), np.float32)
+    for i, f in enumerate(frontiers):
+        r0, c0 = np.round(f.cells.mean(axis=0)).astype(int) - half
+        cells = f.cells - (r0, c0)
+        inside = ((cells >= 0) & (cells < side)).all(axis=1)
+        own[:] = 0.0
+        own[cells[inside, 0], cells[inside, 1]] = 1.0
+        # Padded layers: map cell (r, c) sits at (r + half, c + half).
+        window = layers[:, r0 + half:r0 + half + side, c0 + half:c0 + half + side]
+        for k, layer in enumerate((window[0], window[1], own)):
+            resized = layer if side == PATCH_CELLS else cv2.resize(
+                layer, (PATCH_CELLS, PATCH_CELLS), interpolation=cv2.INTER_AREA)
+            out[i, k] = np.round(np.clip(resized, 0.0, 1.0) * 255.0)
+    return out
+
+
+def frontier_lengths(grid: GridMap, frontiers: list[Frontier]) -> np.ndarray:
+    """Each frontier's length, metres (its cell count times the cell side)."""
+    return np.array([f.size * grid.resolution for f in frontiers], np.float32)
+
+
+def pocket_areas(grid: GridMap, ground_truth: GridMap, frontiers: list[Frontier]) -> np.ndarray:
+    """The true pocket of each frontier, m^2: the unexplored free space of the ground truth
+    8-connected to it (:func:`~mjexplore.topology.frontiers.information_gain` in area)."""
+    total = float(ground_truth.free.sum()) * ground_truth.resolution ** 2
+    return information_gain(grid, ground_truth, frontiers) * total
+
+
+class PocketNet(nn.Module):
+    """Patch and frontier length -> logit that the frontier's pocket is small.
+
+    Four strided convolutions (64 -> 4 cells), then two linear layers with the log of the
+    frontier's length in patch cells beside the convolutional features.
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.conv = nn.Sequential(
+            nn.Conv2d(len(PATCH_CHANNELS), 16, 5, 2, 2), nn.ReLU(),
+            nn.Conv2d(16, 32, 3, 2, 1), nn.ReLU(),
+            nn.Conv2d(32, 64, 3, 2, 1), nn.ReLU(),
+            nn.Conv2d(64, 64, 3, 2, 1), nn.ReLU())
+        self.head = nn.Sequential(nn.Linear(64 * (PATCH_CELLS // 16) ** 2 + 1, 64), nn.ReLU(),
+                                  nn.Linear(64, 1))
+
+    def forward(self, patches: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
+        """Logits (B,) of uint8 or [0, 255] float patches (B, 3, S, S) and lengths (B,) m."""
+        x = patches.to(torch.float32) / 255.0
+        h = self.conv(x).flatten(1)
+        length = torch.log1p(lengths.to(torch.float32) / PATCH_RESOLUTION)
+        return self.head(torch.cat([h, length[:, None]], 1))[:, 0]
+
+
+def save_pocket_net(path: str | os.PathLike, net: PocketNet, small_area_m2: float,
+                    provenance: dict | None = None) -> None:
+    """Writes the predictor's weights and what they predict (safetensors, atomically)."""
+    from safetensors.torch import save
+
+    tensors = {k: v.detach().cpu().contiguous() for k, v in net.state_dict().items()}
+    meta = {"format": FORMAT, "small_area_m2": repr(float(small_area_m2)),
+            "patch": json.dumps({"cells": PATCH_CELLS, "resolution": PATCH_RESOLUTION,
+                                 "channels": PATCH_CHANNELS}),
+            "provenance": json.dumps(provenance or {}, default=str)}
+    write_bytes_atomic(path, save(tensors, metadata=meta))
+
+
+class PocketPredictor:
+    """A trained :class:`PocketNet` from its weights file, for inference.
+
+    Args:
+        path: A file written by :func:`save_pocket_net` (``mjexplore train-pockets``).
+
+    Raises:
+        UserInputError: unreadable, not a pocket predictor, or for another patch layout.
+    """
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        from safetensors import SafetensorError
+        from safetensors.torch import load
+
+        self.path = Path(path)
+        hint = ("give the file 'mjexplore train-pockets' wrote (e.g. "
+                "training/pockets.safetensors).")
+        try:
+            blob = self.path.read_bytes()
+            tensors = load(blob)
+            header = json.loads(blob[8:8 + int.from_bytes(blob[:8], "little")])
+            meta = header.get("__metadata__", {})
+        except OSError as exc:
+            raise UserInputError(f"cannot read the pocket predictor {str(path)!r}: "
+                                 f"{exc.strerror}; {hint}") from None
+        except (SafetensorError, ValueError, UnicodeDecodeError) as exc:
+            raise UserInputError(f"{str(path)!r} is not a readable safetensors file ({exc}); "
+                                 f"{hint}") from None
+        patch = {"cells": PATCH_CELLS, "resolution": PATCH_RESOLUTION,
+                 "channels": list(PATCH_CHANNELS)}
+        if meta.get("format") != FORMAT or json.loads(meta.get("patch", "{}")) != patch:
+            raise UserInputError(f"{str(path)!r} is not a pocket predictor of this version "
+                                 f"(format {meta.get('format')!r}); {hint}")
+        self.small_area_m2 = float(meta["small_area_m2"])
+        self.provenance = json.loads(meta.get("provenance", "{}"))
+        self.net = PocketNet()
+        try:
+            self.net.load_state_dict(tensors)
+        except RuntimeError as exc:
+            raise UserInputError(f"weights in {str(path)!r} do not fit the pocket network "
+                                 f"({str(exc).splitlines()[0]}).") from None
+        self.net.eval()
+
+    def small_probability(self, grid: GridMap, frontiers: list[Frontier]) -> np.ndarray:
+        """(n,) probability that each frontier's pocket is below ``small_area_m2``."""
+        if not frontiers:
+            return np.zeros(0, np.float32)
+        patches = torch.from_numpy(frontier_patches(grid, frontiers))
+        lengths = torch.from_numpy(frontier_lengths(grid, frontiers))
+        with torch.no_grad():
+            return torch.sigmoid(self.net(patches, lengths)).numpy()
+
+
+_PREDICTORS: dict[tuple[str, float], PocketPredictor] = {}
+
+
+def pocket_predictor(path: str | os.PathLike) -> PocketPredictor:
+    """The predictor in ``path``, loaded once per process (reloaded if the file changed)."""
+    resolved = Path(path).resolve()
+    try:
+        key = (str(resolved), resolved.stat().st_mtime)
+    except OSError:
+        key = (str(resolved), 0.0)
+    if key not in _PREDICTORS:
+        _PREDICTORS[key] = PocketPredictor(resolved)
+    return _PREDICTORS[key]
