@@ -173,7 +173,7 @@ def _symmetry(x, k: int, flip: bool):
     import torch
 
     x = torch.rot90(x, k, (2, 3))
-    return torch.flip(x, (3,)) if flip else x
+    return (torch.flip(x, (3,)) if flip else x).contiguous()
 
 
 def fit(config: PocketTrainingConfig, data: dict[str, np.ndarray]):
@@ -249,11 +249,11 @@ def train_pockets(config: PocketTrainingConfig, out: str | Path, workers: int = 
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    revision = git_revision()  # The code that collects and fits, before any later edit.
     started = time.perf_counter()
     data = collect(config, workers)
     collected = time.perf_counter()
     net, history = fit(config, data)
-    revision = git_revision()
     summary = {"samples": int(len(data["areas"])),
                "small_share": round(float((data["areas"] < config.small_area_m2).mean()), 4),
                "collect_s": round(collected - started, 1),

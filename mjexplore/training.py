@@ -33,6 +33,7 @@ import yaml
 from mjexplore.config import from_dict, load_yaml_config, to_dict
 from mjexplore.envs.exploration import (EnvConfig, ExplorationEnv, ProceduralScenes,
                                         heldout_scenes)
+from mjexplore.envs.observation import POSED
 from mjexplore.errors import UserInputError
 from mjexplore.episode import EpisodeConfig
 from mjexplore.imitation import ImitationConfig
@@ -88,8 +89,10 @@ class PolicyConfig:
     CNN baseline's encoder width, the others are GVN sizes). ``share_features_extractor``
     False gives the critic an encoder of its own: with one shared encoder the value loss's
     gradient, about 500 times the policy gradient's at the start, trains it for the critic.
-    ``prior_temperature`` (metres per nat, GVN with v2 observations) adds the nearest-node
-    rule's logits to the actor's: the network learns a residual on nearest-frontier."""
+    ``prior_temperature`` (metres per nat, GVN with v2 or v3 observations) adds the
+    nearest-node rule's logits to the actor's: the network learns a residual on
+    nearest-frontier. ``prior_pocket_m`` (v3) makes that rule count each node this many
+    metres farther per unit of its pocket probability (the predictor's)."""
 
     masking: str = "iam"
     share_features_extractor: bool = True
@@ -99,6 +102,7 @@ class PolicyConfig:
     tcn_kernel: int = 3
     tcn_dilations: tuple[int, ...] = (1, 2, 4)
     prior_temperature: float | None = None
+    prior_pocket_m: float = 0.0
 
     def __post_init__(self) -> None:
         from mjexplore.policies.sb3 import MASKING_MODES
@@ -109,6 +113,8 @@ class PolicyConfig:
             raise ValueError("policy sizes must be >= 1")
         if self.prior_temperature is not None and not self.prior_temperature > 0:
             raise ValueError("policy.prior_temperature must be > 0 (metres per nat) or null")
+        if self.prior_pocket_m < 0 or (self.prior_pocket_m and self.prior_temperature is None):
+            raise ValueError("policy.prior_pocket_m must be >= 0 and needs prior_temperature")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -216,9 +222,12 @@ class TrainConfig:
         if self.kind == "cnn" and self.policy.masking != "iam":
             raise ValueError("the cnn kind supports policy.masking: iam only")
         if self.policy.prior_temperature is not None and (
-                self.kind != "gvn" or self.env.observation.features != "v2"):
+                self.kind != "gvn" or self.env.observation.features not in POSED):
             raise ValueError("policy.prior_temperature needs kind gvn with "
-                             "env.observation.features: v2 (the path feature)")
+                             "env.observation.features: v2 or v3 (the path feature)")
+        if self.policy.prior_pocket_m and self.env.observation.features != "v3":
+            raise ValueError("policy.prior_pocket_m needs env.observation.features: v3 (the "
+                             "pocket feature)")
         if (self.policy.masking == "none") != (self.env.valid_actions == "all_nodes"):
             raise ValueError("policy.masking: none (training without a mask) goes with "
                              "env.valid_actions: all_nodes, and all_nodes only with none")
@@ -418,6 +427,8 @@ def _policy_kwargs(config: TrainConfig) -> dict[str, Any]:
         kwargs["share_features_extractor"] = False
     if p.prior_temperature is not None:
         kwargs["prior_temperature"] = p.prior_temperature
+    if p.prior_pocket_m:
+        kwargs["prior_pocket_m"] = p.prior_pocket_m
     return kwargs
 
 

@@ -55,6 +55,7 @@ def _episode(job: tuple[str | None, str, str, int, str | None]) -> dict:
     import torch
 
     from mjexplore.envs import ExplorationEnv
+    from mjexplore.envs.observation import POSED
     from mjexplore.policies.weights import load_policy
     from mjexplore.training import NearestNodeRule, heldout_env
 
@@ -72,7 +73,7 @@ def _episode(job: tuple[str | None, str, str, int, str | None]) -> dict:
                           ep.config).run().metrics
         return _row(mode, seed, scene, None, metrics)
     policy = load_policy(weights, expected_kind=config.kind)[0] if mode == "policy" else None
-    along_map = config.env.observation.features == "v2" and config.kind == "gvn"
+    along_map = config.env.observation.features in POSED and config.kind == "gvn"
     rng = np.random.default_rng(seed)
     obs, info = env.reset(seed=seed)
     total = 0.0

@@ -2,8 +2,9 @@
 # Re-runs the experiments of docs/results.md at one committed revision, in a worktree of it
 # (so the runs record that revision, clean, whatever the checkout holds meanwhile).
 #
-# Usage: tools/rerun_results.sh REV WORKERS [table1 gvn_v2 explore_bench ariadne ablation
-#        ablation_v2 lobby_real realistic realistic_truth realistic_odometry realistic_imu]
+# Usage: tools/rerun_results.sh REV WORKERS [table1 gvn_v2 gvn_v3 explore_bench ariadne
+#        ablation ablation_v2 lobby_real realistic realistic_truth realistic_odometry
+#        realistic_imu]
 # Runs go to runs/rerun_REV/<experiment>; started again, bench skips the finished episodes.
 # Then: mjexplore collect runs/rerun_REV/<experiment> --experiment <experiment> and
 # mjexplore report. Needs ../shared/data (the Explore-Bench and ARiADNE maps), or the folder
@@ -26,7 +27,7 @@ else
   REV=${1:0:7}; ROOT=$PWD; WT=$ROOT; PY=${MJEXPLORE_PYTHON:-python3}
 fi
 W=$2; shift 2
-EXPERIMENTS=${*:-table1 gvn_v2 explore_bench ariadne ablation ablation_v2 lobby_real realistic realistic_truth realistic_odometry realistic_imu}
+EXPERIMENTS=${*:-table1 gvn_v2 gvn_v3 explore_bench ariadne ablation ablation_v2 lobby_real realistic realistic_truth realistic_odometry realistic_imu}
 SHARED=$(cd "${MJEXPLORE_SHARED:-$ROOT/../shared}" && pwd)
 OUT=$ROOT/runs/rerun_$REV
 mkdir -p "$OUT"
@@ -47,7 +48,10 @@ for e in $EXPERIMENTS; do
     gvn_v2) mj bench --scenes loop_with_corridor,maze,office \
               --explorers nearest,potential,cnn_v2,gvn_v2 \
               --seeds 10 --workers "$W" --out "$OUT/gvn_v2" ;;
-    explore_bench) mj bench --scenes "$EB" --explorers $ALL,cnn_v2,gvn_v2 --seeds 2 --lidar-range 7 \
+    gvn_v3) mj bench --scenes loop_with_corridor,maze,office \
+              --explorers nearest,potential,gvn_v2,gvn_v3 \
+              --seeds 10 --workers "$W" --out "$OUT/gvn_v3" ;;
+    explore_bench) mj bench --scenes "$EB" --explorers $ALL,cnn_v2,gvn_v2,gvn_v3 --seeds 2 --lidar-range 7 \
               --workers "$W" --out "$OUT/explore_bench" ;;
     realistic) mj bench --scenes loop_with_corridor,maze,office --explorers $ALL --seeds 5 \
               --lidar-model lds01 --odometry-error typical --localization scan_matching \
@@ -74,7 +78,7 @@ for e in $EXPERIMENTS; do
         d=$OUT/ariadne_scenes/$(basename "$f" .png)
         [ -d "$d" ] || mj scene-gen --from-map "$f" --resolution 0.1 --out "$d" > /dev/null
       done
-      mj bench --scenes "$(ls -d "$OUT"/ariadne_scenes/* | paste -sd,)" --explorers $ALL,cnn_v2,gvn_v2 \
+      mj bench --scenes "$(ls -d "$OUT"/ariadne_scenes/* | paste -sd,)" --explorers $ALL,cnn_v2,gvn_v2,gvn_v3 \
         --seeds 1 --lidar-range 8 --workers "$W" --out "$OUT/ariadne" ;;
     *) echo "unknown experiment $e" >&2; exit 2 ;;
   esac

@@ -23,9 +23,10 @@ import cv2
 import numpy as np
 from gymnasium import spaces
 
-from mjexplore.envs.observation import (ObservationConfig, TerMemory, observation_space,
-                                        path_features, ter_arrays)
+from mjexplore.envs.observation import (POSED, ObservationConfig, TerMemory,
+                                        observation_space, path_features, ter_arrays)
 from mjexplore.explorers.base import ExplorationState
+from mjexplore.topology.frontiers import Frontier
 from mjexplore.topology.pipeline import TopologyConfig
 from mjexplore.topology.ter import FRONTIER_FLAG, PaddedTer, TerConfig
 
@@ -68,6 +69,11 @@ class TerDecisions:
         self.observation_space = observation_space(config)
         self.action_space = spaces.Discrete(config.max_nodes)
         self.memory = TerMemory(config)
+        self.pockets = None
+        if config.features == "v3":
+            from mjexplore.topology.pockets import pocket_predictor
+
+            self.pockets = pocket_predictor(config.pockets, config.pockets_sha256)
         self.reset()
 
     def reset(self) -> None:
@@ -77,25 +83,49 @@ class TerDecisions:
         self.pose: np.ndarray | None = None  # ...and the robot's map pose then.
         self.mask = np.zeros(self.config.max_nodes, bool)
 
-    def _extra_features(self, padded: PaddedTer, state: ExplorationState) -> np.ndarray:
-        """The v2 node features [path, unreachable, blacklisted] (N, 3) of a padded TER:
-        one Dijkstra from the robot over the costmap per decision."""
+    def _extra_features(self, padded: PaddedTer, state: ExplorationState,
+                        frontiers: list[Frontier]) -> np.ndarray:
+        """The v2 node features [path, unreachable, blacklisted] (N, 3) of a padded TER
+        (one Dijkstra from the robot over the costmap per decision), and for v3 the
+        frontier nodes' pocket probability beside them (N, 4)."""
         real = padded.node_mask > 0
-        extra = np.zeros((len(real), 3), np.float32)
+        extra = np.zeros((len(real), 4 if self.pockets else 3), np.float32)
         if real.any():
             grid = state.grid
             positions = padded.node_positions[real]
             distances = state.costmap.distances_from(state.pose[:2])
             half = int(round(self.config.path_radius / grid.resolution))
             cells = np.clip(grid.world_to_cell(positions), 0, np.array(grid.shape) - 1)
-            extra[real] = path_features(distances, cells, state.allowed(positions), half)
+            extra[real, :3] = path_features(distances, cells, state.allowed(positions), half)
+        if self.pockets is not None and frontiers:
+            extra[:, 3] = self._pocket_feature(padded, state, frontiers)
         return extra
+
+    def _pocket_feature(self, padded: PaddedTer, state: ExplorationState,
+                        frontiers: list[Frontier]) -> np.ndarray:
+        """(N,) each frontier node's pocket probability (a node sits at its frontier's goal
+        cell); 0 for the other nodes."""
+        grid = state.grid
+        nodes = np.flatnonzero((padded.node_mask > 0)
+                               & (padded.node_features[:, 5] == FRONTIER_FLAG))
+        out = np.zeros(len(padded.node_mask), np.float32)
+        if len(nodes) == 0:
+            return out
+        index = {tuple(f.goal_cell): i for i, f in reversed(list(enumerate(frontiers)))}
+        cells = grid.world_to_cell(padded.node_positions[nodes].astype(float))
+        matched = [(n, index.get((int(r), int(c)))) for n, (r, c) in zip(nodes, cells)]
+        matched = [(n, i) for n, i in matched if i is not None]
+        if matched:
+            probability = self.pockets.small_probability(
+                grid, [frontiers[i] for _, i in matched])
+            out[[n for n, _ in matched]] = probability
+        return out
 
     def prepare(self, state: ExplorationState) -> bool:
         """Builds the observation and mask; False when no valid frontier is left (the
         observation is still that of ``state``, the mask then empty)."""
         tracker = state.extras["tracker"]
-        ter, _, _ = tracker.ter(state.grid, state.pose, self.topology)
+        ter, frontiers, _ = tracker.ter(state.grid, state.pose, self.topology)
         state.extras["ter"] = ter
         padded = ter.padded(self.ter_config)
         mask = ter_action_mask(padded, state, "frontiers")
@@ -103,7 +133,8 @@ class TerDecisions:
         if valid and self.valid_actions == "all_nodes":
             mask = ter_action_mask(padded, state, "all_nodes")
         self.padded, self.mask = padded, mask
-        extra = self._extra_features(padded, state) if self.config.features == "v2" else None
+        extra = (self._extra_features(padded, state, frontiers)
+                 if self.config.features in POSED else None)
         self.current = ter_arrays(padded, extra)
         self.pose = np.asarray(state.pose, float).copy()
         return valid

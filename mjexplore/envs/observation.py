@@ -8,7 +8,7 @@ carries the *raw* inputs instead — each remembered decision's padded TER and i
 node — and the policy re-encodes them with its current weights at every forward pass.
 At deployment the weights are fixed, so re-encoding and caching give the same numbers.
 
-Two feature sets (``ObservationConfig.features``); a policy is trained on one and its
+Three feature sets (``ObservationConfig.features``); a policy is trained on one and its
 weights record which:
 
 * ``v1``: the paper's node features, F = 6.
@@ -17,6 +17,10 @@ weights record which:
   and a flag for nodes at a given-up (blacklisted) goal; and ``memory_pose``, the pose
   each remembered TER was stored at, in the current robot frame, so that the policy can
   place old TERs (whose node positions are relative to the robot of their time).
+* ``v3``: F = 10, the v2 features and ``pocket`` per node: for frontier nodes the
+  probability that the unseen free space behind the frontier is small (below the
+  predictor's ``small_area_m2``, 0.5 m^2), from the map alone by the predictor of
+  :mod:`mjexplore.topology.pockets` (``ObservationConfig.pockets``); 0 for other nodes.
 
 Layout (N = ``max_nodes``, K = ``max_neighbours``, E = ``memory_length``; all float32 and
 flat, row-major: SB3 takes only 1-D vectors and images as plain observations):
@@ -26,7 +30,7 @@ flat, row-major: SB3 takes only 1-D vectors and images as plain observations):
   [path, unreachable, blacklisted]: path cost in metres (Costmap.distances_from, wall
   penalty included; the least over the cells within ``path_radius`` of the node, as
   nearest-frontier reads a goal; 0 when unreachable), unreachable in {0, 1}, blacklisted in
-  {0, 1}; zero for padding.
+  {0, 1}; then for v3 [pocket] in [0, 1]; zero for padding.
 * ``neighbours`` (N K): per node its neighbour node indices, -1 for an empty slot.
 * ``node_mask`` (N): 1 for real nodes.
 * ``memory_node_features`` (E N F), ``memory_neighbours`` (E N K), ``memory_node_mask``
@@ -34,7 +38,7 @@ flat, row-major: SB3 takes only 1-D vectors and images as plain observations):
   decision are all zero (neighbours -1).
 * ``memory_choice`` (E): index of the node chosen at each remembered decision.
 * ``memory_mask`` (E): 1 for slots holding a decision.
-* ``memory_pose`` (E 3), v2 only: (dx, dy, dyaw) of the robot pose each remembered TER was
+* ``memory_pose`` (E 3), v2 and v3: (dx, dy, dyaw) of the robot pose each remembered TER was
   built at, in the current ``base_link`` frame (metres, radians in [-pi, pi)); a node at
   (px, py) of that TER lies at R(dyaw) (px, py) + (dx, dy) from the robot now. Zero for
   empty slots.
@@ -64,10 +68,12 @@ from mjexplore.topology.ter import NUM_FEATURES, PaddedTer
 # Bounds of the node features (finite, as SB3 wants): positions and distances in metres,
 # gain a share in [0, 1], bearing in radians, flags in {-1, 0, 1}.
 FEATURE_BOUND = 1.0e4
-FEATURE_SETS = ("v1", "v2")
-# Node features per feature set: v2 adds path cost, unreachable and blacklisted.
-NODE_FEATURES = {"v1": NUM_FEATURES, "v2": NUM_FEATURES + 3}
+FEATURE_SETS = ("v1", "v2", "v3")
+# Node features per feature set: v2 adds path cost, unreachable and blacklisted; v3 pocket.
+NODE_FEATURES = {"v1": NUM_FEATURES, "v2": NUM_FEATURES + 3, "v3": NUM_FEATURES + 4}
 PATH, UNREACHABLE, BLACKLISTED = NUM_FEATURES, NUM_FEATURES + 1, NUM_FEATURES + 2
+POCKET = NUM_FEATURES + 3
+POSED = ("v2", "v3")  # Feature sets with path features and posed memory.
 PRIVILEGED_FEATURES = 2  # [area to the target ratio / 100 m^2, share unseen]
 
 
@@ -79,12 +85,18 @@ class ObservationConfig:
         max_nodes: N_max, TER nodes per observation (the action space size).
         max_neighbours: K, neighbour slots per node.
         memory_length: epsilon, decisions kept in the episodic memory (paper: 10).
-        features: 'v1' (the paper's node features) or 'v2' (with path cost, reachability,
-            blacklist flags and memory poses); see the module docstring.
-        path_radius: v2: a node's path cost is the least over the cells within this
+        features: 'v1' (the paper's node features), 'v2' (with path cost, reachability,
+            blacklist flags and memory poses) or 'v3' (v2 and the predicted pocket); see
+            the module docstring.
+        path_radius: v2, v3: a node's path cost is the least over the cells within this
             distance of it (metres; the reach nearest-frontier gives a goal).
         privileged: Add the critic's ground-truth inputs (``privileged``, see the module
             docstring).
+        pockets: v3: the pocket predictor's weights file (``mjexplore train-pockets``); a
+            relative path is looked up from the working directory, then from the
+            repository root (where ``training/pockets.safetensors`` lies).
+        pockets_sha256: v3: if set, the first 16 hex digits of that file's sha256; another
+            file is refused (a policy reads the predictor it was trained with).
     """
 
     max_nodes: int = 256
@@ -93,6 +105,8 @@ class ObservationConfig:
     features: str = "v1"
     path_radius: float = 0.5
     privileged: bool = False
+    pockets: str | None = None
+    pockets_sha256: str | None = None
 
     def __post_init__(self) -> None:
         if self.features not in FEATURE_SETS:
@@ -103,6 +117,10 @@ class ObservationConfig:
                              "memory_length >= 1")
         if self.path_radius < 0:
             raise ValueError("observation.path_radius must be >= 0")
+        if (self.features == "v3") != (self.pockets is not None):
+            raise ValueError("observation.features: v3 needs observation.pockets (the pocket "
+                             "predictor's weights, e.g. training/pockets.safetensors), and "
+                             "pockets goes with v3 only")
 
     @property
     def num_features(self) -> int:
@@ -127,7 +145,7 @@ def observation_space(config: ObservationConfig) -> spaces.Dict:
         "memory_choice": spaces.Box(low=0.0, high=float(n - 1), shape=(e,), dtype=np.float32),
         "memory_mask": spaces.Box(shape=(e,), **unit),
     }
-    if config.features == "v2":
+    if config.features in POSED:
         space["memory_pose"] = spaces.Box(shape=(e * 3,), **feat)
     if config.privileged:
         space["privileged"] = spaces.Box(low=0.0, high=FEATURE_BOUND,
@@ -136,8 +154,9 @@ def observation_space(config: ObservationConfig) -> spaces.Dict:
 
 
 def ter_arrays(padded: PaddedTer, extra: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """The current-TER part of an observation; ``extra`` (N, 3) are the v2 node features
-    [path, unreachable, blacklisted] (see :func:`path_features`), None for v1."""
+    """The current-TER part of an observation; ``extra`` (N, 3 or 4) are the v2 node
+    features [path, unreachable, blacklisted] (see :func:`path_features`) and for v3 the
+    pocket, None for v1."""
     neighbours = np.where(padded.neighbour_mask > 0, padded.neighbours, -1).astype(np.float32)
     features = padded.node_features
     if extra is not None:
@@ -212,15 +231,15 @@ class TerMemory:
     def observation(self, current: dict[str, np.ndarray],
                     pose: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """The full observation for the current TER arrays (from :func:`ter_arrays`) and,
-        for v2, the robot's pose (x, y, yaw) in the ``map`` frame now (None: unknown, the
-        memory poses read zero)."""
+        for v2 and v3, the robot's pose (x, y, yaw) in the ``map`` frame now (None:
+        unknown, the memory poses read zero)."""
         obs = {**{k: v.reshape(-1).copy() for k, v in current.items()},
                "memory_node_features": self._features.reshape(-1).copy(),
                "memory_neighbours": self._neighbours.reshape(-1).copy(),
                "memory_node_mask": self._node_mask.reshape(-1).copy(),
                "memory_choice": self._choice.copy(),
                "memory_mask": self._mask.copy()}
-        if self.config.features == "v2":
+        if self.config.features in POSED:
             relative = np.zeros_like(self._pose)
             if pose is not None:
                 relative = poses_in_frame(np.asarray(pose, float), self._pose)
@@ -258,7 +277,7 @@ def privileged_features(known: int, total: int, target_ratio: float,
 def structured(obs: dict, batch_dims: int = 1) -> dict:
     """Reshapes flat observation arrays or tensors (with ``batch_dims`` leading axes) to
     (..., N, F), (..., N, K), (..., N), (..., E, N, F), (..., E, N, K), (..., E, N),
-    (..., E), (..., E) and, for v2, (..., E, 3)."""
+    (..., E), (..., E) and, for v2 and v3, (..., E, 3)."""
     lead = tuple(obs["node_mask"].shape[:batch_dims])
     n = obs["node_mask"].shape[-1]
     e = obs["memory_mask"].shape[-1]

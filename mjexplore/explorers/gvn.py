@@ -189,3 +189,12 @@ class GvnV2NoMaskingExplorer(_ShippedGvnExplorer):
     every TER node valid, no mask), run the same way."""
 
     weights, masked = "gvn_v2_none", False
+
+
+@register("gvn_v3")
+class GvnV3Explorer(_ShippedGvnExplorer):
+    """The v3 recipe's GVN (training/gvn_v3.yaml: the v2 recipe with each frontier node's
+    predicted pocket, mjexplore/topology/pockets.py), its shipped weights
+    ``training/gvn_v3_policy.safetensors``, run with the mask."""
+
+    weights, masked = "gvn_v3", True

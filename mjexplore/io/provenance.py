@@ -1,7 +1,9 @@
-"""Where a result came from: the git revision of the code that made it."""
+"""Where a result came from: the git revision of the code that made it, and the hash of
+the files (weights) it read."""
 
 from __future__ import annotations
 
+import hashlib
 import os
 import subprocess
 from pathlib import Path
@@ -28,3 +30,9 @@ def git_revision() -> str:
         return rev + ("-dirty" if dirty.strip() else "")
     except (OSError, subprocess.SubprocessError):
         return "unknown"
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """The first 16 hex digits of a file's sha256: what run folders and reports name
+    weights files by."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]

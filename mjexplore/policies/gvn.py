@@ -44,14 +44,15 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from mjexplore.envs.observation import (BLACKLISTED, FEATURE_BOUND, PATH, UNREACHABLE,
-                                        structured)
+from mjexplore.envs.observation import (BLACKLISTED, FEATURE_BOUND, PATH, POCKET,
+                                        UNREACHABLE, structured)
 from mjexplore.topology.ter import NUM_FEATURES
 
 # Fixed input scaling of [px, py, G_info, phi_diff, D, flag]: metres / 10, radians / pi;
-# v2 adds [path, unreachable, blacklisted]: metres / 10, flags as they are.
+# v2 adds [path, unreachable, blacklisted]: metres / 10, flags as they are; v3 [pocket],
+# a probability.
 FEATURE_SCALE = (0.1, 0.1, 1.0, 1.0 / torch.pi, 0.1, 1.0)
-FEATURE_SCALE_V2 = FEATURE_SCALE + (0.1, 1.0, 1.0)
+FEATURE_SCALE_V2 = FEATURE_SCALE + (0.1, 1.0, 1.0, 1.0)
 METRES_SCALE = 0.1
 POSE_FEATURES = 6  # v2 memory: the stored pose (dx, dy, cos, sin) and the chosen node (x, y)
 # v2 edge-length basis: Gaussian centres and widths in metres (TER edges: GVD sides of up to
@@ -101,22 +102,29 @@ class GvnConfig:
 PRIOR_EXCLUDED_M = 2 * FEATURE_BOUND
 
 
-def path_prior(node_features: torch.Tensor, temperature: float) -> torch.Tensor:
-    """Logits of the nearest-node rule from v2 node features: ``-path / temperature``, with
-    unreachable or blacklisted nodes ``PRIOR_EXCLUDED_M`` farther. Its argmax over the valid
-    nodes is the frontier node nearest along the known map (what nearest-frontier picks).
+def path_prior(node_features: torch.Tensor, temperature: float,
+               pocket_m: float = 0.0) -> torch.Tensor:
+    """Logits of the nearest-node rule from v2 or v3 node features: ``-path / temperature``,
+    with unreachable or blacklisted nodes ``PRIOR_EXCLUDED_M`` farther. Its argmax over the
+    valid nodes is the frontier node nearest along the known map (what nearest-frontier
+    picks). With ``pocket_m`` (v3) a node also counts ``pocket_m`` times its pocket
+    probability farther: the nearest frontier whose pocket is not likely small.
 
     Args:
-        node_features: (..., N, F) v2 node features (raw: metres, flags).
+        node_features: (..., N, F) v2 or v3 node features (raw: metres, flags).
         temperature: Path length per nat, metres (> 0): the prior prefers a node ``t``
             metres nearer by a factor e.
+        pocket_m: Metres added per unit of pocket probability (v3 features; 0: none).
 
     Returns:
         (..., N) logits.
     """
     path = node_features[..., PATH]
     excluded = (node_features[..., UNREACHABLE] + node_features[..., BLACKLISTED]) > 0
-    return -(path + PRIOR_EXCLUDED_M * excluded.to(path.dtype)) / temperature
+    cost = path + PRIOR_EXCLUDED_M * excluded.to(path.dtype)
+    if pocket_m:
+        cost = cost + pocket_m * node_features[..., POCKET]
+    return -cost / temperature
 
 
 ATTENTION_GROUPS = 4  # Size groups of a batch's global attention (GVN.attend).

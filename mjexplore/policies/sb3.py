@@ -37,6 +37,7 @@ from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
+from mjexplore.envs.observation import POCKET
 from mjexplore.policies.gvn import GVN, GvnConfig, path_prior
 
 MASKING_MODES = ("iam", "naive", "none")
@@ -54,7 +55,7 @@ class GvnExtractor(BaseFeaturesExtractor):
     def __init__(self, observation_space: spaces.Dict, hidden: int = 64, gcn_layers: int = 3,
                  tcn_kernel: int = 3, tcn_dilations: tuple[int, ...] = (1, 2, 4),
                  attention_layers: int = 1, attention_heads: int = 4,
-                 prior_temperature: float | None = None) -> None:
+                 prior_temperature: float | None = None, prior_pocket_m: float = 0.0) -> None:
         n = observation_space["node_mask"].shape[0]
         prior = n if prior_temperature is not None else 0
         privileged = privileged_size(observation_space)
@@ -66,12 +67,17 @@ class GvnExtractor(BaseFeaturesExtractor):
         if prior and (features != "v2" or prior_temperature <= 0):
             raise ValueError("prior_temperature needs the v2 observation (its path "
                              "feature) and must be > 0 (metres)")
+        num_features = observation_space["node_features"].shape[0] // n
+        if prior_pocket_m and (not prior or num_features <= POCKET):
+            raise ValueError("prior_pocket_m needs prior_temperature and the v3 observation "
+                             "(its pocket feature)")
         self.prior_temperature = prior_temperature
+        self.prior_pocket_m = prior_pocket_m
         self.gvn = GVN(GvnConfig(hidden=hidden, gcn_layers=gcn_layers, tcn_kernel=tcn_kernel,
                                  tcn_dilations=tuple(tcn_dilations), features=features,
                                  attention_layers=attention_layers,
                                  attention_heads=attention_heads),
-                       num_features=observation_space["node_features"].shape[0] // n)
+                       num_features=num_features)
 
     def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
         z, pooled = self.gvn(observations)
@@ -90,7 +96,7 @@ class GvnExtractor(BaseFeaturesExtractor):
             return None
         features = observations["node_features"]
         return path_prior(features.reshape(len(features), self.num_nodes, -1),
-                          self.prior_temperature)
+                          self.prior_temperature, self.prior_pocket_m)
 
 
 def privileged_size(observation_space: spaces.Dict) -> int:
@@ -153,7 +159,9 @@ class GvnPolicy(MaskableActorCriticPolicy):
             :class:`GvnConfig` sizes (attention: v2 observations only).
         actor_gain: Initial gain of the logit layer (applied with ``ortho_init``).
         prior_temperature: Metres per nat of the nearest-node prior added to the actor's
-            logits (v2 observations; None: no prior). See the module docstring.
+            logits (v2 or v3 observations; None: no prior). See the module docstring.
+        prior_pocket_m: v3: metres the prior adds per unit of a node's pocket probability
+            (:func:`~mjexplore.policies.gvn.path_prior`; 0: none).
         Other arguments as ``MaskableActorCriticPolicy``.
     """
 
@@ -162,7 +170,7 @@ class GvnPolicy(MaskableActorCriticPolicy):
                  tcn_kernel: int = 3, tcn_dilations: tuple[int, ...] = (1, 2, 4),
                  attention_layers: int = 1, attention_heads: int = 4,
                  actor_gain: float = 0.01, prior_temperature: float | None = None,
-                 **kwargs: Any) -> None:
+                 prior_pocket_m: float = 0.0, **kwargs: Any) -> None:
         if masking not in MASKING_MODES:
             raise ValueError(f"masking must be one of {MASKING_MODES}, not {masking!r}")
         self.masking = masking
@@ -172,13 +180,15 @@ class GvnPolicy(MaskableActorCriticPolicy):
         kwargs.setdefault("features_extractor_kwargs", dict(
             hidden=hidden, gcn_layers=gcn_layers, tcn_kernel=tcn_kernel,
             tcn_dilations=tuple(tcn_dilations), attention_layers=attention_layers,
-            attention_heads=attention_heads, prior_temperature=prior_temperature))
+            attention_heads=attention_heads, prior_temperature=prior_temperature,
+            prior_pocket_m=prior_pocket_m))
         self.prior_temperature = prior_temperature
         self._gvn_kwargs = dict(masking=masking, hidden=hidden, gcn_layers=gcn_layers,
                                 tcn_kernel=tcn_kernel, tcn_dilations=tuple(tcn_dilations),
                                 attention_layers=attention_layers,
                                 attention_heads=attention_heads, actor_gain=actor_gain,
-                                prior_temperature=prior_temperature)
+                                prior_temperature=prior_temperature,
+                                prior_pocket_m=prior_pocket_m)
         super().__init__(observation_space, action_space, lr_schedule, **kwargs)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:

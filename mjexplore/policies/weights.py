@@ -7,7 +7,6 @@ provenance (training config, git revision, steps). Loading one never runs code f
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 from pathlib import Path
@@ -16,6 +15,7 @@ from typing import Any
 import torch
 from mjexplore.errors import UserInputError
 from mjexplore.io.atomic import write_bytes_atomic
+from mjexplore.io.provenance import file_sha256 as weights_sha256  # noqa: F401 - re-exported
 
 FORMAT = "mjexplore-policy-v1"
 ALIASES = ("pi_features_extractor.", "vf_features_extractor.")
@@ -39,12 +39,6 @@ def save_policy_weights(path: str | os.PathLike, policy: torch.nn.Module, kind: 
             "layout": json.dumps(layout),
             "provenance": json.dumps(provenance or {}, default=str)}
     write_bytes_atomic(path, save(tensors, metadata=meta))
-
-
-def weights_sha256(path: str | os.PathLike) -> str:
-    """The first 16 hex digits of a weights file's sha256: what run folders and reports
-    name a policy by."""
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
 
 
 def read_policy_weights(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:

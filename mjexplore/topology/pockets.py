@@ -31,6 +31,7 @@ from torch import nn
 
 from mjexplore.errors import UserInputError
 from mjexplore.io.atomic import write_bytes_atomic
+from mjexplore.io.provenance import REPO, file_sha256
 from mjexplore.maps import GridMap
 from mjexplore.topology.frontiers import Frontier, information_gain
 
@@ -182,13 +183,29 @@ class PocketPredictor:
 _PREDICTORS: dict[tuple[str, float], PocketPredictor] = {}
 
 
-def pocket_predictor(path: str | os.PathLike) -> PocketPredictor:
-    """The predictor in ``path``, loaded once per process (reloaded if the file changed)."""
-    resolved = Path(path).resolve()
+def pocket_predictor(path: str | os.PathLike, sha256: str | None = None) -> PocketPredictor:
+    """The predictor in ``path``, loaded once per process (again if the file changed).
+
+    A relative ``path`` that is not there from the working directory is looked up from the
+    repository root (``training/pockets.safetensors`` from anywhere).
+
+    Raises:
+        UserInputError: the file's sha256 does not begin with ``sha256`` (when given), or
+            it cannot be loaded (see :class:`PocketPredictor`).
+    """
+    resolved = Path(path)
+    if not resolved.is_absolute() and not resolved.exists():
+        resolved = REPO / resolved
+    resolved = resolved.resolve()
     try:
         key = (str(resolved), resolved.stat().st_mtime)
     except OSError:
         key = (str(resolved), 0.0)
     if key not in _PREDICTORS:
         _PREDICTORS[key] = PocketPredictor(resolved)
+    if sha256 is not None and file_sha256(resolved) != sha256:
+        raise UserInputError(
+            f"the pocket predictor {str(resolved)!r} has sha256 {file_sha256(resolved)}, "
+            f"not the {sha256} the policy was trained with: restore that file, or name the "
+            "one it was trained with in observation.pockets.")
     return _PREDICTORS[key]
