@@ -442,7 +442,7 @@ def test_shipped_v1_weights_load_and_act_as_before():
     assert value == pytest.approx(SHIPPED_VALUE, abs=2e-5)
     action, _ = policy.predict(obs, deterministic=True, action_masks=mask)
     assert int(action) == SHIPPED_ACTION
-    for path in sorted((REPO / "training").glob("*.safetensors")):
+    for path in sorted((REPO / "training").glob("*_policy.safetensors")):
         load_policy(path)  # Every shipped policy still loads.
 
 

@@ -89,7 +89,7 @@ class TerDecisions:
         (one Dijkstra from the robot over the costmap per decision), and for v3 the
         frontier nodes' pocket probability beside them (N, 4)."""
         real = padded.node_mask > 0
-        extra = np.zeros((len(real), 4 if self.pockets else 3), np.float32)
+        extra = np.zeros((len(real), 3 if self.pockets is None else 4), np.float32)
         if real.any():
             grid = state.grid
             positions = padded.node_positions[real]
