@@ -518,15 +518,24 @@ def _eval_worker_episode(scene: str) -> dict[str, Any]:
 class NearestNodeRule:
     """The nearest-node rule as a policy for :func:`evaluate_policy_episodes`: the valid
     node nearest along the known map (the greedy choice of
-    :func:`~mjexplore.policies.gvn.path_prior`; v2 observations), the baseline a learned
-    GVN has to beat on the held-out layouts."""
+    :func:`~mjexplore.policies.gvn.path_prior`; v2 or v3 observations), the baseline a
+    learned GVN has to beat on the held-out layouts.
+
+    Args:
+        pocket_m: v3: count each node this many metres farther per unit of its pocket
+            probability (a v3 actor's prior without the network's residual); 0: the plain
+            nearest-node rule.
+    """
+
+    def __init__(self, pocket_m: float = 0.0) -> None:
+        self.pocket_m = pocket_m
 
     def predict(self, obs: dict[str, np.ndarray], deterministic: bool = True,
                 action_masks: np.ndarray | None = None) -> tuple[int, None]:
         from mjexplore.policies.gvn import path_prior
 
         features = torch.as_tensor(obs["node_features"]).reshape(len(obs["node_mask"]), -1)
-        logits = path_prior(features, 1.0).numpy()
+        logits = path_prior(features, 1.0, self.pocket_m).numpy()
         if action_masks is not None:
             logits = np.where(action_masks, logits, -np.inf)
         return int(np.argmax(logits)), None

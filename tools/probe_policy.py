@@ -5,10 +5,14 @@ layouts and training-mode dynamics) on held-out seeds with three ways to choose 
 
 * ``policy``: the trained policy, its most probable valid action (as the explorers use it);
 * ``random``: a valid action drawn uniformly (what an untrained policy amounts to);
-* ``greedy``: the valid action nearest the robot: with v2 observations the node nearest
-  along the known map (:class:`~mjexplore.training.NearestNodeRule`, what nearest-frontier
-  ranks by), otherwise the one placed nearest in a straight line (for the grid decisions,
-  roughly the nearest frontier).
+* ``greedy``: the valid action nearest the robot: with v2 or v3 observations the node
+  nearest along the known map (:class:`~mjexplore.training.NearestNodeRule`, what
+  nearest-frontier ranks by), otherwise the one placed nearest in a straight line (for the
+  grid decisions, roughly the nearest frontier);
+* ``prior``: a residual policy's prior alone, its logits without the network's (v3: the
+  nearest node counting each ``policy.prior_pocket_m`` metres farther per unit of its
+  pocket probability; v2: as ``greedy``): what the network's residual adds is ``policy``
+  against it.
 
 With ``--heldout`` or ``--unseen``, a classic explorer's name (``nearest``, ``oracle``, ...) is
 a mode too: that explorer drives the same episode (layout, start pose, seed and settings)
@@ -27,7 +31,7 @@ return lies between random (0) and greedy (1).
 
 Usage: python tools/probe_policy.py --weights training/cnn_policy.safetensors
     [--config training/cnn.yaml] [--episodes 10 | --heldout | --unseen 32]
-    [--modes policy,random,greedy[,nearest,oracle]] [--workers 2]
+    [--modes policy,random,greedy[,prior,nearest,oracle]] [--workers 2]
 """
 
 from __future__ import annotations
@@ -36,7 +40,8 @@ import argparse
 import json
 import multiprocessing as mp
 
-MODES = ("policy", "random", "greedy")
+MODES = ("policy", "random", "greedy", "prior")
+DEFAULT_MODES = ("policy", "random", "greedy")
 
 
 def _config(config_path: str | None, weights: str):
@@ -84,6 +89,9 @@ def _episode(job: tuple[str | None, str, str, int, str | None]) -> dict:
             action, _ = policy.predict(obs, deterministic=True, action_masks=mask)
         elif mode == "random":
             action = rng.choice(np.flatnonzero(mask))
+        elif mode == "prior":
+            rule = NearestNodeRule(config.policy.prior_pocket_m)
+            action, _ = rule.predict(obs, action_masks=mask)
         elif along_map:
             action, _ = NearestNodeRule().predict(obs, action_masks=mask)
         else:
@@ -115,7 +123,7 @@ def main() -> None:
                         help="the config's model-selection layouts instead of --episodes")
     parser.add_argument("--unseen", type=int, default=0,
                         help="this many generated layouts past the model-selection ones")
-    parser.add_argument("--modes", default=",".join(MODES),
+    parser.add_argument("--modes", default=",".join(DEFAULT_MODES),
                         help=f"comma-separated, of {', '.join(MODES)}")
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
@@ -124,6 +132,12 @@ def main() -> None:
         parser.error(f"--modes takes {', '.join(MODES)} (and, with --heldout or --unseen, "
                      "explorer names)")
     explorers = sorted(set(modes) - set(MODES))
+    if "prior" in modes:
+        from mjexplore.envs.observation import POSED
+
+        config = _config(args.config, args.weights)
+        if config.kind != "gvn" or config.env.observation.features not in POSED:
+            parser.error("--modes prior needs a GVN with v2 or v3 observations")
     if explorers and not (args.heldout or args.unseen):
         parser.error("explorer modes need --heldout or --unseen (a given layout)")
     for name in explorers:
@@ -156,7 +170,7 @@ def main() -> None:
             if mine[0][key] is not None:
                 figures[f"{mode}_{key}"] = round(sum(r[key] for r in mine) / len(mine), 3)
         figures[f"{mode}_explored"] = sum(r["explored"] for r in mine)
-    if set(MODES) <= set(modes):
+    if set(DEFAULT_MODES) <= set(modes):
         span = figures["greedy_return"] - figures["random_return"]
         figures["learned_fraction"] = (round((figures["policy_return"]
                                               - figures["random_return"]) / span, 3)

@@ -40,6 +40,7 @@ POLICY_FILES = {"gvn": "training/gvn_policy.safetensors", "gvn_unmasked":
                 "gvn_v2_unmasked": "training/gvn_v2_policy.safetensors",
                 "gvn_v2_naive": "training/gvn_v2_naive_policy.safetensors",
                 "gvn_v2_none": "training/gvn_v2_none_policy.safetensors",
+                "gvn_v3": "training/gvn_v3_policy.safetensors",
                 "cnn_v2": "training/cnn_v2_policy.safetensors"}
 REPO = Path(__file__).resolve().parents[2]
 
