@@ -613,7 +613,7 @@ def build_parser() -> argparse.ArgumentParser:
         "collect", help="summarise a bench sweep for the results report",
         description="Keep what the report needs from a sweep's run folders (metrics, ratio "
                     "curves every 2 s, kinematic statistics) in DATA/EXPERIMENT.json, small "
-                    "enough to commit. Experiments the report knows: table1, gvn_v2, "
+                    "enough to commit. Experiments the report knows: table1, gvn_v2, gvn_v3, "
                     "ablation, ablation_v2, lobby_real, realistic, realistic_truth, "
                     "realistic_odometry, realistic_imu, explore_bench, ariadne.")
     co.add_argument("sweep", type=Path, help="the sweep's --out folder")

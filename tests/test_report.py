@@ -13,7 +13,7 @@ import pytest
 
 from mjexplore.errors import UserInputError
 from mjexplore.episode import EpisodeConfig
-from mjexplore.eval.report import build_report, claims_table, masking_verdict
+from mjexplore.eval.report import build_report, claims_table, masking_verdict, target_verdict
 from mjexplore.eval.summaries import (RATIO_DT, collect_sweep, ratio_curve, read_summary,
                                       write_summary)
 
@@ -160,6 +160,22 @@ def test_the_masking_ablation_says_plainly_whether_iam_is_best():
     close = {"loop": {"gvn_none": _ends([100.0, 120.0]), "gvn": _ends([105.0, 106.0])}}
     assert "(within the runs' spread: not conclusive)" in masking_verdict(close, "gvn")
     assert masking_verdict(close, "gvn").startswith("Is IAM best? IAM is best on every scene")
+
+
+def test_the_table1_target_verdict_reads_the_better_classic_planner_per_scene():
+    groups = {"loop": {"nearest": _ends([100.0]), "potential": _ends([110.0]),
+                       "gvn_v3": _ends([85.0])},
+              "maze": {"nearest": _ends([300.0]), "potential": _ends([250.0]),
+                       "gvn_v3": _ends([225.0])}}
+    text = target_verdict(groups, "gvn_v3")
+    # 0.85 x nearest on the loop, 0.90 x potential on the maze: mean 0.875.
+    assert "below both nearest-frontier's and the potential field's on 2 of 2 scenes" in text
+    assert "0.875 x the better of the two" in text and text.endswith(": met.")
+    groups["maze"]["gvn_v3"] = _ends([260.0])  # Slower than potential on the maze.
+    assert target_verdict(groups, "gvn_v3").endswith(": not met.")
+    groups["maze"]["gvn_v3"] = _ends([200.0, 200.0], explored=1)  # A run stopped short.
+    assert "explored 2 of 3 runs" in target_verdict(groups, "gvn_v3")
+    assert target_verdict(groups, "gvn_v3").endswith(": not met.")
 
 
 def test_damaged_or_foreign_summaries_are_refused(tmp_path):
