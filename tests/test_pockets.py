@@ -83,6 +83,15 @@ def test_weights_file_round_trip_and_refusals(tmp_path):
         PocketPredictor(bad)
     with pytest.raises(UserInputError, match="sha256"):
         pocket_predictor(path, sha256="0" * 16)
+    import torch
+    from safetensors.torch import save
+
+    from mjexplore.topology.pockets import FORMAT
+
+    damaged = tmp_path / "damaged.safetensors"  # Our format tag, no patch layout or area.
+    damaged.write_bytes(save({"x": torch.zeros(1)}, metadata={"format": FORMAT}))
+    with pytest.raises(UserInputError, match="not a pocket predictor"):
+        PocketPredictor(damaged)
 
 
 @pytest.mark.slow

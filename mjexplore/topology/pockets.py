@@ -157,11 +157,15 @@ class PocketPredictor:
                                  f"{hint}") from None
         patch = {"cells": PATCH_CELLS, "resolution": PATCH_RESOLUTION,
                  "channels": list(PATCH_CHANNELS)}
-        if meta.get("format") != FORMAT or json.loads(meta.get("patch", "{}")) != patch:
+        try:
+            ours = meta.get("format") == FORMAT and json.loads(meta.get("patch", "{}")) == patch
+            self.small_area_m2 = float(meta["small_area_m2"]) if ours else 0.0
+            self.provenance = json.loads(meta.get("provenance", "{}")) if ours else {}
+        except (KeyError, TypeError, ValueError):
+            ours = False
+        if not ours:
             raise UserInputError(f"{str(path)!r} is not a pocket predictor of this version "
                                  f"(format {meta.get('format')!r}); {hint}")
-        self.small_area_m2 = float(meta["small_area_m2"])
-        self.provenance = json.loads(meta.get("provenance", "{}"))
         self.net = PocketNet()
         try:
             self.net.load_state_dict(tensors)
