@@ -133,8 +133,10 @@ def collect_episode(config: PocketTrainingConfig, index: int) -> dict[str, np.nd
 
     torch.set_num_threads(1)
     seed = config.seed + index
-    env = ExplorationEnv(dataclasses.replace(
-        config.env, observation=dataclasses.replace(config.env.observation, features="v1")))
+    # The env only lays out the episode (scene, start, settings); its observation is unused.
+    observation = dataclasses.replace(config.env.observation, features="v1", pockets=None,
+                                      pockets_sha256=None)
+    env = ExplorationEnv(dataclasses.replace(config.env, observation=observation))
     env.reset(seed=seed)
     episode = env.episode
     rng = np.random.default_rng([config.seed, index])
