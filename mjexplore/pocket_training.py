@@ -113,13 +113,22 @@ class _Recorder:
             self.patches.append(frontier_patches(state.grid, kept))
             self.lengths.append(frontier_lengths(state.grid, kept))
             self.areas.append(area[keep].astype(np.float32))
-        if self.skip_small:
-            large = np.where(area >= self.small_area_m2, distance, np.inf)
-            if np.isfinite(large).any():
-                return state.frontiers[int(np.argmin(large))].goal
-        if not np.isfinite(distance).any():
-            return None
-        return state.frontiers[int(np.argmin(distance))].goal
+        return nearest_goal(state, distance, area if self.skip_small else None,
+                            self.small_area_m2)
+
+
+def nearest_goal(state: ExplorationState, distance: np.ndarray, area: np.ndarray | None = None,
+                 small_area_m2: float = 0.5) -> np.ndarray | None:
+    """Nearest-frontier's goal from the frontiers' path ``distance`` (m); with their true
+    pocket ``area`` (m^2) it passes over those below ``small_area_m2`` unless no other is
+    reachable. None when none is reachable."""
+    if area is not None:
+        large = np.where(area >= small_area_m2, distance, np.inf)
+        if np.isfinite(large).any():
+            distance = large
+    if not np.isfinite(distance).any():
+        return None
+    return state.frontiers[int(np.argmin(distance))].goal
 
 
 def collect_episode(config: PocketTrainingConfig, index: int) -> dict[str, np.ndarray]:

@@ -45,22 +45,17 @@ class PocketAwareNearest:
         del rng
 
     def select_goal(self, state: ExplorationState) -> np.ndarray | None:
+        from mjexplore.pocket_training import nearest_goal
         from mjexplore.topology.pockets import pocket_areas
 
         if not state.frontiers:
             return None
         distance = state.frontier_distances()
         if self.kind == "truth":
-            small = pocket_areas(state.grid, state.ground_truth, state.frontiers) < self.value
-            cost = np.where(small, np.inf, distance)
-            if not np.isfinite(cost).any():
-                cost = distance
-        else:
-            cost = distance + self.value * self.predictor.small_probability(
-                state.grid, state.frontiers)
-        if not np.isfinite(cost).any():
-            return None
-        return state.frontiers[int(np.argmin(cost))].goal
+            area = pocket_areas(state.grid, state.ground_truth, state.frontiers)
+            return nearest_goal(state, distance, area, self.value)
+        return nearest_goal(state, distance + self.value * self.predictor.small_probability(
+            state.grid, state.frontiers))
 
 
 def _episode(job: tuple[str, str, str]) -> dict:
