@@ -18,21 +18,28 @@ from mjexplore.policies.weights import load_policy
 from mjexplore.training import NearestNodeRule, TrainConfig, evaluate_policy_episodes
 
 WEIGHTS = Path(__file__).resolve().parents[1] / "training" / "gvn_v2_policy.safetensors"
+V3_WEIGHTS = WEIGHTS.with_name("gvn_v3_policy.safetensors")
 UNSEEN = 8
 
 
-@pytest.mark.slow
-def test_shipped_v2_policy_is_faster_than_the_rule_on_eight_unseen_layouts():
-    policy, meta = load_policy(WEIGHTS, expected_kind="gvn")
+def _policy_and_rule_times(weights: Path, features: str) -> np.ndarray:
+    """(2, UNSEEN) exploration times of the shipped policy and of the nearest-node rule on
+    the held-out generator seeds past the model-selection set: layouts of the training
+    families and sizes that neither training nor the choice of these weights saw; every run
+    explored."""
+    policy, meta = load_policy(weights, expected_kind="gvn")
     config = from_dict(TrainConfig, meta["provenance"]["config"])
-    assert config.env.observation.features == "v2"
-    # The held-out generator seeds past the model-selection set: layouts of the training
-    # families and sizes that neither training nor the choice of these weights saw.
+    assert config.env.observation.features == features
     scenes = config.eval.unseen_scenes(UNSEEN)
     learned = evaluate_policy_episodes(policy, config, scenes, workers=2)
     rule = evaluate_policy_episodes(NearestNodeRule(), config, scenes, workers=2)
     assert all(r["end_reason"] == "explored" for r in learned + rule)
-    times = np.array([[r["exploration_time_s"] for r in runs] for runs in (learned, rule)])
+    return np.array([[r["exploration_time_s"] for r in runs] for runs in (learned, rule)])
+
+
+@pytest.mark.slow
+def test_shipped_v2_policy_is_faster_than_the_rule_on_eight_unseen_layouts():
+    times = _policy_and_rule_times(WEIGHTS, "v2")
     assert times[0].mean() < times[1].mean(), times
 
 
@@ -46,20 +53,10 @@ def test_evaluation_in_worker_processes_equals_one_process():
     assert [r["scene"] for r in serial] == list(scenes)
 
 
-V3_WEIGHTS = WEIGHTS.with_name("gvn_v3_policy.safetensors")
-
-
 @pytest.mark.slow
 def test_shipped_v3_policy_beats_the_rule_on_eight_unseen_layouts():
     """The v3 GVN (predicted pockets) against the same nearest-node rule on its config's
     eight layouts past model selection: faster by more than 5 % on average, every run
     explored (figures in the README's v3 section)."""
-    policy, meta = load_policy(V3_WEIGHTS, expected_kind="gvn")
-    config = from_dict(TrainConfig, meta["provenance"]["config"])
-    assert config.env.observation.features == "v3"
-    scenes = config.eval.unseen_scenes(UNSEEN)
-    learned = evaluate_policy_episodes(policy, config, scenes, workers=2)
-    rule = evaluate_policy_episodes(NearestNodeRule(), config, scenes, workers=2)
-    assert all(r["end_reason"] == "explored" for r in learned + rule)
-    times = np.array([[r["exploration_time_s"] for r in runs] for runs in (learned, rule)])
+    times = _policy_and_rule_times(V3_WEIGHTS, "v3")
     assert times[0].mean() < 0.95 * times[1].mean(), times

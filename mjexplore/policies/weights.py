@@ -16,6 +16,7 @@ import torch
 from mjexplore.errors import UserInputError
 from mjexplore.io.atomic import write_bytes_atomic
 from mjexplore.io.provenance import file_sha256 as weights_sha256  # noqa: F401 - re-exported
+from mjexplore.io.tensor_file import read_tensor_file
 
 FORMAT = "mjexplore-policy-v1"
 ALIASES = ("pi_features_extractor.", "vf_features_extractor.")
@@ -47,24 +48,10 @@ def read_policy_weights(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor
     Raises:
         UserInputError: missing file, not a safetensors file, truncated, or not ours.
     """
-    from safetensors import SafetensorError
-    from safetensors.torch import load
-
     path = Path(path)
     hint = ("give a .safetensors file written by 'mjexplore train' (e.g. "
             "training/gvn_policy.safetensors).")
-    try:
-        blob = path.read_bytes()
-    except OSError as exc:
-        raise UserInputError(f"cannot read policy weights {str(path)!r}: {exc.strerror}; {hint}") \
-            from None
-    try:
-        tensors = load(blob)
-        header_len = int.from_bytes(blob[:8], "little")
-        meta = json.loads(blob[8:8 + header_len]).get("__metadata__", {})
-    except (SafetensorError, ValueError, UnicodeDecodeError) as exc:
-        raise UserInputError(f"{str(path)!r} is not a readable safetensors file ({exc}); "
-                             f"{hint}") from None
+    tensors, meta = read_tensor_file(path, "policy weights", hint)
     if meta.get("format") != FORMAT:
         raise UserInputError(f"{str(path)!r} is a safetensors file but not mjexplore policy "
                              f"weights (format {meta.get('format')!r}); {hint}")

@@ -33,6 +33,7 @@ from torch import nn
 from mjexplore.errors import UserInputError
 from mjexplore.io.atomic import write_bytes_atomic
 from mjexplore.io.provenance import REPO, file_sha256
+from mjexplore.io.tensor_file import read_tensor_file
 from mjexplore.maps import GridMap
 from mjexplore.topology.frontiers import Frontier, information_gain
 
@@ -139,23 +140,10 @@ class PocketPredictor:
     """
 
     def __init__(self, path: str | os.PathLike) -> None:
-        from safetensors import SafetensorError
-        from safetensors.torch import load
-
         self.path = Path(path)
         hint = ("give the file 'mjexplore train-pockets' wrote (e.g. "
                 "training/pockets.safetensors).")
-        try:
-            blob = self.path.read_bytes()
-            tensors = load(blob)
-            header = json.loads(blob[8:8 + int.from_bytes(blob[:8], "little")])
-            meta = header.get("__metadata__", {})
-        except OSError as exc:
-            raise UserInputError(f"cannot read the pocket predictor {str(path)!r}: "
-                                 f"{exc.strerror}; {hint}") from None
-        except (SafetensorError, ValueError, UnicodeDecodeError) as exc:
-            raise UserInputError(f"{str(path)!r} is not a readable safetensors file ({exc}); "
-                                 f"{hint}") from None
+        tensors, meta = read_tensor_file(self.path, "the pocket predictor", hint)
         patch = {"cells": PATCH_CELLS, "resolution": PATCH_RESOLUTION,
                  "channels": list(PATCH_CHANNELS)}
         try:
