@@ -241,9 +241,8 @@ def cmd_explore(args: argparse.Namespace) -> int:
     if args.policy is not None:
         if not args.explorer.startswith(("gvn", "cnn")):
             raise UserInputError("--policy applies to the learned explorers only: gvn, "
-                                 "gvn_v2, cnn, cnn_v2 and the masking ablation's gvn_unmasked, "
-                                 "gvn_naive, gvn_none, gvn_v2_unmasked, gvn_v2_naive, "
-                                 "gvn_v2_none.")
+                                 "gvn_v2, gvn_v3, cnn, cnn_v2 and the masking ablation's "
+                                 "gvn*_unmasked, gvn*_naive and gvn*_none.")
         kwargs["policy"] = str(args.policy)
     make_explorer(args.explorer, **kwargs)  # Fails early on a bad name or weights file.
     video = _video_config(args) if args.video is not None else None
@@ -515,10 +514,10 @@ def build_parser() -> argparse.ArgumentParser:
                          help="canonical scene name, scene folder, MJCF or map_server YAML")
     explore.add_argument("--explorer", default="nearest",
                          help="nearest, explore_lite, frontier_tsp, rrt, potential, oracle "
-                              "(the ground-truth bound), cnn, gvn, or the v2 recipe's "
-                              "gvn_v2 and cnn_v2; the masking ablation's gvn_unmasked, "
-                              "gvn_naive, gvn_none and (v2 recipe) gvn_v2_unmasked, "
-                              "gvn_v2_naive, gvn_v2_none")
+                              "(the ground-truth bound), cnn, gvn, the v2 recipe's gvn_v2 "
+                              "and cnn_v2, the v3 recipe's gvn_v3; the masking ablation's "
+                              "gvn_unmasked, gvn_naive, gvn_none and the same with gvn_v2_ "
+                              "or gvn_v3_ (v2 and v3 recipes)")
     explore.add_argument("--policy", type=Path, default=None,
                          help="weights for a learned explorer, gvn* or cnn (default: the "
                          "shipped training/*_policy.safetensors it names)")
@@ -614,7 +613,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Keep what the report needs from a sweep's run folders (metrics, ratio "
                     "curves every 2 s, kinematic statistics) in DATA/EXPERIMENT.json, small "
                     "enough to commit. Experiments the report knows: table1, gvn_v2, gvn_v3, "
-                    "ablation, ablation_v2, lobby_real, realistic, realistic_truth, "
+                    "ablation, ablation_v2, ablation_v3, lobby_real, realistic, realistic_truth, "
                     "realistic_odometry, realistic_imu, explore_bench, ariadne.")
     co.add_argument("sweep", type=Path, help="the sweep's --out folder")
     co.add_argument("--experiment", required=True, help="summary name (e.g. table1)")

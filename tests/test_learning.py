@@ -727,7 +727,8 @@ def test_shipped_policy_explorers_say_how_to_make_their_missing_policy(tmp_path,
 
     monkeypatch.setattr(gvn, "DEFAULT_WEIGHTS", tmp_path / "gvn_policy.safetensors")
     monkeypatch.setattr(cnn, "DEFAULT_WEIGHTS", tmp_path / "cnn_policy.safetensors")
-    for name in ("gvn_naive", "gvn_none", "gvn_v2", "gvn_v2_naive", "gvn_v2_none", "cnn_v2"):
+    for name in ("gvn_naive", "gvn_none", "gvn_v2", "gvn_v2_naive", "gvn_v2_none", "gvn_v3_naive",
+                 "gvn_v3_none", "cnn_v2"):
         with pytest.raises(UserInputError, match=f"training/{name}.yaml"):
             make_explorer(name)
 

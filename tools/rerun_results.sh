@@ -3,8 +3,8 @@
 # (so the runs record that revision, clean, whatever the checkout holds meanwhile).
 #
 # Usage: tools/rerun_results.sh REV WORKERS [table1 gvn_v2 gvn_v3 explore_bench ariadne
-#        ablation ablation_v2 lobby_real realistic realistic_truth realistic_odometry
-#        realistic_imu]
+#        ablation ablation_v2 ablation_v3 lobby_real realistic realistic_truth
+#        realistic_odometry realistic_imu]
 # Runs go to runs/rerun_REV/<experiment>; started again, bench skips the finished episodes.
 # Then: mjexplore collect runs/rerun_REV/<experiment> --experiment <experiment> and
 # mjexplore report. Needs ../shared/data (the Explore-Bench and ARiADNE maps), or the folder
@@ -27,7 +27,7 @@ else
   REV=${1:0:7}; ROOT=$PWD; WT=$ROOT; PY=${MJEXPLORE_PYTHON:-python3}
 fi
 W=$2; shift 2
-EXPERIMENTS=${*:-table1 gvn_v2 gvn_v3 explore_bench ariadne ablation ablation_v2 lobby_real realistic realistic_truth realistic_odometry realistic_imu}
+EXPERIMENTS=${*:-table1 gvn_v2 gvn_v3 explore_bench ariadne ablation ablation_v2 ablation_v3 lobby_real realistic realistic_truth realistic_odometry realistic_imu}
 SHARED=$(cd "${MJEXPLORE_SHARED:-$ROOT/../shared}" && pwd)
 OUT=$ROOT/runs/rerun_$REV
 mkdir -p "$OUT"
@@ -71,6 +71,9 @@ for e in $EXPERIMENTS; do
     ablation_v2) mj bench --scenes loop_with_corridor,maze \
               --explorers gvn_v2_none,gvn_v2_naive,gvn_v2_unmasked,gvn_v2 --seeds 5 \
               --workers "$W" --out "$OUT/ablation_v2" ;;
+    ablation_v3) mj bench --scenes loop_with_corridor,maze \
+              --explorers gvn_v3_none,gvn_v3_naive,gvn_v3_unmasked,gvn_v3 --seeds 5 \
+              --workers "$W" --out "$OUT/ablation_v3" ;;
     lobby_real) mj bench --scenes lobby --explorers gvn,potential,nearest --profile real \
               --seeds 5 --workers 1 --out "$OUT/lobby_real" ;;
     ariadne)

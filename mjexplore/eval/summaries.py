@@ -41,6 +41,9 @@ POLICY_FILES = {"gvn": "training/gvn_policy.safetensors", "gvn_unmasked":
                 "gvn_v2_naive": "training/gvn_v2_naive_policy.safetensors",
                 "gvn_v2_none": "training/gvn_v2_none_policy.safetensors",
                 "gvn_v3": "training/gvn_v3_policy.safetensors",
+                "gvn_v3_unmasked": "training/gvn_v3_policy.safetensors",
+                "gvn_v3_naive": "training/gvn_v3_naive_policy.safetensors",
+                "gvn_v3_none": "training/gvn_v3_none_policy.safetensors",
                 "cnn_v2": "training/cnn_v2_policy.safetensors"}
 REPO = Path(__file__).resolve().parents[2]
 

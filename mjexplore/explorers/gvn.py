@@ -198,3 +198,27 @@ class GvnV3Explorer(_ShippedGvnExplorer):
     ``training/gvn_v3_policy.safetensors``, run with the mask."""
 
     weights, masked = "gvn_v3", True
+
+
+@register("gvn_v3_unmasked")
+class GvnV3UnmaskedExplorer(_ShippedGvnExplorer):
+    """The masking ablation under the v3 recipe, "masking removed": gvn_v3's policy run
+    without the mask."""
+
+    weights, masked = "gvn_v3", False
+
+
+@register("gvn_v3_naive")
+class GvnV3NaiveExplorer(_ShippedGvnExplorer):
+    """The masking ablation under the v3 recipe, "naive masking"
+    (training/gvn_v3_naive.yaml), run with the mask."""
+
+    weights, masked = "gvn_v3_naive", True
+
+
+@register("gvn_v3_none")
+class GvnV3NoMaskingExplorer(_ShippedGvnExplorer):
+    """The masking ablation under the v3 recipe, "without IAM" (training/gvn_v3_none.yaml:
+    every TER node valid, no mask), run the same way."""
+
+    weights, masked = "gvn_v3_none", False
