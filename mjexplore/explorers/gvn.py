@@ -167,30 +167,6 @@ class GvnV2Explorer(_ShippedGvnExplorer):
     weights, masked = "gvn_v2", True
 
 
-@register("gvn_v2_unmasked")
-class GvnV2UnmaskedExplorer(_ShippedGvnExplorer):
-    """The masking ablation under the v2 recipe, "masking removed": gvn_v2's policy run
-    without the mask."""
-
-    weights, masked = "gvn_v2", False
-
-
-@register("gvn_v2_naive")
-class GvnV2NaiveExplorer(_ShippedGvnExplorer):
-    """The masking ablation under the v2 recipe, "naive masking"
-    (training/gvn_v2_naive.yaml), run with the mask."""
-
-    weights, masked = "gvn_v2_naive", True
-
-
-@register("gvn_v2_none")
-class GvnV2NoMaskingExplorer(_ShippedGvnExplorer):
-    """The masking ablation under the v2 recipe, "without IAM" (training/gvn_v2_none.yaml:
-    every TER node valid, no mask), run the same way."""
-
-    weights, masked = "gvn_v2_none", False
-
-
 @register("gvn_v3")
 class GvnV3Explorer(_ShippedGvnExplorer):
     """The v3 recipe's GVN (training/gvn_v3.yaml: the v2 recipe with each frontier node's
@@ -200,25 +176,23 @@ class GvnV3Explorer(_ShippedGvnExplorer):
     weights, masked = "gvn_v3", True
 
 
-@register("gvn_v3_unmasked")
-class GvnV3UnmaskedExplorer(_ShippedGvnExplorer):
-    """The masking ablation under the v3 recipe, "masking removed": gvn_v3's policy run
-    without the mask."""
+def _register_masking_variants(recipe: str) -> None:
+    """Registers the masking ablation (the paper's Table 2) of a recipe's GVN, ``recipe``
+    such as ``gvn_v2``: explorers ``{recipe}_unmasked``, ``{recipe}_naive`` and
+    ``{recipe}_none``, classes such as ``GvnV2NaiveExplorer``."""
+    for suffix, weights, masked, about in (
+            ("unmasked", recipe, False, "masking removed: {r}'s policy run without the mask"),
+            ("naive", f"{recipe}_naive", True, "naive masking (training/{r}_naive.yaml: "
+             "masked sampling, unmasked gradient), run with the mask"),
+            ("none", f"{recipe}_none", False, "without IAM (training/{r}_none.yaml: every "
+             "TER node valid, no mask), run the same way")):
+        name = f"{recipe}_{suffix}"
+        class_name = f"{name.title().replace('_', '')}Explorer"
+        # A module attribute, so that pickle finds the class by its name.
+        globals()[class_name] = register(name)(type(class_name, (_ShippedGvnExplorer,), {
+            "weights": weights, "masked": masked, "__module__": __name__,
+            "__doc__": f"The masking ablation of {recipe}, {about.format(r=recipe)}."}))
 
-    weights, masked = "gvn_v3", False
 
-
-@register("gvn_v3_naive")
-class GvnV3NaiveExplorer(_ShippedGvnExplorer):
-    """The masking ablation under the v3 recipe, "naive masking"
-    (training/gvn_v3_naive.yaml), run with the mask."""
-
-    weights, masked = "gvn_v3_naive", True
-
-
-@register("gvn_v3_none")
-class GvnV3NoMaskingExplorer(_ShippedGvnExplorer):
-    """The masking ablation under the v3 recipe, "without IAM" (training/gvn_v3_none.yaml:
-    every TER node valid, no mask), run the same way."""
-
-    weights, masked = "gvn_v3_none", False
+for _recipe in ("gvn_v2", "gvn_v3"):
+    _register_masking_variants(_recipe)
