@@ -246,3 +246,26 @@ def test_collect_and_report_name_the_planned_episodes_that_left_no_metrics(sweep
     assert "1 failed (an error): train_loop / nearest / seed 1" in note
     assert "1 not run (the sweep was stopped first): train_loop / potential / seed 1" in note
     assert _unfinished_note(collect_sweep(sweep, "table1")) is None
+
+
+def test_the_report_names_each_experiments_revision_and_checks_runs_repeated_at_another():
+    from mjexplore.eval.report import revisions_section
+
+    def run(seed, time, method="nearest"):
+        return {"scene": "maze", "method": method, "seed": seed, "resolution": 0.05,
+                "metrics": {"exploration_time_s": time, "end_reason": "explored"}}
+
+    settings = {"max_time": 1800.0}
+    summaries = {
+        "table1": {"run_revisions": ["a" * 40], "episode": settings,
+                   "runs": [run(0, 300.0), run(1, 310.0), run(0, 200.0, "rrt")]},
+        "gvn_v3": {"run_revisions": ["b" * 40], "episode": settings,
+                   "runs": [run(0, 300.0), run(1, 311.0)]},
+        # Other settings: not the same episodes, whatever the seeds.
+        "realistic": {"run_revisions": ["c" * 40], "episode": {"max_time": 3600.0},
+                      "runs": [run(0, 300.0)]},
+    }
+    text = "\n".join(revisions_section(summaries))
+    assert "| table1 | 3 | `aaaaaaa` |" in text and "| realistic | 1 | `ccccccc` |" in text
+    assert "table1 (`aaaaaaa`) and gvn_v3 (`bbbbbbb`) share 2 runs: 1 of them identical" in text
+    assert "realistic (" not in text

@@ -9,6 +9,7 @@ summary is missing is listed with the command that would make it.
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import types
 from pathlib import Path
@@ -600,6 +601,7 @@ def build_report(data_dir: str | os.PathLike, out: str | os.PathLike,
                       "Seed 0 on each scene: the map at the end, the trajectory and the TER.", ""]
             lines += [f"![{scene}: final map, trajectory and TER]({rel}/{still})"
                       for scene, still in stills.items()] + [""]
+    lines += revisions_section(summaries)
     if missing:
         lines += ["## Not yet run", "",
                   "Run the sweep, then `mjexplore collect runs/NAME --experiment NAME` and "
@@ -682,6 +684,49 @@ def _section(name: str, summary, groups, figures: Path, rel: str) -> list[str]:
     return lines
 
 
+def _run_key(summary: dict[str, Any], run: dict[str, Any]) -> tuple:
+    """What decides a run's episode: scene, method, seed, map resolution, weights and the
+    sweep's episode settings (as JSON, so that equal settings compare equal)."""
+    return (run["scene"], run["method"], run["seed"], run.get("resolution"),
+            run["metrics"].get("weights_sha256"),
+            json.dumps(summary.get("episode"), sort_keys=True))
+
+
+def revisions_section(summaries: dict[str, dict[str, Any]]) -> list[str]:
+    """Which code revision each experiment's runs came from (as each run's folder recorded
+    it), and, where two experiments ran at different revisions, whether the runs they share
+    (the same scene, method, seed, weights and episode settings) came out the same."""
+    rows, singles = [], {}
+    for name, summary in summaries.items():
+        revisions = summary.get("run_revisions") or []
+        rows.append([name, str(len(summary["runs"])),
+                     ", ".join(f"`{r[:7]}`" for r in revisions) or "not recorded"])
+        if len(revisions) == 1:
+            singles[name] = revisions[0]
+    lines = ["## Revisions", "",
+             "The code revision each experiment's runs recorded (`git_revision` in each run "
+             "folder's config.json; `-dirty` would mark a tree with uncommitted changes).", "",
+             markdown_table(["experiment", "runs", "revision"], rows), ""]
+    checks = []
+    names = list(singles)  # In the report's order.
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            if singles[a] == singles[b]:
+                continue
+            runs_b = {_run_key(summaries[b], r): r["metrics"] for r in summaries[b]["runs"]}
+            shared = [(m, runs_b[k]) for r in summaries[a]["runs"]
+                      if (k := _run_key(summaries[a], r)) in runs_b for m in [r["metrics"]]]
+            if shared:
+                same = sum(x == y for x, y in shared)
+                checks.append(f"{a} (`{singles[a][:7]}`) and {b} (`{singles[b][:7]}`) share "
+                              f"{len(shared)} runs: {same} of them identical in every metric.")
+    if checks:
+        lines += ["Runs of the same episode (scene, method, seed, weights and settings) in "
+                  "experiments made at different revisions:", ""]
+        lines += [f"- {c}" for c in checks] + [""]
+    return lines
+
+
 def target_verdict(groups, method: str, limit: float = 0.90) -> str:
     """Whether ``method`` meets issue 17's Table 1 target on these scenes: every run
     explored, below both nearest-frontier and the potential field on every scene, and its
@@ -709,4 +754,4 @@ def target_verdict(groups, method: str, limit: float = 0.90) -> str:
 
 
 __all__ = ["EXPERIMENTS", "build_report", "claims_table", "masking_verdict",
-           "target_verdict"]
+           "revisions_section", "target_verdict"]
