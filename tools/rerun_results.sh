@@ -43,7 +43,7 @@ ALL=nearest,explore_lite,frontier_tsp,rrt,potential,cnn,gvn,oracle
 for e in $EXPERIMENTS; do
   echo "== $e $(date -u +%FT%TZ)"
   case $e in
-    table1) mj bench --scenes loop_with_corridor,maze,office --explorers $ALL --seeds 10 \
+    table1) mj bench --scenes loop_with_corridor,maze,office --explorers $ALL,gvn_v3 --seeds 10 \
               --workers "$W" --out "$OUT/table1" ;;
     gvn_v2) mj bench --scenes loop_with_corridor,maze,office \
               --explorers nearest,potential,cnn_v2,gvn_v2 \
