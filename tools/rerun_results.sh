@@ -53,7 +53,7 @@ for e in $EXPERIMENTS; do
               --seeds 10 --workers "$W" --out "$OUT/gvn_v3" ;;
     explore_bench) mj bench --scenes "$EB" --explorers $ALL,cnn_v2,gvn_v2,gvn_v3 --seeds 2 --lidar-range 7 \
               --workers "$W" --out "$OUT/explore_bench" ;;
-    realistic) mj bench --scenes loop_with_corridor,maze,office --explorers $ALL --seeds 5 \
+    realistic) mj bench --scenes loop_with_corridor,maze,office --explorers $ALL,gvn_v3 --seeds 5 \
               --lidar-model lds01 --odometry-error typical --localization scan_matching \
               --max-time 3600 --workers "$W" --out "$OUT/realistic" ;;
     realistic_truth|realistic_odometry|realistic_imu)
@@ -74,7 +74,7 @@ for e in $EXPERIMENTS; do
     ablation_v3) mj bench --scenes loop_with_corridor,maze \
               --explorers gvn_v3_none,gvn_v3_naive,gvn_v3_unmasked,gvn_v3 --seeds 5 \
               --workers "$W" --out "$OUT/ablation_v3" ;;
-    lobby_real) mj bench --scenes lobby --explorers gvn,potential,nearest --profile real \
+    lobby_real) mj bench --scenes lobby --explorers gvn,potential,nearest,gvn_v3 --profile real \
               --seeds 5 --workers 1 --out "$OUT/lobby_real" ;;
     ariadne)
       for f in "$SHARED"/data/ariadne_test/img_*.png; do

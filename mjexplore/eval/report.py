@@ -140,7 +140,7 @@ EXPERIMENTS = (
                "The paper's robot experiment in simulation: the 17.5 x 4 m lobby with the real "
                "profile (0.18 m/s, 1.8 rad/s, 5 m lidar; decisions event-driven, as everywhere), "
                "5 runs per method.",
-               ("nearest", "potential", "gvn"),
+               ("nearest", "potential", "gvn", "gvn_v3"),
                "mjexplore bench --scenes lobby --explorers {explorers} --profile real --seeds 5 "
                "--workers 2 --out runs/lobby_real"),
     Experiment("realistic", "Sensing and localisation as on the real robot",
@@ -156,7 +156,7 @@ EXPERIMENTS = (
                "map from the robot's estimated pose, so here it measures the localisation "
                "more than a bound.",
                ("nearest", "explore_lite", "frontier_tsp", "rrt", "potential", "cnn", "gvn",
-                "oracle"),
+                "gvn_v3", "oracle"),
                f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 5 "
                "--lidar-model lds01 --odometry-error typical --localization scan_matching "
                "--max-time 3600 --workers 2 --out runs/realistic"),
