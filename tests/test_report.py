@@ -65,10 +65,10 @@ def test_report_has_the_tables_and_figures_of_collected_sweeps(sweep, tmp_path):
     figures = sorted(p.name for p in (tmp_path / "results").glob("*.png"))
     assert figures == ["lobby_real_kinematics_train_loop.png", "lobby_real_ratio_train_loop.png"]
     # The experiments not collected are listed with the sweep that would make them, and so
-    # are the methods a collected sweep lacks (gvn here).
+    # are the methods a collected sweep lacks (gvn and gvn_v3 here).
     assert "## Not yet run" in text and "--out runs/table1" in text
-    assert ("Not in this sweep yet: gvn. Add them with `mjexplore bench --scenes lobby "
-            "--explorers gvn --profile real") in text
+    assert ("Not in this sweep yet: gvn, gvn_v3. Add them with `mjexplore bench --scenes "
+            "lobby --explorers gvn,gvn_v3 --profile real") in text
 
 
 def _realistic_section(sweep, tmp_path, companion: str) -> tuple[str, str, dict]:
