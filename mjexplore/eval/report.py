@@ -151,8 +151,9 @@ EXPERIMENTS = (
                "goals and the end of the episode all use its estimate. The exploration ratio "
                "is measured from the same scans at the true poses; IoU compares the robot's "
                "own map with the ground truth, so its distortion shows. 5 runs each; the time cap "
-               "is 3600 s (with the LDS-01's 3.5 m range nearest needs about 1840 s for the "
-               "office even at the true pose). The oracle plans its paths on the ground-truth "
+               "is 3600 s (with the LDS-01's 3.5 m range nearest needs about 1700 s for the "
+               "office even at the true pose: \"Realistic sensing at the true pose\" below). "
+               "The oracle plans its paths on the ground-truth "
                "map from the robot's estimated pose, so here it measures the localisation "
                "more than a bound.",
                ("nearest", "explore_lite", "frontier_tsp", "rrt", "potential", "cnn", "gvn",
