@@ -718,8 +718,8 @@ def revisions_section(summaries: dict[str, dict[str, Any]]) -> list[str]:
             if singles[a] == singles[b]:
                 continue
             runs_b = {_run_key(summaries[b], r): r["metrics"] for r in summaries[b]["runs"]}
-            shared = [(m, runs_b[k]) for r in summaries[a]["runs"]
-                      if (k := _run_key(summaries[a], r)) in runs_b for m in [r["metrics"]]]
+            shared = [(r["metrics"], runs_b[k]) for r in summaries[a]["runs"]
+                      if (k := _run_key(summaries[a], r)) in runs_b]
             if shared:
                 same = sum(x == y for x, y in shared)
                 checks.append(f"{a} (`{singles[a][:7]}`) and {b} (`{singles[b][:7]}`) share "
