@@ -26,7 +26,7 @@ system-deps:
 
 demo: install
 	$(BIN)/mjexplore scene-gen office --seed 0 --size 40x25 --out runs/demo/scene
-	$(BIN)/mjexplore explore --scene runs/demo/scene --explorer gvn_v3 --seed 0 --out runs/demo/explore --video runs/demo/explore/video.mp4
+	$(BIN)/mjexplore explore --scene runs/demo/scene --explorer gvn --seed 0 --out runs/demo/explore --video runs/demo/explore/video.mp4
 	@echo "demo outputs in runs/demo/: scene/ (scene.xml, map, preview.png) and explore/ (metrics.json, video.mp4, ter.png, scene.png, ratio.png, map.png, kinematics.png, episode.mcap)"
 
 test: system-deps $(VENV)/.installed-test

@@ -206,7 +206,7 @@ def _lidar_config(args: argparse.Namespace, ideal_noise: float):
 
 
 def cmd_drive(args: argparse.Namespace) -> int:
-    from mjexplore.drive import DriveConfig, run_drive
+    from mjexplore.eval.drive import DriveConfig, run_drive
     from mjexplore.scenes.canonical import resolve_scene
     from mjexplore.sim.simulator import SimConfig
 
@@ -233,18 +233,19 @@ def _episode_config(args: argparse.Namespace):
 
 
 def cmd_explore(args: argparse.Namespace) -> int:
+    from mjexplore.eval.methods import LEARNED, MethodSpec, parse_method
     from mjexplore.eval.run import write_run
-    from mjexplore.explorers import make_explorer
     from mjexplore.scenes.canonical import resolve_scene
 
-    kwargs = {}
-    if args.policy is not None:
-        if not args.explorer.startswith(("gvn", "cnn")):
-            raise UserInputError("--policy applies to the learned explorers only: gvn, "
-                                 "gvn_v2, gvn_v3, cnn, cnn_v2 and the masking ablation's "
-                                 "gvn*_unmasked, gvn*_naive and gvn*_none.")
-        kwargs["policy"] = str(args.policy)
-    make_explorer(args.explorer, **kwargs)  # Fails early on a bad name or weights file.
+    spec = parse_method(args.explorer)
+    if args.policy is not None or args.no_masking:
+        if spec.method not in LEARNED:
+            raise UserInputError("--policy and --no-masking apply to the learned explorers "
+                                 f"only ({', '.join(LEARNED)}), not {args.explorer!r}.")
+        spec = MethodSpec(spec.method, args.policy or spec.policy,
+                          False if args.no_masking else spec.masking)
+    explorer = spec.build()  # Fails early on a bad name or weights file.
+    label = getattr(explorer, "label", spec.method)
     video = _video_config(args) if args.video is not None else None
     if video is not None:
         from mjexplore.render.gl import check_rendering
@@ -252,9 +253,9 @@ def cmd_explore(args: argparse.Namespace) -> int:
         check_rendering()  # Fails now, not after the episode, if GL cannot load.
     scene, config = resolve_scene(args.scene), _episode_config(args)
     with _live_server(args) as live:
-        metrics = write_run(args.out, scene, args.explorer, args.seed, config,
+        metrics = write_run(args.out, scene, label, args.seed, config, spec=spec.text,
                             mcap=False if args.no_mcap else args.mcap_profile or "foxglove",
-                            explorer_kwargs=kwargs, video=video,
+                            video=video,
                             progress=not args.no_progress, live=live)
     if video is not None:
         target = Path(args.video)
@@ -318,13 +319,26 @@ def cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_bench(args: argparse.Namespace) -> int:
-    from mjexplore.eval.sweep import run_sweep
-    from mjexplore.explorers import make_explorer
+def cmd_policies(args: argparse.Namespace) -> int:
+    from mjexplore.policies.models import DEFAULT_MODEL, MODELS_DIR, shipped_models
 
-    explorers = [e.strip() for e in args.explorers.split(",") if e.strip()]
-    for name in explorers:
-        make_explorer(name)
+    del args
+    models = shipped_models()
+    width = max(map(len, models))
+    for name, m in models.items():
+        default = f" (default for --explorer {m.kind})" if DEFAULT_MODEL[m.kind] == name else ""
+        print(f"{name:<{width}}  {m.kind}  masking {m.masking:<5}  {m.summary}{default}")
+    print(f"\nEach is a folder in {MODELS_DIR} (policy.safetensors, recipe.yaml, README.md); "
+          "run one with 'mjexplore explore --explorer KIND --policy NAME'.")
+    return 0
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from mjexplore.eval.methods import parse_method
+    from mjexplore.eval.sweep import run_sweep
+
+    specs = [parse_method(e) for e in args.explorers.split(",") if e.strip()]
+    explorers = [spec.label for spec in specs]
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
     if args.workers < 1 or args.seeds < 1:
         raise UserInputError("--workers and --seeds must be at least 1.")
@@ -333,7 +347,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         if repeated:
             raise UserInputError(f"{flag} names {', '.join(repeated)} more than once: each "
                                  "would run twice into the same run folders; name each once.")
-    results = run_sweep(scenes, explorers, list(range(args.seeds)), Path(args.out),
+    results = run_sweep(scenes, [spec.text for spec in specs], list(range(args.seeds)),
+                        Path(args.out),
                         _episode_config(args), workers=args.workers, mcap=args.mcap,
                         command=args.command_line)
     print((Path(args.out) / "results.md").read_text())
@@ -345,18 +360,36 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_device(text: str) -> None:
+    """Refuses a ``--device`` torch cannot use here."""
+    if text == "auto":
+        return
+    import torch
+
+    try:
+        device = torch.device(text)
+    except RuntimeError:
+        raise UserInputError(f"--device {text!r} is not a torch device: use auto, cpu, cuda "
+                             "or cuda:N.") from None
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise UserInputError(f"--device {text}: this machine has no CUDA GPU that torch can "
+                             "use; use --device auto or cpu.")
+
+
 def cmd_train(args: argparse.Namespace) -> int:
-    from mjexplore.training import load_train_config, train
+    from mjexplore.learning.training import load_train_config, train
+
+    _check_device(args.device)
 
     config = load_train_config(args.config, total_steps=args.total_steps, n_envs=args.n_envs)
     summary = train(config, args.out, resume=args.resume, progress=not args.no_progress,
-                    ray_address=args.ray)
+                    ray_address=args.ray, device=args.device)
     print(json.dumps(summary))
     return 0
 
 
 def cmd_train_pockets(args: argparse.Namespace) -> int:
-    from mjexplore.pocket_training import load_pocket_config, train_pockets
+    from mjexplore.learning.pocket_training import load_pocket_config, train_pockets
 
     config = load_pocket_config(args.config)
     if args.episodes is not None:
@@ -366,8 +399,7 @@ def cmd_train_pockets(args: argparse.Namespace) -> int:
 
 
 def cmd_collect(args: argparse.Namespace) -> int:
-    from mjexplore.eval.summaries import (collect_sweep, merge_summaries, read_summary,
-                                          write_summary)
+    from mjexplore.eval.summaries import collect_sweep, merge_summaries, read_summary, write_summary
 
     if not args.experiment.replace("_", "").isalnum():
         raise UserInputError(f"--experiment {args.experiment!r}: use letters, digits and '_' "
@@ -434,6 +466,8 @@ def _add_lidar_model_arg(p: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from mjexplore.eval.methods import METHODS
+
     parser = argparse.ArgumentParser(
         prog="mjexplore",
         description="MuJoCo simulator and learning stack for lidar-based exploration.")
@@ -512,15 +546,16 @@ def build_parser() -> argparse.ArgumentParser:
                     "metrics.json, config.json, ratio.csv, kinematics.csv, plots and an MCAP.")
     explore.add_argument("--scene", default="office",
                          help="canonical scene name, scene folder, MJCF or map_server YAML")
-    explore.add_argument("--explorer", default="nearest",
-                         help="nearest, explore_lite, frontier_tsp, rrt, potential, oracle "
-                              "(the ground-truth bound), cnn, gvn, the v2 recipe's gvn_v2 "
-                              "and cnn_v2, the v3 recipe's gvn_v3; the masking ablation's "
-                              "gvn_unmasked, gvn_naive, gvn_none and the same with gvn_v2_ "
-                              "or gvn_v3_ (v2 and v3 recipes)")
-    explore.add_argument("--policy", type=Path, default=None,
-                         help="weights for a learned explorer, gvn* or cnn (default: the "
-                         "shipped training/*_policy.safetensors it names)")
+    explore.add_argument("--explorer", default="nearest", metavar="METHOD",
+                         help="one of: " + "; ".join(f"{k}: {v}" for k, v in METHODS.items())
+                         + " (default: nearest)")
+    explore.add_argument("--policy", default=None, metavar="NAME|PATH",
+                         help="the policy a learned explorer (gvn, cnn) runs: a shipped "
+                         "model's name ('mjexplore policies' lists them) or a weights file "
+                         "or run folder of your own (default: the recommended model)")
+    explore.add_argument("--no-masking", action="store_true",
+                         help="run a learned GVN without invalid action masking (any TER "
+                         "node may be chosen; the paper's 'masking removed' ablation)")
     explore.add_argument("--seed", type=_seed, default=0)
     explore.add_argument("--out", type=Path, required=True, help="run folder")
     explore.add_argument("--no-mcap", action="store_true", help="do not write episode.mcap")
@@ -547,13 +582,23 @@ def build_parser() -> argparse.ArgumentParser:
     _add_episode_args(explore)
     explore.set_defaults(func=cmd_explore)
 
+    pol = sub.add_parser(
+        "policies", help="list the shipped policies (models/) the learned explorers can run",
+        description="List the models under models/: name, kind (the explorer that runs "
+                    "it), the masking it was trained with, and its model card's summary.")
+    pol.set_defaults(func=cmd_policies)
+
     bench = sub.add_parser(
         "bench", help="sweep scenes x explorers x seeds; tables and plots",
         description="Run every combination in worker processes (resuming finished ones) and "
                     "write results.md/.csv and the ratio and kinematics plots per scene.")
     bench.add_argument("--scenes", default="loop_with_corridor,maze,office",
                        help="comma-separated scene names or paths (MJCF or map_server YAML)")
-    bench.add_argument("--explorers", default="nearest,rrt,potential,oracle")
+    bench.add_argument("--explorers", default="nearest,rrt,potential,oracle",
+                       help="comma-separated methods (see explore --explorer), METHOD:POLICY "
+                       "for a learned one with another model (':unmasked' appended runs it "
+                       "without the mask), or a model's run label such as gvn_v3_naive "
+                       "(default: nearest,rrt,potential,oracle)")
     bench.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1 per combination")
     bench.add_argument("--workers", type=int, default=2, help="worker processes")
     bench.add_argument("--out", type=Path, required=True, help="sweep folder")
@@ -593,6 +638,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "on this machine; with ADDRESS (auto, or the head's HOST:6379) on an "
                          "existing cluster started with `ray start --head` (README: 'Training "
                          "on more than one machine'); may change on --resume")
+    tr.add_argument("--device", default="auto", metavar="DEVICE",
+                    help="the learner's torch device: auto (a GPU when there is one), cpu, "
+                         "cuda, cuda:1 ... (default: auto); may change on --resume")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
     tr.set_defaults(func=cmd_train)
 
@@ -667,9 +715,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.command_line = shlex.join(["mjexplore"] + argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
-    from mjexplore.memory import bound_heap_growth
+    from mjexplore.episode.workers import bound_heap_growth
 
-    bound_heap_growth()  # Long runs on large maps: see mjexplore/memory.py.
+    bound_heap_growth()  # Long runs on large maps: see mjexplore/episode/workers.py.
     try:
         _check_gl_setting()
         return args.func(args)

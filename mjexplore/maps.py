@@ -9,8 +9,10 @@ probabilities in percent). Row 0 is the lowest ``y``; column 0 the lowest ``x``.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import cv2
+import numba
 import numpy as np
 
 UNKNOWN = -1
@@ -127,3 +129,23 @@ class GridMap:
             and self.resolution == other.resolution
             and tuple(self.origin) == tuple(other.origin)
         )
+
+
+@numba.njit(cache=True, inline="always")
+def traversal_start(x0, y0, dx, dy):
+    """Set-up of an Amanatides-Woo walk over the cells a ray from (x0, y0) along the unit
+    direction (dx, dy) crosses, all in cell units (x along columns, y along rows).
+
+    Returns:
+        The start cell (cx, cy), the cell step per axis (+-1), the ray parameter at the
+        first cell boundary per axis, and the parameter across one cell per axis.
+    """
+    cx = int(math.floor(x0))
+    cy = int(math.floor(y0))
+    step_x = 1 if dx > 0 else -1
+    step_y = 1 if dy > 0 else -1
+    t_max_x = ((cx + (step_x > 0)) - x0) / dx if dx != 0 else np.inf
+    t_max_y = ((cy + (step_y > 0)) - y0) / dy if dy != 0 else np.inf
+    t_dx = abs(1.0 / dx) if dx != 0 else np.inf
+    t_dy = abs(1.0 / dy) if dy != 0 else np.inf
+    return cx, cy, step_x, step_y, t_max_x, t_max_y, t_dx, t_dy

@@ -87,7 +87,8 @@ BAD = {
     # Training configs and checkpoints.
     "train missing config": lambda p: ["train", "--config", str(p / "none.yaml"), "--out",
                                        str(p / "o")],
-    "train unknown key": lambda p: ["train", "--config", str(_write(p / "c.yaml", "ppo:\n  lr: 1\n")),
+    "train unknown key": lambda p: ["train", "--config",
+                                    str(_write(p / "c.yaml", "ppo:\n  lr: 1\n")),
                                     "--out", str(p / "o")],
     "train wrong type": lambda p: ["train", "--config", str(_write(
         p / "c.yaml", "total_steps: many\n")), "--out", str(p / "o")],
@@ -236,13 +237,17 @@ def test_from_map_takes_the_name_given(tmp_path):
 
 
 def test_cnn_explorer_takes_a_policy_file(tmp_path):
-    from mjexplore.explorers.cnn import DEFAULT_WEIGHTS
+    from mjexplore.policies.models import MODELS_DIR
 
+    weights = tmp_path / "mine.safetensors"
+    weights.write_bytes((MODELS_DIR / "cnn_v2" / "policy.safetensors").read_bytes())
     assert main(["explore", "--scene", "train_loop", "--explorer", "cnn", "--policy",
-                 str(DEFAULT_WEIGHTS), "--max-time", "3", "--no-mcap",
+                 str(weights), "--max-time", "3", "--no-mcap",
                  "--out", str(tmp_path / "o")]) == 0
     config = json.loads((tmp_path / "o" / "config.json").read_text())
-    assert config["explorer_kwargs"]["policy"] == str(DEFAULT_WEIGHTS)
+    metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert config["explorer"] == metrics["explorer"] == f"cnn:{weights}"
+    assert metrics["policy"] == str(weights)
 
 
 def test_an_unknown_gl_backend_is_a_clear_error(tmp_path, monkeypatch, capsys):
@@ -286,7 +291,8 @@ def test_bench_writes_tables_and_resumes(tmp_path):
     table = (out / "results.md").read_text()
     assert "| train_loop | nearest | 1 |" in table and "| train_loop | potential | 1 |" in table
     assert (out / "results.csv").read_text().startswith("scene,method,runs,explored,IoU")
-    assert (out / "ratio_train_loop.png").is_file() and (out / "kinematics_train_loop.png").is_file()
+    assert (out / "ratio_train_loop.png").is_file()
+    assert (out / "kinematics_train_loop.png").is_file()
     done = out / "runs" / "train_loop" / "nearest" / "seed0" / "metrics.json"
     stamp = done.stat().st_mtime_ns
     assert main(args) == 0  # Finished episodes are skipped, not run again.

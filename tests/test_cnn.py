@@ -64,8 +64,8 @@ def test_every_goal_cell_leads_to_a_reachable_frontier():
 
 @pytest.mark.slow
 def test_cnn_trains_exports_and_acts(tmp_path):
-    from mjexplore.explorers.cnn import CnnExplorer
-    from mjexplore.training import TrainConfig, PpoConfig, PolicyConfig, EvalConfig, train
+    from mjexplore.learning.training import EvalConfig, PolicyConfig, PpoConfig, TrainConfig, train
+    from mjexplore.policies.cnn_explorer import CnnExplorer
 
     config = TrainConfig(kind="cnn", env=EnvConfig(scenes=("train_loop",), episode=FAST,
                                                    decisions="grid", grid=GRID,
@@ -82,10 +82,10 @@ def test_cnn_trains_exports_and_acts(tmp_path):
     assert result.metrics["decisions"] >= 2 and result.metrics["exploration_ratio"] > 0.3
 
 
-@pytest.mark.skipif(not (REPO / "training" / "cnn_policy.safetensors").is_file(),
+@pytest.mark.skipif(not (REPO / "models" / "cnn_paper" / "policy.safetensors").is_file(),
                     reason="no shipped CNN weights in training/")
 def test_shipped_cnn_weights_load_and_act():
-    from mjexplore.explorers.cnn import CnnExplorer
+    from mjexplore.policies.cnn_explorer import CnnExplorer
 
     episode = Episode(resolve_scene("train_loop"), CnnExplorer(), 0,
                       dataclasses.replace(FAST, max_time=30.0))

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from mjexplore.episode import Episode, EpisodeConfig
-from mjexplore.explorers.nearest import NearestFrontier
+from mjexplore.episode.nearest import NearestFrontier
 from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
 from mjexplore.navigation.blacklist import BlacklistConfig, GoalBlacklist
 from mjexplore.scenes.canonical import resolve_scene

@@ -3,10 +3,9 @@ import math
 import numpy as np
 import pytest
 
-from mjexplore.episode import (Episode, EpisodeConfig, episode_metrics, first_time_at,
-                               pose_errors)
+from mjexplore.episode import Episode, EpisodeConfig, episode_metrics, first_time_at, pose_errors
+from mjexplore.episode.explorer import ExplorationState
 from mjexplore.explorers import make_explorer
-from mjexplore.explorers.base import ExplorationState
 from mjexplore.navigation.navigator import NavigatorConfig
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.sim.kinematics import KinematicsLog
@@ -141,7 +140,7 @@ def test_mcap_log_reads_back(tmp_path):
         topics = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
         counts = Counter()
         last = {}
-        for schema, channel, message in reader.iter_messages():
+        for _schema, channel, message in reader.iter_messages():
             counts[channel.topic] += 1
             assert message.log_time >= last.get(channel.topic, 0)  # Simulated, in order.
             last[channel.topic] = message.log_time

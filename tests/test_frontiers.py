@@ -2,8 +2,12 @@ import numpy as np
 import pytest
 
 from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
-from mjexplore.topology.frontiers import (estimated_information_gain, find_frontiers,
-                                          frontier_mask, information_gain)
+from mjexplore.topology.frontiers import (
+    estimated_information_gain,
+    find_frontiers,
+    frontier_mask,
+    information_gain,
+)
 
 F, O, U = FREE, OCCUPIED, UNKNOWN
 

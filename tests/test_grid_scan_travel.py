@@ -80,7 +80,7 @@ def test_scan_travel_is_refused_outside_the_grid_world():
 def test_the_grid_training_config_scans_by_travel():
     """training/gvn_v2.yaml trains, and selects its model, in the grid world with the
     travel schedule."""
-    from mjexplore.training import TrainConfig
+    from mjexplore.learning.training import TrainConfig
 
     config = load_yaml_config(TrainConfig, "training/gvn_v2.yaml")
     for episode in (config.env.episode, config.eval.episode):
@@ -93,7 +93,7 @@ def test_episode_scans_at_every_decision_and_explores(tmp_path):
     generated layout to the target; a scan is mapped at the instant of every decision,
     and the map gets far fewer scans than the lidar's rate would give."""
     from mjexplore.episode import Episode, EpisodeConfig
-    from mjexplore.explorers.nearest import NearestFrontier
+    from mjexplore.episode.nearest import NearestFrontier
 
     scene = load_scene_files(write_scene(generate_scene("rooms", 12, 9, seed=1),
                                          tmp_path / "rooms"))

@@ -185,7 +185,7 @@ def test_gyro_heading_turns_with_the_base_in_the_training_worlds(box_room, dynam
                                              odometry_error=error, seed=4))
         world.reset((3.2, 2.2, 0.4))
         turned = 0.0
-        for k in range(40):
+        for _ in range(40):
             before = world.pose[2]
             world.command(0.0, 1.0)
             world.step(0.1)
@@ -224,7 +224,7 @@ def test_same_seed_same_episode(tmp_path, monkeypatch):
     """A whole nearest-frontier episode in the grid world, twice with one seed: the same
     trajectory, scans and metrics; another seed differs."""
     from mjexplore.episode import Episode, EpisodeConfig, engine
-    from mjexplore.explorers.nearest import NearestFrontier
+    from mjexplore.episode.nearest import NearestFrontier
 
     # Until the episode engine builds its world with make_world.
     monkeypatch.setattr(engine, "Simulator", make_world, raising=False)

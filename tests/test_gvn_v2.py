@@ -11,14 +11,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from gymnasium import spaces
-
 from conftest import random_tree
+from gymnasium import spaces
 
 from mjexplore.envs import EnvConfig, ExplorationEnv, ObservationConfig, RewardConfig, TerMemory
 from mjexplore.envs.exploration import HELDOUT_SEED_BASE, ProceduralScenes, heldout_scenes
-from mjexplore.envs.observation import (BLACKLISTED, PATH, UNREACHABLE, observation_space,
-                                        poses_in_frame)
+from mjexplore.envs.observation import (
+    BLACKLISTED,
+    PATH,
+    UNREACHABLE,
+    observation_space,
+    poses_in_frame,
+)
 from mjexplore.episode import EpisodeConfig
 from mjexplore.navigation.navigator import NavigatorConfig
 from mjexplore.policies.gvn import EncodedTers, memory_pose_features
@@ -425,12 +429,12 @@ SHIPPED_VALUE = 4.723474979400635
 SHIPPED_ACTION = 27
 
 
-@pytest.mark.skipif(not (REPO / "training" / "gvn_policy.safetensors").is_file(),
+@pytest.mark.skipif(not (REPO / "models" / "gvn_paper" / "policy.safetensors").is_file(),
                     reason="no shipped GVN weights")
 def test_shipped_v1_weights_load_and_act_as_before():
     from mjexplore.policies.weights import load_policy
 
-    policy, meta = load_policy(REPO / "training" / "gvn_policy.safetensors", "gvn")
+    policy, meta = load_policy(REPO / "models" / "gvn_paper" / "policy.safetensors", "gvn")
     assert meta["decisions"].config.features == "v1" and meta["decisions"].topology is None
     assert "memory_pose" not in meta["decisions"].observation_space.spaces
     obs, mask = _fixed_v1_observation(meta["decisions"].config)
@@ -442,13 +446,13 @@ def test_shipped_v1_weights_load_and_act_as_before():
     assert value == pytest.approx(SHIPPED_VALUE, abs=2e-5)
     action, _ = policy.predict(obs, deterministic=True, action_masks=mask)
     assert int(action) == SHIPPED_ACTION
-    for path in sorted((REPO / "training").glob("*_policy.safetensors")):
+    for path in sorted((REPO / "models").glob("*/policy.safetensors")):
         load_policy(path)  # Every shipped policy still loads.
 
 
 def test_v2_weights_carry_their_features_and_topology(tmp_path):
-    from mjexplore.explorers.gvn import GvnExplorer
     from mjexplore.episode import Episode
+    from mjexplore.policies.gvn_explorer import GvnExplorer
     from mjexplore.policies.registry import layout_of
     from mjexplore.policies.weights import load_policy, save_policy_weights, weights_sha256
     from mjexplore.scenes.canonical import resolve_scene
@@ -495,7 +499,7 @@ def test_v2_weights_carry_their_features_and_topology(tmp_path):
 
 def test_model_selection_uses_held_out_layouts(tmp_path, caplog):
     from mjexplore.config import from_dict, to_dict
-    from mjexplore.training import EvalConfig, TrainConfig, load_train_config
+    from mjexplore.learning.training import EvalConfig, TrainConfig, load_train_config
 
     proc = ProceduralScenes(families=("loop", "rooms"), width=(12.0, 14.0),
                             height=(10.0, 12.0), cache_dir=str(tmp_path))
@@ -508,7 +512,7 @@ def test_model_selection_uses_held_out_layouts(tmp_path, caplog):
     assert unseen == (first[1], heldout_scenes(proc, 3, seed=0)[2])  # After the selection.
     with pytest.raises(ValueError, match="eval.procedural"):
         EvalConfig(scenes=("train_loop",)).unseen_scenes(2)
-    with caplog.at_level(logging.WARNING, logger="mjexplore.training"):
+    with caplog.at_level(logging.WARNING, logger="mjexplore.learning.training"):
         EvalConfig(scenes=("office",))
     assert "office" in caplog.text and "eval.procedural" in caplog.text
     v2 = load_train_config(REPO / "training" / "gvn_v2.yaml")
@@ -523,8 +527,12 @@ def test_model_selection_uses_held_out_layouts(tmp_path, caplog):
 @pytest.mark.slow  # An export takes 5-20 s on 2 cores.
 @pytest.mark.parametrize("privileged", [False, True])
 def test_v2_actor_exports_to_onnx_with_torchs_logits(tmp_path, privileged):
-    from mjexplore.policies.onnx_export import (OnnxActor, export_onnx, record_decisions,
-                                                torch_actor_logits)
+    from mjexplore.policies.onnx_export import (
+        OnnxActor,
+        export_onnx,
+        record_decisions,
+        torch_actor_logits,
+    )
     from mjexplore.policies.registry import layout_of
     from mjexplore.policies.weights import load_policy, save_policy_weights
 
@@ -665,7 +673,7 @@ def test_residual_policy_starts_as_the_nearest_node_rule_and_round_trips(tmp_pat
 
 
 def test_prior_needs_the_v2_path_feature():
-    from mjexplore.training import load_train_config
+    from mjexplore.learning.training import load_train_config
 
     with pytest.raises(ValueError, match="v2"):
         _policy(ObservationConfig(max_nodes=12, max_neighbours=3, memory_length=4),
@@ -677,7 +685,7 @@ def test_prior_needs_the_v2_path_feature():
 
 
 def test_nearest_node_rule_takes_the_nearest_valid_reachable_node():
-    from mjexplore.training import NearestNodeRule
+    from mjexplore.learning.training import NearestNodeRule
 
     features = np.zeros((SMALL_V2.max_nodes, SMALL_V2.num_features), np.float32)
     features[:4, PATH] = [0.5, 2.0, 1.0, 0.2]
@@ -690,7 +698,7 @@ def test_nearest_node_rule_takes_the_nearest_valid_reachable_node():
 def test_actor_logits_run_the_actors_encoder_alone_and_match_sb3s_distribution(monkeypatch):
     from mjexplore.policies.weights import actor_logits, load_policy
 
-    policy, _ = load_policy(REPO / "training" / "gvn_v2_policy.safetensors")
+    policy, _ = load_policy(REPO / "models" / "gvn_v2" / "policy.safetensors")
     assert not policy.share_features_extractor  # The critic has an encoder of its own.
     obs = {k: torch.as_tensor(v)[None]
            for k, v in policy.observation_space.sample().items()}

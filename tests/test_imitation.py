@@ -9,10 +9,10 @@ from gymnasium import spaces
 from mjexplore.envs import EnvConfig, ObservationConfig
 from mjexplore.envs.observation import observation_space
 from mjexplore.episode import EpisodeConfig
-from mjexplore.imitation import ImitationConfig, clone, collect_expert_decisions
+from mjexplore.learning.imitation import ImitationConfig, clone, collect_expert_decisions
+from mjexplore.learning.training import load_train_config, train
 from mjexplore.policies.sb3 import GvnPolicy
 from mjexplore.sim.simulator import SimConfig
-from mjexplore.training import load_train_config, train
 
 SMALL = ObservationConfig(max_nodes=64, max_neighbours=4, memory_length=3, features="v2")
 ENV = EnvConfig(scenes=("train_loop",), observation=SMALL, max_decisions=40,

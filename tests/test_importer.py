@@ -5,12 +5,12 @@ import cv2
 import mujoco
 import numpy as np
 import pytest
+from conftest import shared_data
 
 from mjexplore.cli import main
 from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
 from mjexplore.scenes.map_server import read_map, write_map
 from mjexplore.scenes.rectangles import rasterize_rectangles
-from conftest import shared_data
 
 
 def wall_cells_of_mjcf(xml, grid):

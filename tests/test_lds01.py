@@ -6,15 +6,20 @@ import math
 
 import numpy as np
 import pytest
+from test_lidar import analytic_ranges
 
 from mjexplore.cli import main
 from mjexplore.errors import UserInputError
 from mjexplore.mapping.occupancy import MapperConfig, OccupancyMapper
-from mjexplore.sim.lidar import (LDS01, LaserScan, LidarConfig, dropout_probability,
-                                 lidar_model, measure_ranges)
+from mjexplore.sim.lidar import (
+    LDS01,
+    LaserScan,
+    LidarConfig,
+    dropout_probability,
+    lidar_model,
+    measure_ranges,
+)
 from mjexplore.sim.simulator import SimConfig, Simulator
-
-from test_lidar import analytic_ranges
 
 EXACT = dict(noise_std=0.0, noise_rel=0.0, dropout_prob=0.0, grazing_start=math.pi / 2,
              grazing_full=math.pi / 2)

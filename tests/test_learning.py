@@ -16,26 +16,38 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from conftest import random_tree
 from gymnasium import spaces
 
-from conftest import random_tree
-
 from mjexplore.config import from_dict, to_dict
-from mjexplore.envs import (ENV_IDS, EnvConfig, ExplorationEnv, ObservationConfig,
-                            RewardConfig, TerMemory)
+from mjexplore.envs import (
+    ENV_IDS,
+    EnvConfig,
+    ExplorationEnv,
+    ObservationConfig,
+    RewardConfig,
+    TerMemory,
+)
 from mjexplore.envs.observation import observation_space, structured
-from mjexplore.errors import UserInputError
 from mjexplore.episode import Episode, EpisodeConfig
+from mjexplore.errors import UserInputError
+from mjexplore.learning.training import TrainConfig, load_checkpoint, load_train_config
 from mjexplore.navigation.navigator import NavigatorConfig
-from mjexplore.policies.gvn import CausalConv, GraphConv, GvnConfig, SpatialEncoder, \
-    TemporalEncoder, distinct_graphs, normalized_adjacency
+from mjexplore.policies.gvn import (
+    CausalConv,
+    GraphConv,
+    GvnConfig,
+    SpatialEncoder,
+    TemporalEncoder,
+    distinct_graphs,
+    normalized_adjacency,
+)
 from mjexplore.policies.sb3 import GvnPolicy
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.sim.simulator import SimConfig
-from mjexplore.training import TrainConfig, load_checkpoint, load_train_config
 
 REPO = Path(__file__).resolve().parents[1]
-SHIPPED = REPO / "training" / "gvn_policy.safetensors"
+SHIPPED = REPO / "models" / "gvn_paper" / "policy.safetensors"
 FAST = EpisodeConfig(sim=SimConfig(dynamics="kinematic"),
                      navigator=NavigatorConfig(replan_rate_hz=0.5, replan_when_blocked=True))
 SMALL = ObservationConfig(max_nodes=12, max_neighbours=3, memory_length=4)
@@ -137,8 +149,8 @@ def test_tcn_is_causal():
 def test_masked_nodes_get_zero_probability_and_gradient(masking):
     policy = _policy(masking)
     obs = _random_obs(SMALL, 4, np.random.default_rng(1))
-    valid = obs["node_mask"].bool() & (torch.rand(obs["node_mask"].shape,
-                                                   generator=torch.Generator().manual_seed(0)) < 0.5)
+    coin = torch.rand(obs["node_mask"].shape, generator=torch.Generator().manual_seed(0))
+    valid = obs["node_mask"].bool() & (coin < 0.5)
     valid[:, 0] = True
     features = policy.extract_features(obs)
     logits = policy.mlp_extractor.forward_actor(features)
@@ -456,7 +468,8 @@ def test_ablation_configs_differ_from_the_shipped_one_only_in_masking(recipe, bu
     shipped = load_train_config(REPO / "training" / f"{recipe}.yaml")
     # The budget: the decisions the shipped policy was trained for (its weights are the
     # best held-out checkpoint up to there).
-    _, meta = read_policy_weights(REPO / "training" / f"{recipe}_policy.safetensors")
+    _, meta = read_policy_weights(REPO / "models" / {"gvn": "gvn_paper"}.get(recipe, recipe)
+                                   / "policy.safetensors")
     assert meta["provenance"]["num_timesteps"] <= budget
     for name, masking, valid in ((f"{recipe}_naive", "naive", "frontiers"),
                                  (f"{recipe}_none", "none", "all_nodes")):
@@ -497,9 +510,9 @@ def _train_cli(args, **kw):
 
 def test_training_with_minibatch_runs_update_threads_and_a_privileged_critic(tmp_path,
                                                                               monkeypatch):
-    from mjexplore import rollout_blocks
+    from mjexplore.learning import rollout_blocks
+    from mjexplore.learning.training import train
     from mjexplore.policies.weights import load_policy
-    from mjexplore.training import train
 
     threads_in_updates = []
     get = rollout_blocks.BlockDictRolloutBuffer.get
@@ -576,7 +589,7 @@ def test_training_saves_resumes_and_loads(tmp_path):
 
 @pytest.mark.slow
 def test_resumed_training_keeps_the_best_weights_of_the_first_part(tmp_path, monkeypatch):
-    import mjexplore.training as training
+    import mjexplore.learning.training as training
     from mjexplore.policies.weights import read_policy_weights
 
     ratios = iter([0.95, 0.90])  # Evaluations at 8 steps, then at 24 after the resume.
@@ -652,9 +665,9 @@ def test_damaged_weights_are_refused(tmp_path):
 @pytest.mark.skipif(not SHIPPED.is_file(), reason="no shipped GVN weights in training/")
 def test_shipped_policy_selects_only_valid_nodes_and_caches_memory_exactly():
     from mjexplore.envs.decisions import ter_action_mask
-    from mjexplore.explorers.gvn import GvnExplorer
+    from mjexplore.policies.gvn_explorer import GvnExplorer
 
-    explorer = GvnExplorer()
+    explorer = GvnExplorer("gvn_paper")
     chosen = []
     original = explorer.select_goal
 
@@ -722,15 +735,13 @@ def test_cli_refuses_bad_policy_weights(tmp_path):
     assert r.returncode == 2 and "learned explorers" in r.stderr
 
 
-def test_shipped_policy_explorers_say_how_to_make_their_missing_policy(tmp_path, monkeypatch):
-    from mjexplore.explorers import cnn, gvn, make_explorer
+def test_an_unknown_policy_is_refused_with_the_models_of_its_kind(tmp_path):
+    from mjexplore.eval.methods import make_explorer
 
-    monkeypatch.setattr(gvn, "DEFAULT_WEIGHTS", tmp_path / "gvn_policy.safetensors")
-    monkeypatch.setattr(cnn, "DEFAULT_WEIGHTS", tmp_path / "cnn_policy.safetensors")
-    for name in ("gvn_naive", "gvn_none", "gvn_v2", "gvn_v2_naive", "gvn_v2_none", "gvn_v3_naive",
-                 "gvn_v3_none", "cnn_v2"):
-        with pytest.raises(UserInputError, match=f"training/{name}.yaml"):
-            make_explorer(name)
+    for method, listed, other in (("gvn", "gvn_v3", "cnn_paper"), ("cnn", "cnn_v2", "gvn_v3")):
+        with pytest.raises(UserInputError, match=listed) as info:
+            make_explorer(method, policy=str(tmp_path / "missing.safetensors"))
+        assert other not in str(info.value)  # Only the models the explorer can run.
 
 
 def test_env_without_a_valid_action_goes_on_with_the_engines_fallback(monkeypatch):
@@ -745,7 +756,7 @@ def test_env_without_a_valid_action_goes_on_with_the_engines_fallback(monkeypatc
 
 
 def test_model_selection_scores_coverage_up_to_the_target_then_speed():
-    from mjexplore.training import eval_score
+    from mjexplore.learning.training import eval_score
 
     def runs(*rows):
         return [{"end_reason": end, "exploration_ratio": ratio, "exploration_time_s": t}

@@ -6,8 +6,12 @@ import pytest
 from scipy.ndimage import distance_transform_edt
 
 from mjexplore.errors import UserInputError
-from mjexplore.mapping.localization import (FusedLocalizer, LikelihoodField, LocalizerConfig,
-                                            neighbour_ranges)
+from mjexplore.mapping.localization import (
+    FusedLocalizer,
+    LikelihoodField,
+    LocalizerConfig,
+    neighbour_ranges,
+)
 from mjexplore.mapping.occupancy import OccupancyMapper
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.sim.lidar import lidar_model

@@ -1,11 +1,11 @@
 import numpy as np
 import pytest
 import yaml
+from conftest import shared_data
 
 from mjexplore.errors import UserInputError
 from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
 from mjexplore.scenes.map_server import read_map, write_map
-from conftest import shared_data
 
 
 def test_round_trip_is_exact(tmp_path):

@@ -3,8 +3,13 @@ import math
 import numpy as np
 import pytest
 
-from mjexplore.mapping.metrics import (accuracy, class_iou, exploration_ratio, iou,
-                                       observable_ground_truth)
+from mjexplore.mapping.metrics import (
+    accuracy,
+    class_iou,
+    exploration_ratio,
+    iou,
+    observable_ground_truth,
+)
 from mjexplore.mapping.occupancy import MapperConfig, OccupancyMapper
 from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
 from mjexplore.sim.lidar import LaserScan, LidarConfig

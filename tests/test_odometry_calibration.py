@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from mjexplore.errors import UserInputError
-from mjexplore.mapping.localization import (FusedLocalizer, LikelihoodField, LocalizerConfig,
-                                            deposit)
+from mjexplore.mapping.localization import FusedLocalizer, LikelihoodField, LocalizerConfig, deposit
 from mjexplore.maps import GridMap
 from mjexplore.sim.grid_world import GridLidar
 from mjexplore.sim.lidar import lidar_model

@@ -2,15 +2,22 @@ import math
 
 import numpy as np
 import pytest
-
 from conftest import box_room_grid
+
 from mjexplore.errors import UserInputError
 from mjexplore.robot import TURTLEBOT3_WAFFLE
 from mjexplore.scenes.importer import scene_from_grid
 from mjexplore.scenes.scene import write_scene
-from mjexplore.sim.odometry import (ODOMETRY_ERRORS, WheelOdometry, compose_pose, gyro,
-                                    odom_in_map, odometry_error, relative_pose,
-                                    wheel_odometry)
+from mjexplore.sim.odometry import (
+    ODOMETRY_ERRORS,
+    WheelOdometry,
+    compose_pose,
+    gyro,
+    odom_in_map,
+    odometry_error,
+    relative_pose,
+    wheel_odometry,
+)
 from mjexplore.sim.simulator import SimConfig, Simulator
 
 RUN_M = 10.0

@@ -10,15 +10,21 @@ import pytest
 import torch
 
 from mjexplore.errors import UserInputError
-from mjexplore.explorers.cnn import DEFAULT_WEIGHTS as CNN_WEIGHTS
-from mjexplore.explorers.gvn import DEFAULT_WEIGHTS as GVN_WEIGHTS
 from mjexplore.policies.gvn import GvnConfig, SpatialEncoder
-from mjexplore.policies.onnx_export import (FORMAT, MASKED_LOGIT, OnnxActor, export_onnx,
-                                            record_decisions, spatial_gather,
-                                            torch_actor_logits)
+from mjexplore.policies.models import MODELS_DIR
+from mjexplore.policies.onnx_export import (
+    FORMAT,
+    MASKED_LOGIT,
+    OnnxActor,
+    export_onnx,
+    record_decisions,
+    spatial_gather,
+    torch_actor_logits,
+)
 from mjexplore.policies.weights import load_policy
 
-WEIGHTS = {"gvn": GVN_WEIGHTS, "cnn": CNN_WEIGHTS}
+WEIGHTS = {kind: MODELS_DIR / name / "policy.safetensors" for kind, name in
+           (("gvn", "gvn_paper"), ("cnn", "cnn_paper"))}
 
 
 def test_gathered_gcn_equals_the_sparse_one():

@@ -11,10 +11,11 @@ from __future__ import annotations
 import ast
 import re
 import sys
-import tomllib
 from collections.abc import Iterable
 from importlib.metadata import packages_distributions
 from pathlib import Path
+
+import tomllib
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = "mjexplore"
@@ -72,7 +73,8 @@ def uncovered(files: Iterable[Path], allowed: set[str],
             continue
         dists = {_normalize(d) for d in providers.get(module, [])}
         if not dists:
-            problems[module] = f"no installed distribution provides it (imported by {sorted(users)})"
+            problems[module] = ("no installed distribution provides it (imported by "
+                                f"{sorted(users)})")
         elif not dists & allowed:
             problems[module] = (f"provided by {sorted(dists)}, none of them declared (imported "
                                 f"by {sorted(users)})")

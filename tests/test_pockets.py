@@ -10,9 +10,16 @@ import pytest
 from mjexplore.errors import UserInputError
 from mjexplore.maps import GridMap
 from mjexplore.topology.frontiers import find_frontiers
-from mjexplore.topology.pockets import (PATCH_CELLS, PocketNet, PocketPredictor,
-                                        frontier_lengths, frontier_patches, pocket_areas,
-                                        pocket_predictor, save_pocket_net)
+from mjexplore.topology.pockets import (
+    PATCH_CELLS,
+    PocketNet,
+    PocketPredictor,
+    frontier_lengths,
+    frontier_patches,
+    pocket_areas,
+    pocket_predictor,
+    save_pocket_net,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ROOT / "training" / "pockets.safetensors"
@@ -96,7 +103,7 @@ def test_weights_file_round_trip_and_refusals(tmp_path):
 
 @pytest.mark.slow
 def test_training_writes_weights_and_validation_figures(tmp_path):
-    from mjexplore.pocket_training import load_pocket_config, train_pockets
+    from mjexplore.learning.pocket_training import load_pocket_config, train_pockets
 
     config = load_pocket_config(ROOT / "training" / "pockets.yaml")
     proc = dataclasses.replace(config.env.procedural, width=(12.0, 14.0), height=(10.0, 12.0))
@@ -114,7 +121,7 @@ def test_training_writes_weights_and_validation_figures(tmp_path):
 def test_shipped_predictor_tells_small_pockets_on_unseen_layouts():
     """On two generated layouts past every training and selection seed, the shipped
     predictor calls most frontiers right, far above always answering the commoner class."""
-    from mjexplore.pocket_training import collect_episode, load_pocket_config, validate
+    from mjexplore.learning.pocket_training import collect_episode, load_pocket_config, validate
 
     config = load_pocket_config(ROOT / "training" / "pockets.yaml")
     config = dataclasses.replace(config, seed=2**30)  # Episode seeds training never used.
@@ -132,8 +139,8 @@ def test_shipped_predictor_tells_small_pockets_on_unseen_layouts():
 def test_v3_observation_is_v2_with_each_frontier_nodes_pocket(tmp_path):
     from mjexplore.envs import ExplorationEnv
     from mjexplore.envs.observation import POCKET
+    from mjexplore.learning.training import load_train_config
     from mjexplore.topology.ter import FRONTIER_FLAG
-    from mjexplore.training import load_train_config
 
     path = tmp_path / "pockets.safetensors"
     save_pocket_net(path, PocketNet(), 0.5)
@@ -168,7 +175,7 @@ def test_prior_passes_over_nodes_whose_pocket_is_likely_small():
 
 def test_v3_needs_a_predictor_and_the_pocket_prior_needs_v3():
     from mjexplore.envs.observation import ObservationConfig
-    from mjexplore.training import load_train_config
+    from mjexplore.learning.training import load_train_config
 
     with pytest.raises(ValueError, match="pockets"):
         ObservationConfig(features="v3")

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from mjexplore.episode import Episode, EpisodeConfig
-from mjexplore.explorers.nearest import NearestFrontier
+from mjexplore.episode.nearest import NearestFrontier
 from mjexplore.maps import FREE, GridMap
 from mjexplore.navigation.navigator import Navigator, NavigatorConfig, pursuit_points
 from mjexplore.navigation.planner import Costmap, PlannerConfig

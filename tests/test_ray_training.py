@@ -10,13 +10,12 @@ import pytest
 import ray
 import yaml
 from stable_baselines3.common.vec_env import SubprocVecEnv
+from test_learning import TINY
 
 from mjexplore.config import from_dict
 from mjexplore.envs import EnvConfig
 from mjexplore.errors import UserInputError
-from mjexplore.training import _make_env, load_checkpoint, load_train_config, train
-
-from test_learning import TINY
+from mjexplore.learning.training import _make_env, load_checkpoint, load_train_config, train
 
 # Episodes of 3 decisions: 5 steps cross an episode end and the automatic reset.
 ENV = from_dict(EnvConfig, yaml.safe_load(TINY.format(total=8, n_envs=2))["env"]
@@ -44,7 +43,7 @@ def _rollout(venv, steps: int) -> list:
 
 
 def test_ray_envs_step_exactly_as_subprocess_envs(local_ray, monkeypatch):
-    import mjexplore.ray_vec_env as ray_vec_env
+    import mjexplore.learning.ray_vec_env as ray_vec_env
 
     makers = [_make_env(ENV) for _ in range(2)]
     reference = SubprocVecEnv(makers, start_method="forkserver")

@@ -14,8 +14,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mjexplore.errors import UserInputError
 from mjexplore.episode import Episode, EpisodeConfig
+from mjexplore.errors import UserInputError
 from mjexplore.explorers import make_explorer
 from mjexplore.maps import FREE, OCCUPIED, GridMap
 from mjexplore.scenes.canonical import resolve_scene
@@ -218,7 +218,7 @@ def test_malloc_settings_decide_whether_a_freed_block_is_faulted_in_again(settin
     # the first time; mapped afresh each time, its 256 pages fault every time.
     script = f"""
 import resource, numpy as np
-from mjexplore.memory import {setting}
+from mjexplore.episode.workers import {setting}
 assert {setting}()
 np.ones(1 << 18, np.float32)
 before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt

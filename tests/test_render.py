@@ -2,19 +2,17 @@
 
 from __future__ import annotations
 
-
 import mujoco
 import numpy as np
 import pytest
 
-from mjexplore.errors import UserInputError
 from mjexplore.episode import Episode, EpisodeConfig
+from mjexplore.errors import UserInputError
 from mjexplore.eval.run import write_run
 from mjexplore.explorers import make_explorer
 from mjexplore.maps import GridMap
 from mjexplore.render import gl
-from mjexplore.render.panel import FREE, OCCUPIED, UNKNOWN, PanelContent, PanelLayout, \
-    render_panel
+from mjexplore.render.panel import FREE, OCCUPIED, UNKNOWN, PanelContent, PanelLayout, render_panel
 from mjexplore.render.recorder import EpisodeVideo, VideoConfig
 from mjexplore.render.scene_view import SceneView
 from mjexplore.scenes.canonical import resolve_scene

@@ -11,11 +11,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mjexplore.errors import UserInputError
 from mjexplore.episode import EpisodeConfig
+from mjexplore.errors import UserInputError
 from mjexplore.eval.report import build_report, claims_table, masking_verdict, target_verdict
-from mjexplore.eval.summaries import (RATIO_DT, collect_sweep, ratio_curve, read_summary,
-                                      write_summary)
+from mjexplore.eval.summaries import (
+    RATIO_DT,
+    collect_sweep,
+    ratio_curve,
+    read_summary,
+    write_summary,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 DOCS = REPO / "docs"

@@ -7,11 +7,24 @@ import numpy as np
 import pytest
 
 from mjexplore.errors import UserInputError
-from mjexplore.robot import (MOTION_PROFILES, ROBOT_XML, TURTLEBOT3_WAFFLE, XM430_W210,
-                             limit_wheel_speeds, motion_profile)
+from mjexplore.robot import (
+    MOTION_PROFILES,
+    ROBOT_XML,
+    TURTLEBOT3_WAFFLE,
+    XM430_W210,
+    limit_wheel_speeds,
+    motion_profile,
+)
 from mjexplore.scenes.scene import PHYSICS_TIMESTEP
-from mjexplore.sim.simulator import (BODY_CENTRE_X, BODY_RADIUS, WHEEL_ACTUATORS, WHEEL_GEOMS,
-                                     WHEEL_JOINTS, SimConfig, Simulator)
+from mjexplore.sim.simulator import (
+    BODY_CENTRE_X,
+    BODY_RADIUS,
+    WHEEL_ACTUATORS,
+    WHEEL_GEOMS,
+    WHEEL_JOINTS,
+    SimConfig,
+    Simulator,
+)
 
 SCENE_XML = ROBOT_XML.with_name("scene.xml")
 G = TURTLEBOT3_WAFFLE

@@ -1,4 +1,4 @@
-"""PPO minibatches of consecutive decisions (mjexplore/rollout_blocks.py)."""
+"""PPO minibatches of consecutive decisions (mjexplore/learning/rollout_blocks.py)."""
 
 import dataclasses
 
@@ -7,8 +7,8 @@ import pytest
 import torch
 from gymnasium import spaces
 
-from mjexplore.rollout_blocks import BlockDictRolloutBuffer, block_permutation
-from mjexplore.training import PpoConfig, TrainConfig
+from mjexplore.learning.rollout_blocks import BlockDictRolloutBuffer, block_permutation
+from mjexplore.learning.training import PpoConfig, TrainConfig
 
 
 def test_block_permutation_visits_every_decision_once_in_runs_of_one_env():

@@ -3,14 +3,19 @@ import math
 
 import numpy as np
 import pytest
+from conftest import box_room_grid
 from scipy.ndimage import distance_transform_edt
 
-from conftest import box_room_grid
 from mjexplore.errors import UserInputError
 from mjexplore.mapping.occupancy import OccupancyMapper
-from mjexplore.mapping.scan_matching import (ScanMatcherConfig, ScanMatchingLocalizer,
-                                             deskew_scan, match_scan, scan_points,
-                                             sensor_pose_of)
+from mjexplore.mapping.scan_matching import (
+    ScanMatcherConfig,
+    ScanMatchingLocalizer,
+    deskew_scan,
+    match_scan,
+    scan_points,
+    sensor_pose_of,
+)
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.scenes.importer import scene_from_grid
 from mjexplore.scenes.scene import write_scene

@@ -7,14 +7,13 @@ import numpy as np
 import pytest
 
 from mjexplore.episode import Episode, EpisodeConfig
+from mjexplore.episode.explorer import ExplorationState
 from mjexplore.eval.summaries import merge_summaries
 from mjexplore.explorers import make_explorer
-from mjexplore.explorers.base import ExplorationState
-from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
 from mjexplore.mapping.metrics import exploration_ratio, observable_ground_truth
+from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
 from mjexplore.navigation.planner import Costmap, PlannerConfig
-from mjexplore.navigation.tour import (CoarseGraph, exhaustive_open_tour, open_tour,
-                                       tour_length)
+from mjexplore.navigation.tour import CoarseGraph, exhaustive_open_tour, open_tour, tour_length
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.topology.frontiers import find_frontiers
 from mjexplore.topology.gvd import DynamicGVD

@@ -14,11 +14,12 @@ import numpy as np
 import pytest
 
 from mjexplore.config import from_dict
+from mjexplore.learning.training import NearestNodeRule, TrainConfig, evaluate_policy_episodes
 from mjexplore.policies.weights import load_policy
-from mjexplore.training import NearestNodeRule, TrainConfig, evaluate_policy_episodes
 
-WEIGHTS = Path(__file__).resolve().parents[1] / "training" / "gvn_v2_policy.safetensors"
-V3_WEIGHTS = WEIGHTS.with_name("gvn_v3_policy.safetensors")
+MODELS = Path(__file__).resolve().parents[1] / "models"
+WEIGHTS = MODELS / "gvn_v2" / "policy.safetensors"
+V3_WEIGHTS = MODELS / "gvn_v3" / "policy.safetensors"
 UNSEEN = 8
 
 

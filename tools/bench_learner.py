@@ -10,7 +10,7 @@ update) as ``mjexplore train`` runs it, twice, each in a fresh process with the 
   issue 17's speed-ups.
 * ``recipe``: the config's ``ppo.minibatch_block`` and ``update_threads``, inference that
   encodes each TER once per weights (``EncodedTers``), and malloc reusing freed memory
-  (``mjexplore.memory.reuse_freed_memory``), as ``mjexplore train`` runs now.
+  (``mjexplore.episode.workers.reuse_freed_memory``), as ``mjexplore train`` runs now.
 
 Prints one JSON line: decisions per second of each and ``speedup`` (recipe / defaults),
 with the rollout and update milliseconds per decision.
@@ -28,8 +28,8 @@ import sys
 
 
 def run(config_path: str, variant: str, n_steps: int) -> dict[str, float]:
-    from mjexplore.memory import bound_heap_growth, reuse_freed_memory
-    from mjexplore.training import load_train_config, ppo_round
+    from mjexplore.episode.workers import bound_heap_growth, reuse_freed_memory
+    from mjexplore.learning.training import load_train_config, ppo_round
 
     config = load_train_config(config_path)
     config = dataclasses.replace(config, ppo=dataclasses.replace(config.ppo, n_steps=n_steps))

@@ -28,14 +28,13 @@ import time  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-
 from bench_topology import stats  # noqa: E402 (tools/, beside this script)
 
 from mjexplore.episode.metrics import pose_errors  # noqa: E402
-from mjexplore.navigation.wander import WanderController  # noqa: E402
 from mjexplore.mapping.localization import FusedLocalizer, LocalizerConfig  # noqa: E402
 from mjexplore.mapping.occupancy import OccupancyMapper  # noqa: E402
 from mjexplore.mapping.scan_matching import deskew_scan  # noqa: E402
+from mjexplore.navigation.wander import WanderController  # noqa: E402
 from mjexplore.scenes.canonical import resolve_scene  # noqa: E402
 from mjexplore.sim.lidar import lidar_model  # noqa: E402
 from mjexplore.sim.simulator import SimConfig, Simulator  # noqa: E402

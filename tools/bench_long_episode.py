@@ -3,7 +3,7 @@
 Generates a W x H m office (default 100 x 100), explores it with the nearest-frontier
 explorer in full physics (no MCAP: its map snapshots alone would grow with the episode),
 and samples the process's resident memory every 60 s of simulated time, with malloc's
-thresholds fixed as the CLI does (mjexplore/memory.py; --default-malloc for glibc's
+thresholds fixed as the CLI does (mjexplore/episode/workers.py; --default-malloc for glibc's
 defaults). Prints one JSON
 line: the episode's end, its simulated time, peak RSS, and RSS at each quarter of the
 episode (bounded memory: the later quarters grow only by the per-step logs, a few MB).
@@ -35,7 +35,7 @@ def main() -> None:
     parser.add_argument("--default-malloc", action="store_true",
                         help="leave glibc's malloc thresholds alone (the unbounded baseline)")
     args = parser.parse_args()
-    from mjexplore.memory import bound_heap_growth
+    from mjexplore.episode.workers import bound_heap_growth
 
     bounded = False if args.default_malloc else bound_heap_growth()
     from mjexplore.episode import Episode, EpisodeConfig

@@ -45,15 +45,20 @@ def main() -> None:
     import torch
 
     torch.set_num_threads(1)
-    from mjexplore.policies.onnx_export import (OnnxActor, export_onnx, record_decisions,
-                                                torch_actor_logits)
+    from mjexplore.policies.models import DEFAULT_MODEL
+    from mjexplore.policies.models import MODELS_DIR as MODELS
+    from mjexplore.policies.onnx_export import (
+        OnnxActor,
+        export_onnx,
+        record_decisions,
+        torch_actor_logits,
+    )
     from mjexplore.policies.weights import load_policy
 
-    training = Path(__file__).resolve().parents[1] / "training"
     out: dict = {"scene": args.scene, "threads": 1}
     with tempfile.TemporaryDirectory() as scratch:
         for kind in KINDS:
-            weights = training / f"{kind}_policy.safetensors"
+            weights = MODELS / DEFAULT_MODEL[kind] / "policy.safetensors"
             obs, masks = record_decisions(weights, args.decisions, args.scene)
             count = len(masks)
             single = [({k: v[i:i + 1] for k, v in obs.items()}, masks[i:i + 1])
@@ -62,10 +67,10 @@ def main() -> None:
             export_onnx(weights, Path(scratch) / f"{kind}.onnx")
             actor = OnnxActor(Path(scratch) / f"{kind}.onnx", threads=1)
 
-            def torch_decide(i: int) -> int:
+            def torch_decide(i: int, policy=policy, single=single) -> int:
                 return int(torch_actor_logits(policy, *single[i]).argmax())
 
-            def onnx_decide(i: int) -> int:
+            def onnx_decide(i: int, actor=actor, single=single) -> int:
                 return int(actor(*single[i])[1][0])
 
             same = all(torch_decide(i) == onnx_decide(i) for i in range(count))

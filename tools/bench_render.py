@@ -2,8 +2,8 @@
 
 Baseline in the same run: the same view (camera, trajectory) with MuJoCo's default
 rendering settings (shadows, reflections, skybox, 4x multisampling) and opaque walls;
-mjexplore's renderer turns those off and makes the walls translucent. Also the 2D map panel and a whole
-video frame (3D view + panel) of an office episode. Prints one JSON line.
+mjexplore's renderer turns those off and makes the walls translucent. Also the 2D map panel
+and a whole video frame (3D view + panel) of an office episode. Prints one JSON line.
 
 Usage: python tools/bench_render.py [--frames 60]
 """
@@ -17,9 +17,9 @@ import shutil
 import tempfile
 import time
 
-import mjexplore  # noqa: F401 - chooses MUJOCO_GL before mujoco loads
-
 import mujoco
+
+import mjexplore  # noqa: F401 - chooses MUJOCO_GL before mujoco loads
 
 
 def _fps(fn, frames: int) -> float:

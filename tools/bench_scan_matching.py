@@ -29,7 +29,6 @@ import time  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-
 from bench_topology import record, stats  # noqa: E402 (tools/, beside this script)
 
 from mjexplore.mapping.occupancy import OccupancyMapper  # noqa: E402

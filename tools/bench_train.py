@@ -25,19 +25,36 @@ Target (issue 5): topology + policy at most 8 ms per decision; ARiADNE's own env
 spends about 390 ms per decision on this machine. Target (issue 16): the update at most
 10 ms per decision.
 
+The shipped recipe (the one ``--explorer gvn``'s default model was trained with,
+training/gvn_v3.yaml): one round as ``mjexplore train`` runs it, end to end (rollout and
+update), with 2 envs (``recipe_decisions_per_s``) and with 1, 2 and 4
+(``recipe_decisions_per_s_by_envs``), the env's CPU time per decision
+(``env_ms_per_decision``: the rollout's wall time over its decisions, times the envs, at
+one env per core) and the update's wall time per decision (``update_ms_per_decision``).
+The baseline in the same run is the same round with the workers' thread pools left at
+their defaults (``recipe_decisions_per_s_default_threads``: what training ran before its
+workers were held to one thread each). ``--recipe-only`` measures just that, and
+``--n-envs N`` the recipe with N envs (a bigger machine), beside its baseline.
+
 Usage: python tools/bench_train.py [--scenes loop_with_corridor,maze] [--max-time 300]
+       python tools/bench_train.py --recipe-only [--n-envs 15] [--device auto]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import multiprocessing as mp
 import time
 from collections import defaultdict
 
+from mjexplore.io.provenance import REPO
+from mjexplore.policies.models import MODELS_DIR
+
 ARIADNE_MS_PER_DECISION = 390.0
+TRAINING = REPO / "training"
 
 
 def _timed(counters, key, fn):
@@ -57,17 +74,17 @@ def run(job: tuple[str, str, float]) -> dict:
     torch.set_num_threads(1)
     from mjexplore.config import load_yaml_config
     from mjexplore.episode import Episode, EpisodeConfig
-    from mjexplore.explorers.gvn import DEFAULT_WEIGHTS, GvnExplorer
+    from mjexplore.learning.training import TrainConfig
+    from mjexplore.policies.gvn_explorer import GvnExplorer
     from mjexplore.scenes.canonical import resolve_scene
-    from mjexplore.training import TrainConfig
 
-    train_config = load_yaml_config(TrainConfig, DEFAULT_WEIGHTS.parent / "gvn.yaml")
+    train_config = load_yaml_config(TrainConfig, TRAINING / "gvn.yaml")
     if mode == "training":
         config = train_config.env.episode
     else:
         config = EpisodeConfig()
     config = dataclasses.replace(config, max_time=max_time)
-    explorer = GvnExplorer()
+    explorer = GvnExplorer("gvn_paper")
     episode = Episode(resolve_scene(scene), explorer, 0, config)
     c: dict[str, float] = defaultdict(float)
     sim, lidar = episode.sim, episode.sim.lidar
@@ -102,12 +119,12 @@ def ppo_round(dynamics: str, n_envs: int | None = None) -> dict[str, float]:
     episodes in the world ``dynamics`` names (the grid world with training/gvn_v2.yaml's
     scan schedule, ``scan_travel``): wall seconds of each and the decisions collected.
     ``n_envs`` replaces the config's envs, each collecting a share of the same rollout."""
-    from mjexplore.explorers.gvn import DEFAULT_WEIGHTS
+    from mjexplore.learning.training import load_train_config
+    from mjexplore.learning.training import ppo_round as timed_round
     from mjexplore.policies.weights import load_policy
-    from mjexplore.training import load_train_config, ppo_round as timed_round
 
-    config = load_train_config(DEFAULT_WEIGHTS.parent / "gvn.yaml")
-    travel = load_train_config(DEFAULT_WEIGHTS.parent / "gvn_v2.yaml").env.episode.sim.scan_travel
+    config = load_train_config(TRAINING / "gvn.yaml")
+    travel = load_train_config(TRAINING / "gvn_v2.yaml").env.episode.sim.scan_travel
     episode = config.env.episode
     sim = dataclasses.replace(episode.sim, dynamics=dynamics,
                               scan_travel=travel if dynamics == "grid" else None)
@@ -119,7 +136,7 @@ def ppo_round(dynamics: str, n_envs: int | None = None) -> dict[str, float]:
             config.ppo, n_steps=rollout // n_envs))
 
     def load_shipped(model) -> None:
-        shipped, _ = load_policy(DEFAULT_WEIGHTS, expected_kind="gvn")
+        shipped, _ = load_policy(MODELS_DIR / "gvn_paper" / "policy.safetensors", "gvn")
         model.policy.load_state_dict(shipped.state_dict())
 
     return timed_round(config, model_setup=load_shipped)
@@ -132,10 +149,67 @@ def _rate(round_: dict[str, float]) -> float:
 
 def v2_round() -> dict[str, float]:
     """One rollout and PPO update of training/gvn_v2.yaml as it stands (fresh weights)."""
-    from mjexplore.explorers.gvn import DEFAULT_WEIGHTS
-    from mjexplore.training import load_train_config, ppo_round as timed_round
+    from mjexplore.learning.training import load_train_config
+    from mjexplore.learning.training import ppo_round as timed_round
 
-    return timed_round(load_train_config(DEFAULT_WEIGHTS.parent / "gvn_v2.yaml"))
+    return timed_round(load_train_config(TRAINING / "gvn_v2.yaml"))
+
+
+def recipe_round(n_envs: int, default_threads: bool = False, device: str = "auto",
+                 n_steps: int | None = None) -> dict[str, float]:
+    """One round of the shipped recipe with ``n_envs`` envs (``n_steps`` decisions each,
+    default the recipe's); with ``default_threads`` the workers keep their libraries'
+    default thread pools."""
+    import os
+    from unittest import mock
+
+    from mjexplore.episode import workers
+    from mjexplore.learning import training
+    from mjexplore.learning.training import load_train_config
+    from mjexplore.policies.models import DEFAULT_MODEL
+
+    config = load_train_config(TRAINING / f"{DEFAULT_MODEL['gvn']}.yaml")
+    config = dataclasses.replace(config, n_envs=n_envs, ppo=dataclasses.replace(
+        config.ppo, n_steps=n_steps or config.ppo.n_steps))
+    saved = {k: os.environ.pop(k, None) for k in workers.THREAD_VARIABLES}
+    try:
+        with contextlib.ExitStack() as stack:
+            if default_threads:
+                stack.enter_context(mock.patch.object(training, "worker_env",
+                                                      training.ExplorationEnv))
+                stack.enter_context(mock.patch.object(training, "single_thread_children",
+                                                      lambda: None))
+            return training.ppo_round(config, device=device)
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def recipe_figures(n_envs: list[int], device: str,
+                   n_steps: int | None = None) -> dict[str, object]:
+    """The shipped recipe's figures (see the module docstring)."""
+    import os
+
+    cores = os.cpu_count() or 1
+    by_envs, main = {}, None
+    for n in n_envs:
+        r = recipe_round(n, device=device, n_steps=n_steps)
+        by_envs[str(n)] = round(_rate(r), 2)
+        if main is None:
+            main = (n, r)
+    n, r = main
+    base = recipe_round(n, default_threads=True, device=device, n_steps=n_steps)
+    env_ms = r["rollout_s"] / r["decisions"] * 1e3 * min(n, cores)
+    return {"recipe": "training/gvn_v3.yaml", "recipe_envs": n,
+            "recipe_decisions_per_s": by_envs[str(n)],
+            "recipe_decisions_per_s_default_threads": round(_rate(base), 2),
+            "threads_speedup": round(_rate(r) / _rate(base), 2),
+            "env_ms_per_decision": round(env_ms, 2),
+            "update_ms_per_decision": round(r["update_s"] / r["decisions"] * 1e3, 2),
+            "recipe_decisions_per_s_by_envs": by_envs, "cores": cores}
 
 
 def main() -> None:
@@ -143,7 +217,18 @@ def main() -> None:
     parser.add_argument("--scenes", default="loop_with_corridor,maze")
     parser.add_argument("--max-time", type=float, default=300.0,
                         help="simulated seconds per episode")
+    parser.add_argument("--recipe-only", action="store_true",
+                        help="measure only the shipped recipe's training throughput")
+    parser.add_argument("--n-envs", type=int, default=None,
+                        help="the recipe with this many envs (default: 2, then 1 and 4)")
+    parser.add_argument("--device", default="auto", help="the learner's torch device")
+    parser.add_argument("--n-steps", type=int, default=None,
+                        help="decisions per env in the recipe's round (default: the recipe's)")
     args = parser.parse_args()
+    envs = [args.n_envs] if args.n_envs else [2, 1, 4]
+    if args.recipe_only:
+        print(json.dumps(recipe_figures(envs, args.device, args.n_steps)))
+        return
     scenes = [s for s in args.scenes.split(",") if s]
     out: dict[str, float | str] = {}
     for mode in ("physics", "training"):
@@ -173,7 +258,7 @@ def main() -> None:
                        ariadne_ms_per_decision=ARIADNE_MS_PER_DECISION,
                        speedup_vs_ariadne=round(ARIADNE_MS_PER_DECISION / (topo + pol), 1))
         out[f"{mode}_bench_wall_s"] = round(wall, 1)
-    from mjexplore.memory import reuse_freed_memory
+    from mjexplore.episode.workers import reuse_freed_memory
 
     reuse_freed_memory()  # As mjexplore train sets it for its learner.
     t = time.perf_counter()
@@ -198,6 +283,7 @@ def main() -> None:
     out.update(v2_rollout_ms_per_decision=round(v2["rollout_s"] / n * 1e3, 2),
                v2_update_ms_per_decision=round(v2["update_s"] / n * 1e3, 2),
                v2_train_decisions_per_s=round(_rate(v2), 2))
+    out.update(recipe_figures(envs, args.device, args.n_steps))
     out["decisions"] = "GVN policy, seed 0, " + ",".join(scenes)
     print(json.dumps(out))
 

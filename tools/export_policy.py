@@ -2,8 +2,8 @@
 of a weights file as an ONNX model.
 
 Usage: python tools/export_policy.py runs/train/gvn/checkpoints/step_000012288.pt \
-           training/gvn_policy.safetensors
-       python tools/export_policy.py --onnx training/gvn_policy.safetensors gvn_policy.onnx
+           models/gvn_paper/policy.safetensors
+       python tools/export_policy.py --onnx models/gvn_paper/policy.safetensors gvn_policy.onnx
 
 The ONNX model takes the decision's observation arrays (flat, batch first, in the order of
 its ``observation_keys`` metadata) and the boolean ``action_mask``, and returns the masked
@@ -49,7 +49,7 @@ def main() -> int:
                               "inputs": json.loads(props["observation_keys"]) + ["action_mask"],
                               "outputs": ["masked_logits", "action"]}))
             return 0
-        from mjexplore.training import export_checkpoint
+        from mjexplore.learning.training import export_checkpoint
 
         provenance = export_checkpoint(args.source, args.out, args.git_revision)
     except UserInputError as exc:

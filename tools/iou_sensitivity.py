@@ -64,7 +64,7 @@ def main() -> None:
                         help="the episode's time cap, simulated seconds")
     args = parser.parse_args()
     from mjexplore.episode import Episode, EpisodeConfig
-    from mjexplore.explorers.nearest import NearestFrontier
+    from mjexplore.episode.nearest import NearestFrontier
     from mjexplore.scenes.canonical import resolve_scene
     from mjexplore.sim.lidar import lidar_model
     from mjexplore.sim.simulator import SimConfig

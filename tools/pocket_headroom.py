@@ -24,7 +24,7 @@ import multiprocessing as mp
 
 import numpy as np
 
-from mjexplore.explorers.base import ExplorationState
+from mjexplore.episode.explorer import ExplorationState
 
 
 class PocketAwareNearest:
@@ -45,7 +45,7 @@ class PocketAwareNearest:
         del rng
 
     def select_goal(self, state: ExplorationState) -> np.ndarray | None:
-        from mjexplore.pocket_training import nearest_goal
+        from mjexplore.learning.pocket_training import nearest_goal
         from mjexplore.topology.pockets import pocket_areas
 
         if not state.frontiers:
@@ -63,7 +63,7 @@ def _episode(job: tuple[str, str, str]) -> dict:
 
     from mjexplore.episode import Episode
     from mjexplore.explorers import make_explorer
-    from mjexplore.training import heldout_env, load_train_config
+    from mjexplore.learning.training import heldout_env, load_train_config
 
     config_path, mode, scene = job
     torch.set_num_threads(1)
@@ -87,7 +87,7 @@ def main() -> None:
     parser.add_argument("--modes", default="nearest,truth:0.5,predicted:50,oracle")
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
-    from mjexplore.training import load_train_config
+    from mjexplore.learning.training import load_train_config
 
     modes = [m for m in args.modes.split(",") if m]
     scenes = load_train_config(args.config).eval.unseen_scenes(args.unseen)

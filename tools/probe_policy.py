@@ -6,7 +6,7 @@ layouts and training-mode dynamics) on held-out seeds with three ways to choose 
 * ``policy``: the trained policy, its most probable valid action (as the explorers use it);
 * ``random``: a valid action drawn uniformly (what an untrained policy amounts to);
 * ``greedy``: the valid action nearest the robot: with v2 or v3 observations the node
-  nearest along the known map (:class:`~mjexplore.training.NearestNodeRule`, what
+  nearest along the known map (:class:`~mjexplore.learning.training.NearestNodeRule`, what
   nearest-frontier ranks by), otherwise the one placed nearest in a straight line (for the
   grid decisions, roughly the nearest frontier);
 * ``prior``: a residual policy's prior alone, its logits without the network's (v3: the
@@ -29,7 +29,7 @@ Prints one JSON line: per mode the mean return, simulated exploration time (s), 
 (m) and how many episodes were explored, and ``learned_fraction``, where the policy's mean
 return lies between random (0) and greedy (1).
 
-Usage: python tools/probe_policy.py --weights training/cnn_policy.safetensors
+Usage: python tools/probe_policy.py --weights models/cnn_paper/policy.safetensors
     [--config training/cnn.yaml] [--episodes 10 | --heldout | --unseen 32]
     [--modes policy,random,greedy[,prior,nearest,oracle]] [--workers 2]
 """
@@ -47,8 +47,8 @@ DEFAULT_MODES = ("policy", "random", "greedy")
 def _config(config_path: str | None, weights: str):
     """The training config of ``--config``, or the one the weights were trained with."""
     from mjexplore.config import from_dict
+    from mjexplore.learning.training import TrainConfig, load_train_config
     from mjexplore.policies.weights import read_policy_weights
-    from mjexplore.training import TrainConfig, load_train_config
 
     if config_path is not None:
         return load_train_config(config_path)
@@ -61,8 +61,8 @@ def _episode(job: tuple[str | None, str, str, int, str | None]) -> dict:
 
     from mjexplore.envs import ExplorationEnv
     from mjexplore.envs.observation import POSED
+    from mjexplore.learning.training import NearestNodeRule, heldout_env
     from mjexplore.policies.weights import load_policy
-    from mjexplore.training import NearestNodeRule, heldout_env
 
     config_path, weights, mode, seed, scene = job
     torch.set_num_threads(1)

@@ -39,7 +39,7 @@ else
 fi
 mj() { (cd "$WT" && PYTHONPATH="$WT${PYTHONPATH:+:$PYTHONPATH}" "$PY" -c \
     'import sys; from mjexplore.cli import main; sys.exit(main(sys.argv[1:]))' "$@"); }
-ALL=nearest,explore_lite,frontier_tsp,rrt,potential,cnn,gvn,oracle
+ALL=nearest,explore_lite,frontier_tsp,rrt,potential,cnn:cnn_paper,gvn:gvn_paper,oracle
 for e in $EXPERIMENTS; do
   echo "== $e $(date -u +%FT%TZ)"
   case $e in
@@ -66,7 +66,7 @@ for e in $EXPERIMENTS; do
         --lidar-model lds01 --odometry-error typical $LOCALIZE --max-time 3600 \
         --workers "$W" --out "$OUT/$e" ;;
     ablation) mj bench --scenes loop_with_corridor,maze \
-              --explorers gvn_none,gvn_naive,gvn_unmasked,gvn --seeds 5 --workers "$W" \
+              --explorers gvn_none,gvn_naive,gvn_unmasked,gvn:gvn_paper --seeds 5 --workers "$W" \
               --out "$OUT/ablation" ;;
     ablation_v2) mj bench --scenes loop_with_corridor,maze \
               --explorers gvn_v2_none,gvn_v2_naive,gvn_v2_unmasked,gvn_v2 --seeds 5 \
@@ -74,7 +74,7 @@ for e in $EXPERIMENTS; do
     ablation_v3) mj bench --scenes loop_with_corridor,maze \
               --explorers gvn_v3_none,gvn_v3_naive,gvn_v3_unmasked,gvn_v3 --seeds 5 \
               --workers "$W" --out "$OUT/ablation_v3" ;;
-    lobby_real) mj bench --scenes lobby --explorers gvn,potential,nearest,gvn_v3 --profile real \
+    lobby_real) mj bench --scenes lobby --explorers gvn:gvn_paper,potential,nearest,gvn_v3 --profile real \
               --seeds 5 --workers 1 --out "$OUT/lobby_real" ;;
     ariadne)
       for f in "$SHARED"/data/ariadne_test/img_*.png; do

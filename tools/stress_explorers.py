@@ -81,8 +81,8 @@ def explore(job: tuple[tuple[str, float, float, int], str, float, str]) -> dict:
     (family, width, height, seed), explorer, max_time, world = job
     import torch
 
-    from mjexplore.errors import UserInputError
     from mjexplore.episode import Episode, EpisodeConfig
+    from mjexplore.errors import UserInputError
     from mjexplore.explorers import make_explorer
     from mjexplore.scenes.generate import generate_scene
     from mjexplore.scenes.scene import load_scene_files, write_scene

@@ -18,8 +18,13 @@ from __future__ import annotations
 import gymnasium as gym
 
 from mjexplore.envs.decisions import GridConfig, GridDecisions, TerDecisions, ter_action_mask
-from mjexplore.envs.exploration import (EnvConfig, ExplorationEnv, NodeGoals, ProceduralScenes,
-                                        RewardConfig)
+from mjexplore.envs.exploration import (
+    EnvConfig,
+    ExplorationEnv,
+    NodeGoals,
+    ProceduralScenes,
+    RewardConfig,
+)
 from mjexplore.envs.observation import ObservationConfig, TerMemory
 
 __all__ = ["EnvConfig", "ExplorationEnv", "GridConfig", "GridDecisions", "NodeGoals",

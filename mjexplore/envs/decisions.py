@@ -11,7 +11,7 @@ The whole map (not a robot-centred crop) is used for the grid because the action
 to pick, and the map's extent is known from the start (the mapper's grid has the scene's
 size), so the resized image keeps a fixed scale per scene.
 
-Both take only an :class:`~mjexplore.explorers.base.ExplorationState`, so the env and the
+Both take only an :class:`~mjexplore.episode.explorer.ExplorationState`, so the env and the
 deployed explorers share them.
 """
 
@@ -23,9 +23,15 @@ import cv2
 import numpy as np
 from gymnasium import spaces
 
-from mjexplore.envs.observation import (POSED, ObservationConfig, TerMemory,
-                                        observation_space, path_features, ter_arrays)
-from mjexplore.explorers.base import ExplorationState
+from mjexplore.envs.observation import (
+    POSED,
+    ObservationConfig,
+    TerMemory,
+    observation_space,
+    path_features,
+    ter_arrays,
+)
+from mjexplore.episode.explorer import ExplorationState
 from mjexplore.topology.frontiers import Frontier
 from mjexplore.topology.pipeline import TopologyConfig
 from mjexplore.topology.ter import FRONTIER_FLAG, PaddedTer, TerConfig
@@ -33,7 +39,8 @@ from mjexplore.topology.ter import FRONTIER_FLAG, PaddedTer, TerConfig
 GRID_CHANNELS = ("free", "occupied", "unknown", "robot", "trajectory")
 
 
-def ter_action_mask(ter_padded: PaddedTer, state: ExplorationState, valid_actions: str) -> np.ndarray:
+def ter_action_mask(ter_padded: PaddedTer, state: ExplorationState,
+                    valid_actions: str) -> np.ndarray:
     """Valid actions of a padded TER: frontier nodes not blacklisted, or all real nodes."""
     real = ter_padded.node_mask > 0
     if valid_actions == "all_nodes":

@@ -12,9 +12,9 @@ import numpy as np
 
 from mjexplore.envs.decisions import GridConfig, GridDecisions, TerDecisions
 from mjexplore.envs.observation import ObservationConfig, privileged_features
-from mjexplore.errors import UserInputError
 from mjexplore.episode import Episode, EpisodeConfig
-from mjexplore.explorers.base import ExplorationState
+from mjexplore.episode.explorer import ExplorationState
+from mjexplore.errors import UserInputError
 from mjexplore.mapping.metrics import accuracy
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.scenes.scene import SceneFiles, load_scene_files
@@ -274,8 +274,9 @@ class ExplorationEnv(gym.Env):
 
     Terminated when the exploration ratio reaches the target (``explored``), when no
     frontier can be reached (``no_frontiers``: while one can, a decision without a valid
-    action is taken by the engine's fallback, as in evaluation) or the robot tips over. Truncated at the time cap
-    (simulated), when the robot lingers, or after ``max_decisions`` decisions.
+    action is taken by the engine's fallback, as in evaluation) or the robot tips over.
+    Truncated at the time cap (simulated), when the robot lingers, or after
+    ``max_decisions`` decisions.
     ``info['end_reason']`` says which.
 
     ## Arguments

@@ -9,10 +9,11 @@ every explorer): an explorer that sees nothing left while the map shows a reacha
 frontier is overruled, and the robot goes to the nearest one (counted in ``fallbacks``).
 Goals are given up (:mod:`mjexplore.navigation.blacklist`) when no path leads to them,
 when the path to them stops shrinking, when the robot lingers on the way, or when the robot
-stood at them (within zeta) and their frontier stayed open; given-up goals are forgotten when the map around them changes and offered again when
-nothing else is left. So a frontier counts as unreachable when no path leads to it, when the
-robot failed to get to it ``max_attempts`` times with the map around it unchanged, or when
-the robot stood at it without seeing past it.
+stood at them (within zeta) and their frontier stayed open; given-up goals are forgotten
+when the map around them changes and offered again when nothing else is left. So a
+frontier counts as unreachable when no path leads to it, when the robot failed to get to
+it ``max_attempts`` times with the map around it unchanged, or when the robot stood at it
+without seeing past it.
 
 The episode ends when the exploration ratio reaches the target (98.5 % by default:
 ``explored``), when no frontier is reachable in that sense (``no_frontiers``; ``lost``
@@ -36,8 +37,10 @@ from typing import Any
 import cv2
 import numpy as np
 
-from mjexplore.explorers.base import ExplorationState, Explorer
-from mjexplore.explorers.nearest import NearestFrontier
+from mjexplore.episode.explorer import ExplorationState, Explorer
+from mjexplore.episode.metrics import KnownCounter, episode_metrics, pose_errors
+from mjexplore.episode.nearest import NearestFrontier
+from mjexplore.errors import UserInputError
 from mjexplore.mapping.localization import FusedLocalizer, LocalizerConfig
 from mjexplore.mapping.metrics import exploration_ratio, iou, observable_ground_truth
 from mjexplore.mapping.occupancy import MapperConfig, OccupancyMapper
@@ -46,9 +49,7 @@ from mjexplore.maps import GridMap
 from mjexplore.navigation.blacklist import BlacklistConfig, GoalBlacklist
 from mjexplore.navigation.navigator import Navigator, NavigatorConfig, NavStatus
 from mjexplore.navigation.planner import Costmap, PlannerConfig
-from mjexplore.errors import UserInputError
 from mjexplore.scenes.scene import SceneFiles, check_start
-from mjexplore.episode.metrics import KnownCounter, episode_metrics, pose_errors
 from mjexplore.sim.kinematics import KinematicsLog
 from mjexplore.sim.simulator import SimConfig
 from mjexplore.sim.world import make_world
@@ -153,7 +154,7 @@ class _SigintFlag:
             raise KeyboardInterrupt
         self.raised = True
 
-    def __enter__(self) -> "_SigintFlag":
+    def __enter__(self) -> _SigintFlag:
         if threading.current_thread() is threading.main_thread():
             self._previous = signal.signal(signal.SIGINT, self._handle)
         return self
@@ -166,7 +167,7 @@ class _SigintFlag:
 class Interrupted(KeyboardInterrupt):
     """Ctrl-C during :meth:`Episode.run`; carries the result of the episode so far."""
 
-    def __init__(self, result: "EpisodeResult") -> None:
+    def __init__(self, result: EpisodeResult) -> None:
         super().__init__("episode interrupted")
         self.result = result
 
@@ -631,6 +632,7 @@ class Episode:
         metrics["given_up"] = self.blacklist.reasons()
         sha = getattr(self.explorer, "weights_sha256", None)  # A learned explorer's weights.
         if sha is not None:
+            metrics["policy"] = self.explorer.policy_name
             metrics["weights_sha256"] = sha
         return EpisodeResult(metrics, curve, log,
                              GridMap(grid.data.copy(), grid.resolution, grid.origin),

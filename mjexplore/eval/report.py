@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from mjexplore.errors import UserInputError
 from mjexplore.episode import MILESTONES
+from mjexplore.errors import UserInputError
 from mjexplore.eval.plots import METHOD_LABELS, kinematics_figure, ratio_figure
 from mjexplore.eval.summaries import KINEMATIC_FIELDS, KINEMATICS_DT, ratio_curve, read_summary
 from mjexplore.eval.sweep import MEAN_STD_NOTE, format_mean_std, markdown_table, summary_table
@@ -435,8 +435,8 @@ def smoothness_table(groups) -> str:
     names = (("linear_velocity_std", "std v (m/s)"), ("angular_velocity_rms", "rms omega (rad/s)"),
              ("linear_acceleration_rms", "rms a (m/s^2)"),
              ("angular_acceleration_rms", "rms alpha (rad/s^2)"))
-    rows = [[scene, METHOD_LABELS.get(m, m)] + [format_mean_std([r["kinematics"]["stats"][k] for r in runs])
-                          for k, _ in names]
+    rows = [[scene, METHOD_LABELS.get(m, m)]
+            + [format_mean_std([r["kinematics"]["stats"][k] for r in runs]) for k, _ in names]
             for scene, methods in groups.items() for m, runs in methods.items()]
     return markdown_table(["scene", "method"] + [label for _, label in names], rows)
 

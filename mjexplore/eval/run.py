@@ -14,12 +14,10 @@ import os
 from pathlib import Path
 from typing import Any
 
-
-from mjexplore.drive import kinematics_csv
 from mjexplore.episode import Episode, EpisodeConfig, EpisodeResult, Interrupted
+from mjexplore.eval.methods import make_explorer
 from mjexplore.eval.plots import kinematics_figure, map_figure, ratio_figure
 from mjexplore.eval.progress import EpisodeProgress
-from mjexplore.explorers import make_explorer
 from mjexplore.io.atomic import atomic_directory, write_text_atomic
 from mjexplore.io.mcap_log import FoxgloveEpisodeLog
 from mjexplore.io.provenance import git_revision
@@ -72,7 +70,8 @@ def _episode_logs(mcap_path: str | os.PathLike | None, mcap_profile: str,
 
 def run_episode(scene: SceneFiles, explorer: str, seed: int, config: EpisodeConfig,
                 mcap_path: str | os.PathLike | None = None,
-                explorer_kwargs: dict | None = None, video_path: str | os.PathLike | None = None,
+                explorer_kwargs: dict | None = None, spec: str | None = None,
+                video_path: str | os.PathLike | None = None,
                 video: Any = None, stills_dir: str | os.PathLike | None = None,
                 progress: bool = False, mcap_profile: str = "foxglove",
                 live: Any = None) -> EpisodeResult:
@@ -94,7 +93,8 @@ def run_episode(scene: SceneFiles, explorer: str, seed: int, config: EpisodeConf
     try:
         if live is not None:
             live.wait_for_subscriber()  # Before the episode is built: it takes the first scan.
-        episode = Episode(scene, make_explorer(explorer, **(explorer_kwargs or {})), seed,
+        built = make_explorer(spec or explorer, **(explorer_kwargs or {}))
+        episode = Episode(scene, built, seed,
                           config, observer=observers)
         result = episode.run()
     except Interrupted as exc:  # Stills of the run so far, then on up.
@@ -120,7 +120,8 @@ def resolved_config(scene: SceneFiles, explorer: str, seed: int, config: Episode
 def write_run(out_dir: str | os.PathLike, scene: SceneFiles, explorer: str, seed: int,
               config: EpisodeConfig, mcap: bool | str = True,
               explorer_kwargs: dict | None = None, video: Any = None,
-              progress: bool = False, live: Any = None) -> dict[str, Any]:
+              progress: bool = False, live: Any = None,
+              spec: str | None = None) -> dict[str, Any]:
     """Runs an episode and writes its run folder atomically; returns the metrics.
 
     ``mcap``: a false value for no ``episode.mcap``, True or ``"foxglove"`` for one with
@@ -128,7 +129,9 @@ def write_run(out_dir: str | os.PathLike, scene: SceneFiles, explorer: str, seed
 
     With ``video`` (a :class:`~mjexplore.render.recorder.VideoConfig`) the folder also gets
     ``video.mp4`` and the 3D still ``scene.png``; ``ter.png`` (final map, trajectory and TER)
-    is always written. ``progress`` as :func:`run_episode`.
+    is always written. ``progress`` as :func:`run_episode`. ``explorer`` is the run's
+    label; ``spec`` the method spec that builds the explorer, if not the label
+    (:mod:`mjexplore.eval.methods`).
     """
     interrupted = None
     with atomic_directory(out_dir, "metrics.json") as tmp:
@@ -138,7 +141,7 @@ def write_run(out_dir: str | os.PathLike, scene: SceneFiles, explorer: str, seed
                                  video_path=tmp / "video.mp4" if video is not None else None,
                                  video=video, stills_dir=tmp, progress=progress,
                                  mcap_profile=mcap if isinstance(mcap, str) else "foxglove",
-                                 live=live)
+                                 live=live, spec=spec)
         except Interrupted as exc:
             # Ctrl-C: the run so far becomes a complete folder (end_reason 'interrupted').
             interrupted, result = exc, exc.result
@@ -150,7 +153,7 @@ def write_run(out_dir: str | os.PathLike, scene: SceneFiles, explorer: str, seed
             default=str) + "\n")
         write_text_atomic(tmp / "ratio.csv", "t,exploration_ratio\n" + "".join(
             f"{t:.3f},{r:.6f}\n" for t, r in result.ratio_curve))
-        write_text_atomic(tmp / "kinematics.csv", kinematics_csv(result.kinematics))
+        write_text_atomic(tmp / "kinematics.csv", result.kinematics.to_csv())
         title = f"{metrics['scene']} / {explorer} / seed {seed}"
         ratio_figure({explorer: [result.ratio_curve]}, tmp / "ratio.png", title)
         kinematics_figure({explorer: [result.kinematics]}, tmp / "kinematics.png", title)

@@ -31,21 +31,19 @@ RATIO_DT = 2.0  # s between stored exploration-ratio samples.
 KINEMATICS_DT = 1.0  # s per bin of the stored velocity and acceleration series.
 KINEMATIC_FIELDS = ("linear_velocity", "angular_velocity", "linear_acceleration",
                     "angular_acceleration")
-# Shipped weights of the learned explorers (recorded by hash so a summary names its policy).
-POLICY_FILES = {"gvn": "training/gvn_policy.safetensors", "gvn_unmasked":
-                "training/gvn_policy.safetensors", "cnn": "training/cnn_policy.safetensors",
-                "gvn_naive": "training/gvn_naive_policy.safetensors",
-                "gvn_none": "training/gvn_none_policy.safetensors",
-                "gvn_v2": "training/gvn_v2_policy.safetensors",
-                "gvn_v2_unmasked": "training/gvn_v2_policy.safetensors",
-                "gvn_v2_naive": "training/gvn_v2_naive_policy.safetensors",
-                "gvn_v2_none": "training/gvn_v2_none_policy.safetensors",
-                "gvn_v3": "training/gvn_v3_policy.safetensors",
-                "gvn_v3_unmasked": "training/gvn_v3_policy.safetensors",
-                "gvn_v3_naive": "training/gvn_v3_naive_policy.safetensors",
-                "gvn_v3_none": "training/gvn_v3_none_policy.safetensors",
-                "cnn_v2": "training/cnn_v2_policy.safetensors"}
 REPO = Path(__file__).resolve().parents[2]
+
+
+def _policy_file(method: str) -> Path | None:
+    """The weights file a run label's learned explorer reads (None for a classic one)."""
+    from mjexplore.eval.methods import LEARNED, parse_method
+    from mjexplore.policies.models import resolve_policy
+
+    try:
+        spec = parse_method(method)
+        return resolve_policy(spec.policy, spec.method)[1] if spec.method in LEARNED else None
+    except UserInputError:
+        return None
 
 
 def _policy_record(path: Path) -> dict[str, Any] | None:
@@ -166,8 +164,8 @@ def collect_sweep(sweep: str | os.PathLike, experiment: str, command: str | None
                "command": command or info.get("command"),
                "collected_at_revision": git_revision(),
                "run_revisions": sorted(r for r in revisions if r),
-               "policies": {m: _policy_record(REPO / POLICY_FILES[m]) for m in methods
-                            if m in POLICY_FILES},
+               "policies": {m: _policy_record(path) for m in methods
+                            if (path := _policy_file(m)) is not None},
                # The weights each learned method's runs really used, from their metrics.
                "run_weights": {m: sorted({r["metrics"]["weights_sha256"] for r in runs
                                           if r["method"] == m and "weights_sha256" in r["metrics"]})

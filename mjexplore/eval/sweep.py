@@ -23,13 +23,14 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from mjexplore.errors import UserInputError
 from mjexplore.episode import EpisodeConfig
+from mjexplore.episode.workers import init_episode_worker
+from mjexplore.errors import UserInputError
+from mjexplore.eval.methods import parse_method
 from mjexplore.eval.plots import kinematics_figure, ratio_figure
 from mjexplore.eval.run import write_run
 from mjexplore.io.atomic import write_text_atomic
 from mjexplore.io.provenance import git_revision
-from mjexplore.memory import init_episode_worker
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.sim.kinematics import KinematicsLog
 
@@ -49,9 +50,13 @@ def scene_label(scene: str) -> str:
 
 @dataclasses.dataclass(frozen=True)
 class Job:
+    """One episode of a sweep: ``explorer`` is the run label (its folder), ``spec`` the
+    method spec that builds its explorer (:mod:`mjexplore.eval.methods`; None: the label)."""
+
     scene: str
     explorer: str
     seed: int
+    spec: str | None = None
 
     @property
     def label(self) -> str:
@@ -101,7 +106,7 @@ def _run_job(args: tuple[Job, Path, EpisodeConfig, bool | str]) -> dict[str, Any
         return done
     try:
         metrics = write_run(folder, resolve_scene(job.scene), job.explorer, job.seed, config,
-                            mcap)
+                            mcap, spec=job.spec)
     except Exception as exc:  # noqa: BLE001 - one broken episode must not end the sweep
         log.exception("episode %s failed", job)
         failure = {"scene": job.label, "explorer": job.explorer, "seed": job.seed,
@@ -119,6 +124,9 @@ def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Pa
               progress: bool = True, command: str | None = None) -> list[dict[str, Any]]:
     """Runs (or resumes) a sweep and writes its summary; returns every episode's metrics.
 
+    ``explorers`` are method specs (:func:`mjexplore.eval.methods.parse_method`); each
+    one's runs are filed under its run label.
+
     ``mcap``: False for no MCAPs, True or a profile (``"foxglove"``, ``"ros2"``) for one per
     episode (see :func:`mjexplore.eval.run.write_run`).
 
@@ -134,12 +142,15 @@ def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Pa
             raise UserInputError(
                 f"scenes {other!r} and {scene!r} would share the run folders "
                 f"runs/{scene_label(scene)}/: give scene folders or files with distinct names.")
-    jobs = [Job(s, e, seed) for s in scenes for e in explorers for seed in seeds]
+    specs = [parse_method(e) for e in explorers]
+    jobs = [Job(s, spec.label, seed, spec.text) for s in scenes for spec in specs
+            for seed in seeds]
     _check_settings(jobs, out, config)
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "sweep.json", json.dumps(
         {"command": command, "git_revision": git_revision(), "scenes": scenes,
-         "explorers": explorers, "seeds": seeds}, indent=2) + "\n")
+         "explorers": [spec.label for spec in specs], "specs": [spec.text for spec in specs],
+         "seeds": seeds}, indent=2) + "\n")
     args = [(job, out, config, mcap) for job in jobs]
     results = []
     bar = tqdm(total=len(jobs), desc="episodes", disable=not progress, unit="ep")

@@ -1,5 +1,48 @@
-"""Exploration strategies behind one interface: state in, goal out."""
+"""The classic explorers and the ground-truth oracle, behind the episode's explorer interface
+(:class:`~mjexplore.episode.explorer.Explorer`: state in, goal out).
 
-from mjexplore.explorers.base import EXPLORERS, ExplorationState, Explorer, make_explorer
+The learned explorers (``gvn``, ``cnn``) sit beside the policies they run, in
+:mod:`mjexplore.policies`; :mod:`mjexplore.eval.methods` names every method.
+"""
 
-__all__ = ["EXPLORERS", "ExplorationState", "Explorer", "make_explorer"]
+from __future__ import annotations
+
+import importlib
+
+from mjexplore.episode.explorer import ExplorationState, Explorer
+from mjexplore.errors import UserInputError
+
+# name -> (module, class); modules are imported on first use (the oracle's and the tour
+# planner's solvers are heavy to import).
+CLASSIC: dict[str, tuple[str, str]] = {
+    "nearest": ("mjexplore.episode.nearest", "NearestFrontier"),
+    "explore_lite": ("mjexplore.explorers.explore_lite", "ExploreLite"),
+    "frontier_tsp": ("mjexplore.explorers.frontier_tsp", "FrontierTsp"),
+    "rrt": ("mjexplore.explorers.rrt", "RRTExplorer"),
+    "potential": ("mjexplore.explorers.potential", "PotentialField"),
+    "oracle": ("mjexplore.explorers.oracle", "OracleExplorer"),
+}
+
+
+def explorer_class(name: str) -> type:
+    """The class of the classic explorer ``name``.
+
+    Raises:
+        UserInputError: unknown name.
+    """
+    if name not in CLASSIC:
+        raise UserInputError(f"unknown explorer {name!r}: use one of {', '.join(CLASSIC)}.")
+    module, cls = CLASSIC[name]
+    return getattr(importlib.import_module(module), cls)
+
+
+def make_explorer(name: str, **kwargs) -> Explorer:
+    """A classic explorer by name, with its constructor's keyword arguments.
+
+    Raises:
+        UserInputError: unknown name.
+    """
+    return explorer_class(name)(**kwargs)
+
+
+__all__ = ["CLASSIC", "ExplorationState", "Explorer", "explorer_class", "make_explorer"]

@@ -35,11 +35,10 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from mjexplore.explorers.base import ExplorationState, register
+from mjexplore.episode.explorer import ExplorationState
 from mjexplore.topology.frontiers import frontier_mask
 
 
-@register("explore_lite")
 class ExploreLite:
     """Args (explore_lite's parameters and defaults):
         potential_scale: Weight of the distance term.
@@ -50,6 +49,8 @@ class ExploreLite:
         resolution_scaled_distance: Multiply the distance (metres) by the map resolution,
             as explore_lite's code does.
     """
+
+    name = "explore_lite"
 
     def __init__(self, potential_scale: float = 3.0, gain_scale: float = 1.0,
                  min_frontier_size: float = 0.75, planner_frequency: float = 0.33,

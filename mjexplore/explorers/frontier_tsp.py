@@ -13,16 +13,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from mjexplore.explorers.base import ExplorationState, register
+from mjexplore.episode.explorer import ExplorationState
 from mjexplore.navigation.tour import CoarseGraph, TourConfig, open_tour
 
 
-@register("frontier_tsp")
 class FrontierTsp:
     """Args:
         tour: Tour solver settings.
         block: Fine cells per node of the path graph along each axis.
     """
+
+    name = "frontier_tsp"
 
     def __init__(self, tour: TourConfig | None = None, block: int = 4) -> None:
         self.tour_config = tour or TourConfig()

@@ -40,9 +40,9 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
-from mjexplore.explorers.base import ExplorationState, register
+from mjexplore.episode.explorer import ExplorationState
 from mjexplore.mapping.metrics import observable_ground_truth
-from mjexplore.mapping.occupancy import traversal_start
+from mjexplore.maps import traversal_start
 from mjexplore.navigation.planner import Costmap, PlannerConfig
 from mjexplore.navigation.tour import CoarseGraph, TourConfig, open_tour
 from mjexplore.topology.gvd import DynamicGVD
@@ -218,7 +218,6 @@ class _Views:
     observable: np.ndarray  # (cells,) bool: the reference's known cells.
 
 
-@register("oracle")
 class OracleExplorer:
     """Ground-truth coverage planner (the bound).
 
@@ -234,6 +233,8 @@ class OracleExplorer:
         prune_tries: Viewpoints tried for removal per pruning round (largest saving first).
         tour: Tour solver settings.
     """
+
+    name = "oracle"
 
     plans_on_ground_truth = True
 

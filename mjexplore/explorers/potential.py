@@ -14,7 +14,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from mjexplore.explorers.base import ExplorationState, register
+from mjexplore.episode.explorer import ExplorationState
 
 _D4R = np.array([-1, 1, 0, 0], np.int64)
 _D4C = np.array([0, 0, -1, 1], np.int64)
@@ -63,13 +63,14 @@ def _descend(potential, traversable, start, is_target, rows, cols, max_steps):
     return -1
 
 
-@register("potential")
 class PotentialField:
     """Args:
         coarse_cell: Side of the coarse cells, metres.
         gain: K.
         visit_penalty: Potential added per earlier pass of the robot through a cell.
     """
+
+    name = "potential"
 
     def __init__(self, coarse_cell: float = 0.2, gain: float = 1.0,
                  visit_penalty: float = 0.1) -> None:

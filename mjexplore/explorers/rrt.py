@@ -22,7 +22,7 @@ import math
 import numba
 import numpy as np
 
-from mjexplore.explorers.base import ExplorationState, register
+from mjexplore.episode.explorer import ExplorationState
 from mjexplore.maps import window_counts
 
 FREE_RUN, HIT_OBSTACLE, HIT_UNKNOWN = 0, 1, 2
@@ -123,9 +123,10 @@ def _unknown_area(grid, points: np.ndarray, radius: float) -> np.ndarray:
     return counts * grid.resolution ** 2
 
 
-@register("rrt")
 class RRTExplorer:
     """Args follow rrt_exploration's parameters (metres); see the module docstring."""
+
+    name = "rrt"
 
     def __init__(self, global_eta: float = 15.0, local_eta: float = 1.0,
                  iterations_per_second: int = 50, bandwidth: float = 0.3,

@@ -20,7 +20,7 @@ import foxglove
 from foxglove.websocket import Capability, ServerListener
 
 from mjexplore.errors import UserInputError
-from mjexplore.io.mcap_log import sim_ns
+from mjexplore.io.stamps import sim_ns
 
 log = logging.getLogger(__name__)
 
@@ -101,7 +101,7 @@ class LiveServer(ServerListener):
             self.server.stop()
         self._start.set()  # Nobody can subscribe now.
 
-    def __enter__(self) -> "LiveServer":
+    def __enter__(self) -> LiveServer:
         return self
 
     def __exit__(self, *exc) -> None:

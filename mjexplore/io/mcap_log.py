@@ -30,15 +30,36 @@ from typing import TYPE_CHECKING
 
 import foxglove
 import numpy as np
-from foxglove.channels import (FrameTransformsChannel, GridChannel, LaserScanChannel,
-                               PoseInFrameChannel, SceneUpdateChannel)
-from foxglove.messages import (Color, FrameTransform, FrameTransforms, Grid, LinePrimitive,
-                               LinePrimitiveLineType, PackedElementField,
-                               PackedElementFieldNumericType, Point3, Pose, PoseInFrame,
-                               Quaternion, SceneEntity, SceneUpdate, SpherePrimitive,
-                               Timestamp, Vector2, Vector3)
+from foxglove.channels import (
+    FrameTransformsChannel,
+    GridChannel,
+    LaserScanChannel,
+    PoseInFrameChannel,
+    SceneUpdateChannel,
+)
+from foxglove.messages import (
+    Color,
+    FrameTransform,
+    FrameTransforms,
+    Grid,
+    LinePrimitive,
+    LinePrimitiveLineType,
+    PackedElementField,
+    PackedElementFieldNumericType,
+    Point3,
+    Pose,
+    PoseInFrame,
+    Quaternion,
+    SceneEntity,
+    SceneUpdate,
+    SpherePrimitive,
+    Timestamp,
+    Vector2,
+    Vector3,
+)
 from foxglove.messages import LaserScan as FoxgloveLaserScan
 
+from mjexplore.io.stamps import sec_nsec, sim_ns
 from mjexplore.robot import TURTLEBOT3_WAFFLE
 
 if TYPE_CHECKING:
@@ -58,16 +79,6 @@ NODE_SIZE = 0.25  # Sphere diameter, metres.
 EDGE_WIDTH = 0.04  # Line width, metres.
 TER_HEIGHT = 0.2  # Height of the drawn TER above the floor, metres.
 _NODE_COLOURS = {flag: Color(r=r, g=g, b=b, a=a) for flag, (r, g, b, a) in NODE_RGBA.items()}
-
-
-def sim_ns(t: float) -> int:
-    """Simulated time ``t`` in seconds as whole nanoseconds."""
-    return int(round(t * 1e9))
-
-
-def sec_nsec(t: float) -> tuple[int, int]:
-    """Simulated time ``t`` in seconds as (seconds, nanoseconds) of a message stamp."""
-    return divmod(sim_ns(t), 1_000_000_000)
 
 
 def yaw_quaternion(yaw: float) -> tuple[float, float, float, float]:
@@ -96,7 +107,7 @@ class ScanFrames:
     velocity: tuple[float, float]
 
     @classmethod
-    def of(cls, episode, t: float) -> "ScanFrames":
+    def of(cls, episode, t: float) -> ScanFrames:
         """The frames of ``episode`` now (``t``: the scan's simulated time, seconds)."""
         sim = episode.sim
         x, y, yaw = (float(v) for v in sim.pose)
@@ -234,7 +245,7 @@ class FoxgloveEpisodeLog(EpisodeLogger):
     """
 
     def __init__(self, path: str | os.PathLike | None = None, map_period: float = 1.0,
-                 live: "LiveServer | None" = None) -> None:
+                 live: LiveServer | None = None) -> None:
         super().__init__(map_period)
         self.live = live
         self.context = live.context if live is not None else foxglove.Context()

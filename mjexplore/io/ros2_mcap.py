@@ -30,15 +30,25 @@ from pathlib import Path
 import numpy as np
 from mcap.well_known import MessageEncoding, Profile, SchemaEncoding
 from mcap.writer import Writer
+
 # The public mcap_ros2.writer.Writer encodes an int8[] cell by cell in Python (a tenth of a
 # second per office map); its encoder is used here for the small messages and the map's
 # cells are appended as bytes (see _with_bytes).
 from mcap_ros2._dynamic import serialize_dynamic
 
 import mjexplore
-from mjexplore.io.mcap_log import (EDGE_RGBA, EDGE_WIDTH, NODE_RGBA, NODE_SIZE, SCAN_OFFSET,
-                                   TER_HEIGHT, EpisodeLogger, ScanFrames, sec_nsec, sim_ns,
-                                   yaw_quaternion)
+from mjexplore.io.mcap_log import (
+    EDGE_RGBA,
+    EDGE_WIDTH,
+    NODE_RGBA,
+    NODE_SIZE,
+    SCAN_OFFSET,
+    TER_HEIGHT,
+    EpisodeLogger,
+    ScanFrames,
+    yaw_quaternion,
+)
+from mjexplore.io.stamps import sec_nsec, sim_ns
 
 # ROS 2 message definitions (fields only; comments and constants left out).
 MSG_DEFINITIONS = {

@@ -66,7 +66,7 @@ class VideoWriter:
         finally:
             self._tmp.unlink(missing_ok=True)  # Gone already if it was moved into place.
 
-    def __enter__(self) -> "VideoWriter":
+    def __enter__(self) -> VideoWriter:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -59,14 +59,18 @@ import numba
 import numpy as np
 
 from mjexplore.errors import UserInputError
+from mjexplore.mapping.scan_matching import (
+    ScanMatcherConfig,
+    ScanMatchingLocalizer,
+    accumulate_normal_equations,
+    base_pose_of,
+    match_scan,
+    scan_points,
+)
 from mjexplore.maps import GridMap, is_occupied
-from mjexplore.mapping.scan_matching import (ScanMatcherConfig, ScanMatchingLocalizer,
-                                             accumulate_normal_equations, base_pose_of,
-                                             match_scan, scan_points)
 from mjexplore.robot import TURTLEBOT3_WAFFLE, RobotGeometry
 from mjexplore.sim.lidar import LaserScan, range_noise_std
 from mjexplore.sim.odometry import HEADINGS, compose_pose, wrap_angle
-
 
 # The settings of a gyro heading (turtlebot3_node's use_imu). Its odometry model: no slip in
 # turns, so a rotation is off by little beyond the scale error the state estimates (1 %

@@ -19,7 +19,7 @@ import numba
 import numpy as np
 
 from mjexplore.errors import UserInputError
-from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
+from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap, traversal_start
 from mjexplore.sim.lidar import LaserScan
 
 
@@ -66,26 +66,6 @@ def _state_of(l: float, occ_above: float, free_below: float) -> int:
     if l < free_below:
         return FREE
     return UNKNOWN
-
-
-@numba.njit(cache=True, inline="always")
-def traversal_start(x0, y0, dx, dy):
-    """Set-up of an Amanatides-Woo walk over the cells a ray from (x0, y0) along the unit
-    direction (dx, dy) crosses, all in cell units (x along columns, y along rows).
-
-    Returns:
-        The start cell (cx, cy), the cell step per axis (+-1), the ray parameter at the
-        first cell boundary per axis, and the parameter across one cell per axis.
-    """
-    cx = int(math.floor(x0))
-    cy = int(math.floor(y0))
-    step_x = 1 if dx > 0 else -1
-    step_y = 1 if dy > 0 else -1
-    t_max_x = ((cx + (step_x > 0)) - x0) / dx if dx != 0 else np.inf
-    t_max_y = ((cy + (step_y > 0)) - y0) / dy if dy != 0 else np.inf
-    t_dx = abs(1.0 / dx) if dx != 0 else np.inf
-    t_dy = abs(1.0 / dy) if dy != 0 else np.inf
-    return cx, cy, step_x, step_y, t_max_x, t_max_y, t_dx, t_dy
 
 
 @numba.njit(cache=True)
@@ -151,7 +131,8 @@ def _integrate_scan(logodds, state, stamp, old_state, touched, scan_id, x0, y0, 
             else:
                 cy += step_y
                 t_max_y += t_dy
-        if not is_hit[i] and 0 <= cy < rows and 0 <= cx < cols and stamp[cy * cols + cx] != -scan_id:
+        if (not is_hit[i] and 0 <= cy < rows and 0 <= cx < cols
+                and stamp[cy * cols + cx] != -scan_id):
             k = cy * cols + cx  # The last cell of a beam with no return is free space too.
             if stamp[k] != scan_id:
                 stamp[k] = scan_id

@@ -18,7 +18,6 @@ import numpy as np
 from mjexplore.heap import grow as _heap_grow
 from mjexplore.heap import pop as _heap_pop
 from mjexplore.heap import push as _heap_push
-
 from mjexplore.maps import GridMap, is_free
 
 _DR = np.array([-1, -1, -1, 0, 0, 1, 1, 1], np.int64)

@@ -44,8 +44,14 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from mjexplore.envs.observation import (BLACKLISTED, FEATURE_BOUND, PATH, POCKET,
-                                        UNREACHABLE, structured)
+from mjexplore.envs.observation import (
+    BLACKLISTED,
+    FEATURE_BOUND,
+    PATH,
+    POCKET,
+    UNREACHABLE,
+    structured,
+)
 from mjexplore.topology.ter import NUM_FEATURES
 
 # Fixed input scaling of [px, py, G_info, phi_diff, D, flag]: metres / 10, radians / pi;

@@ -262,7 +262,6 @@ class OnnxActor:
     def __init__(self, path: str | os.PathLike, threads: int = 1) -> None:
         import onnx
         import onnxruntime as ort
-
         from google.protobuf.message import DecodeError
 
         try:
@@ -337,4 +336,5 @@ def record_decisions(weights: str | os.PathLike, count: int, scene: str = "train
 
 
 __all__ = ["ExportedActor", "FORMAT", "MASKED_LOGIT", "OnnxActor", "export_onnx",
-           "gvn_features", "gvn_v2_features", "record_decisions", "spatial_gather", "torch_actor_logits"]
+           "gvn_features", "gvn_v2_features", "record_decisions", "spatial_gather",
+           "torch_actor_logits"]

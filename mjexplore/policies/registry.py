@@ -22,7 +22,6 @@ KINDS = ("gvn", "cnn")
 def decisions_for(kind: str, layout: dict[str, Any]):
     """The decision space of a policy kind with a stored layout."""
     from mjexplore.envs.decisions import GridConfig, GridDecisions, TerDecisions
-    from mjexplore.envs.observation import ObservationConfig
 
     try:
         if kind == "gvn":

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
+
 from mjexplore.errors import UserInputError
 from mjexplore.io.atomic import write_bytes_atomic
 from mjexplore.io.provenance import file_sha256 as weights_sha256  # noqa: F401 - re-exported
@@ -50,7 +51,7 @@ def read_policy_weights(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor
     """
     path = Path(path)
     hint = ("give a .safetensors file written by 'mjexplore train' (e.g. "
-            "training/gvn_policy.safetensors).")
+            "models/gvn_paper/policy.safetensors).")
     tensors, meta = read_tensor_file(path, "policy weights", hint)
     if meta.get("format") != FORMAT:
         raise UserInputError(f"{str(path)!r} is a safetensors file but not mjexplore policy "

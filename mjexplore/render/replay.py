@@ -17,11 +17,11 @@ import mujoco
 import numpy as np
 
 from mjexplore.errors import UserInputError
+from mjexplore.io.video import VideoWriter
 from mjexplore.maps import GridMap
 from mjexplore.render.panel import PanelContent, gvd_segments, render_panel
 from mjexplore.render.recorder import VideoConfig
 from mjexplore.render.scene_view import SceneView
-from mjexplore.io.video import VideoWriter
 from mjexplore.topology.frontiers import estimated_information_gain, find_frontiers
 from mjexplore.topology.pipeline import TopologyTracker
 

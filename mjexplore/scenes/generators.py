@@ -31,7 +31,13 @@ from scipy import ndimage
 
 from mjexplore.errors import UserInputError
 from mjexplore.robot import TURTLEBOT3_WAFFLE
-from mjexplore.scenes.labmaze_family import LabmazeConfig, carve_labmaze
+from mjexplore.scenes.labmaze_family import (
+    SEED_BOUND,
+    WALL,
+    LabmazeConfig,
+    entity_layer,
+    text_edges,
+)
 from mjexplore.scenes.scene import MAX_UNREACHABLE_SHARE, clearance, unreachable_share
 
 
@@ -222,7 +228,8 @@ def _carve_partition(canvas: Canvas, regions: list[_Region], rng: np.random.Gene
     connected = set(corridors) if corridors else {int(rng.integers(len(regions)))}
     used: set[tuple[int, int]] = set()
     while len(connected) < len(regions):
-        candidates = [(i, j) for i in sorted(connected) for j in neighbours[i] if j not in connected]
+        candidates = [(i, j) for i in sorted(connected) for j in neighbours[i]
+                      if j not in connected]
         if not candidates:
             break  # Disconnected partition: the validation step fills what is unreachable.
         to_corridor = [c for c in candidates if regions[c[0]].corridor]
@@ -410,7 +417,8 @@ def carve_loop(canvas: Canvas, region: Rect, rng: np.random.Generator,
     for _ in range(int(rng.integers(1, 4))):
         side = int(rng.integers(4))
         horizontal_side = side < 2
-        along = (ring.x0 + w, ring.x1 - 2 * w) if horizontal_side else (ring.y0 + w, ring.y1 - 2 * w)
+        along = ((ring.x0 + w, ring.x1 - 2 * w) if horizontal_side
+                 else (ring.y0 + w, ring.y1 - 2 * w))
         if along[1] <= along[0]:
             continue
         s = rng.uniform(*along)
@@ -452,6 +460,36 @@ def carve_hall(canvas: Canvas, region: Rect, rng: np.random.Generator,
                for p in placed):
             placed.append(r)
             canvas.fill(r)
+
+
+def carve_labmaze(canvas: Canvas, region: Rect, rng: np.random.Generator,
+                  cfg: GeneratorConfig) -> None:
+    """Carves a labmaze maze into ``region``; labmaze's seed is drawn from ``rng``.
+
+    Raises:
+        UserInputError: the region holds fewer than 2 x 2 cells, or its passages would be
+            too narrow for the robot.
+    """
+    lm = cfg.labmaze
+    half = cfg.wall_thickness / 2
+    nx, ny = int(region.w // lm.cell), int(region.h // lm.cell)
+    if min(nx, ny) < 2:
+        raise UserInputError(f"labmaze needs at least 2 x 2 cells of {lm.cell:g} m: make the "
+                             f"scene (or its labmaze part, {region.w:.1f} x {region.h:.1f} m) "
+                             "larger or the labmaze cell smaller.")
+    sx, sy = region.w / nx, region.h / ny
+    if min(sx, sy) - cfg.wall_thickness < 2 * TURTLEBOT3_WAFFLE.footprint_radius + 0.1:
+        raise UserInputError(f"labmaze passages of {min(sx, sy) - cfg.wall_thickness:.2f} m are "
+                             "too narrow for the robot: make the labmaze cell larger or the "
+                             "walls thinner.")
+    text = entity_layer(nx, ny, int(rng.integers(SEED_BOUND)), lm)
+    rows, cols = canvas.solid.shape
+    ex = text_edges(region.x0, sx, nx, half, canvas.resolution, cols)
+    ey = text_edges(region.y0, sy, ny, half, canvas.resolution, rows)
+    # The outer text ring is labmaze's boundary wall; the region's margin stands for it.
+    free = (text != WALL)[::-1][1:-1, 1:-1]
+    cells = np.repeat(np.repeat(free, np.diff(ey)[1:-1], axis=0), np.diff(ex)[1:-1], axis=1)
+    canvas.solid[ey[1]:ey[-2], ex[1]:ex[-2]] &= ~cells
 
 
 FAMILIES: dict[str, Callable[[Canvas, Rect, np.random.Generator, GeneratorConfig], None]] = {

@@ -20,19 +20,14 @@ edge, as the text reads and as ``preview.png`` shows it.
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING
 
 import labmaze
 import numpy as np
 
 from mjexplore.errors import UserInputError
-from mjexplore.robot import TURTLEBOT3_WAFFLE
-
-if TYPE_CHECKING:
-    from mjexplore.scenes.generators import Canvas, GeneratorConfig, Rect
 
 WALL = "*"
-_SEED_BOUND = 2**31  # labmaze's random_seed is a 31-bit integer.
+SEED_BOUND = 2**31  # labmaze's random_seed is a 31-bit integer.
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -108,7 +103,7 @@ def entity_layer(nx: int, ny: int, seed: int, cfg: LabmazeConfig) -> np.ndarray:
     return np.asarray(maze.entity_layer)
 
 
-def _text_edges(start: float, pitch: float, n: int, half: float, resolution: float,
+def text_edges(start: float, pitch: float, n: int, half: float, resolution: float,
                 limit: int) -> np.ndarray:
     """Grid-cell edges of the ``2 n + 1`` text columns (or rows) laid along one axis.
 
@@ -121,33 +116,3 @@ def _text_edges(start: float, pitch: float, n: int, half: float, resolution: flo
     lines = start + np.arange(n + 1) * pitch
     metres = np.stack([lines - half, lines + half], axis=1).ravel()
     return np.clip(np.round(metres / resolution).astype(int), 0, limit)
-
-
-def carve_labmaze(canvas: Canvas, region: Rect, rng: np.random.Generator,
-                  cfg: GeneratorConfig) -> None:
-    """Carves a labmaze maze into ``region``; labmaze's seed is drawn from ``rng``.
-
-    Raises:
-        UserInputError: the region holds fewer than 2 x 2 cells, or its passages would be
-            too narrow for the robot.
-    """
-    lm = cfg.labmaze
-    half = cfg.wall_thickness / 2
-    nx, ny = int(region.w // lm.cell), int(region.h // lm.cell)
-    if min(nx, ny) < 2:
-        raise UserInputError(f"labmaze needs at least 2 x 2 cells of {lm.cell:g} m: make the "
-                             f"scene (or its labmaze part, {region.w:.1f} x {region.h:.1f} m) "
-                             "larger or the labmaze cell smaller.")
-    sx, sy = region.w / nx, region.h / ny
-    if min(sx, sy) - cfg.wall_thickness < 2 * TURTLEBOT3_WAFFLE.footprint_radius + 0.1:
-        raise UserInputError(f"labmaze passages of {min(sx, sy) - cfg.wall_thickness:.2f} m are "
-                             "too narrow for the robot: make the labmaze cell larger or the "
-                             "walls thinner.")
-    text = entity_layer(nx, ny, int(rng.integers(_SEED_BOUND)), lm)
-    rows, cols = canvas.solid.shape
-    ex = _text_edges(region.x0, sx, nx, half, canvas.resolution, cols)
-    ey = _text_edges(region.y0, sy, ny, half, canvas.resolution, rows)
-    # The outer text ring is labmaze's boundary wall; the region's margin stands for it.
-    free = (text != WALL)[::-1][1:-1, 1:-1]
-    cells = np.repeat(np.repeat(free, np.diff(ey)[1:-1], axis=0), np.diff(ex)[1:-1], axis=1)
-    canvas.solid[ey[1]:ey[-2], ex[1]:ex[-2]] &= ~cells

@@ -113,7 +113,8 @@ def read_map(yaml_path: str | os.PathLike) -> GridMap:
         free_th = float(meta.get("free_thresh", FREE_THRESH))
     except (TypeError, ValueError) as exc:
         raise UserInputError(f"map YAML {str(yaml_path)!r} has a non-numeric value ({exc}): "
-                             "resolution and thresholds are numbers, origin is [x, y, yaw].")
+                             "resolution and thresholds are numbers, origin is [x, y, yaw].") \
+            from None
     if not resolution > 0 or len(origin) != 3:
         raise UserInputError(f"map YAML {str(yaml_path)!r}: resolution must be > 0 and origin "
                              "must be [x, y, yaw].")

@@ -46,16 +46,14 @@ import numba
 import numpy as np
 from scipy.ndimage import distance_transform_edt
 
-from mjexplore.mapping.occupancy import traversal_start
-from mjexplore.maps import GridMap
+from mjexplore.maps import GridMap, traversal_start
 from mjexplore.robot import TURTLEBOT3_WAFFLE, MotionProfile, motion_profile
 from mjexplore.scenes.scene import PHYSICS_TIMESTEP, SceneFiles, load_scene_files
 from mjexplore.sim.kinematics import KinematicsRecorder
 from mjexplore.sim.lidar import LaserScan, LidarConfig, measure_ranges
 from mjexplore.sim.motion import kinematic_step, mean_ramp_twist, ramp_command, wall_clearance
 from mjexplore.sim.robot_world import RobotWorld
-from mjexplore.sim.simulator import (BASE_BODY, COLLISION_GAP_S, NO_IMU, SimConfig,
-                                     _steps_per)
+from mjexplore.sim.simulator import BASE_BODY, COLLISION_GAP_S, NO_IMU, SimConfig, _steps_per
 
 # Rays are cast this far past range_max, as the MuJoCo lidar's cutoff: noise may bring a
 # return just beyond range_max back within it.

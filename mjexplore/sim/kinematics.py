@@ -81,6 +81,12 @@ class KinematicsLog:
                                 self.cmd_linear, self.cmd_angular, self.pose, self.odom_pose,
                                 gyro, accel])
 
+    def to_csv(self) -> str:
+        """The log as CSV text: a header of :attr:`COLUMNS`, then one row per sample."""
+        rows = [",".join(self.COLUMNS)]
+        rows += [",".join(f"{v:.6g}" for v in row) for row in self.as_table()]
+        return "\n".join(rows) + "\n"
+
     def path_length(self) -> float:
         """Length of the ground-truth path of ``base_link`` in metres."""
         if len(self.t) < 2:

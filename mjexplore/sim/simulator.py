@@ -40,12 +40,23 @@ from mjexplore.errors import UserInputError
 from mjexplore.robot import TURTLEBOT3_WAFFLE, MotionProfile, motion_profile
 from mjexplore.scenes.scene import SceneFiles, load_scene_files
 from mjexplore.sim.kinematics import KinematicsRecorder
-from mjexplore.sim.lidar import Lidar, LidarConfig, LaserScan
-from mjexplore.sim.motion import BODY_CENTRE_X, BODY_RADIUS  # noqa: F401 (re-exported)
-from mjexplore.sim.motion import kinematic_step, mean_ramp_twist, ramp_command, wall_clearance
+from mjexplore.sim.lidar import LaserScan, Lidar, LidarConfig
+from mjexplore.sim.motion import (  # noqa: F401 (re-exported)
+    BODY_CENTRE_X,
+    BODY_RADIUS,
+    kinematic_step,
+    mean_ramp_twist,
+    ramp_command,
+    wall_clearance,
+)
+from mjexplore.sim.odometry import (
+    HEADINGS,
+    OdometryErrorConfig,
+    WheelOdometry,
+    odometry_error_config,
+    wheel_odometry,
+)
 from mjexplore.sim.robot_world import RobotWorld
-from mjexplore.sim.odometry import (HEADINGS, OdometryErrorConfig, WheelOdometry,
-                                    odometry_error_config, wheel_odometry)
 
 BASE_BODY = "base_link"
 SCAN_SITE = "base_scan"

@@ -20,8 +20,12 @@ import dataclasses
 import numpy as np
 
 from mjexplore.maps import GridMap, is_known, is_occupied
-from mjexplore.topology.frontiers import (Frontier, estimated_information_gain,
-                                          find_frontiers, information_gain)
+from mjexplore.topology.frontiers import (
+    Frontier,
+    estimated_information_gain,
+    find_frontiers,
+    information_gain,
+)
 from mjexplore.topology.graph import GraphConfig, GvdGraph, build_graph
 from mjexplore.topology.gvd import DynamicGVD
 from mjexplore.topology.ter import Ter, TerConfig, build_ter

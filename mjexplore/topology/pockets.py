@@ -15,8 +15,8 @@ ground truth connected to it, the paper's information gain in m^2) needs the gro
 6.4 m square patch of the map around the frontier (:func:`frontier_patches`: free and
 occupied shares and the frontier's own cells, resampled to 0.1 m cells whatever the map's
 resolution), and the frontier's length. It is trained on patches and true pockets from
-generated layouts (:mod:`mjexplore.pocket_training`), and :class:`PocketPredictor` serves it
-to the decision space, which gives each TER frontier node the probability as a feature.
+generated layouts (:mod:`mjexplore.learning.pocket_training`), and :class:`PocketPredictor`
+serves it to the decision space, which gives each TER frontier node the probability as a feature.
 """
 
 from __future__ import annotations

@@ -18,35 +18,39 @@ and the topology settings (information gain kind, D_gain, ...) of its training e
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import numpy as np
 import torch
 
 from mjexplore.envs.decisions import TerDecisions
-from mjexplore.explorers.base import ExplorationState, register, shipped_policy
-from mjexplore.policies.weights import actor_logits
+from mjexplore.episode.explorer import ExplorationState
+from mjexplore.policies.models import resolve_policy, run_label, trained_masking
+from mjexplore.policies.weights import actor_logits, load_policy, weights_sha256
 
-DEFAULT_WEIGHTS = Path(__file__).resolve().parents[2] / "training" / "gvn_policy.safetensors"
 
-
-@register("gvn")
 class GvnExplorer:
     """Chooses TER nodes with a GVN policy.
 
     Args:
-        policy: Path of a weights file (default: the shipped ``training/gvn_policy.safetensors``).
+        policy: A shipped model's name (``models/NAME``), a weights file, or a folder
+            holding ``policy.safetensors``; None: the recommended model (``gvn_v3``).
         masking: True applies invalid action masking at evaluation (frontier nodes only);
-            False is the paper's "masking removed" ablation (any TER node).
+            False lets it choose any TER node (the paper's "masking removed" ablation);
+            None: as the policy was trained (with the mask unless trained without one).
         deterministic: Take the most probable node (True) or sample.
     """
 
-    def __init__(self, policy: str | os.PathLike | None = None, masking: bool = True,
-                 deterministic: bool = True) -> None:
-        from mjexplore.policies.weights import load_policy, weights_sha256
+    name = "gvn"
 
-        self.policy, meta = load_policy(policy or DEFAULT_WEIGHTS, expected_kind="gvn")
-        self.weights_sha256 = weights_sha256(policy or DEFAULT_WEIGHTS)
+    def __init__(self, policy: str | os.PathLike | None = None, masking: bool | None = None,
+                 deterministic: bool = True) -> None:
+        self.policy_name, path = resolve_policy(policy, "gvn")
+        self.policy, meta = load_policy(path, expected_kind="gvn")
+        self.weights_sha256 = weights_sha256(path)
+        trained = trained_masking(meta["provenance"])
+        if masking is None:
+            masking = trained != "none"
+        self.label = run_label("gvn", self.policy_name, masking, trained)
         self.gvn = self.policy.features_extractor.gvn
         obs = meta["decisions"].config
         self.decisions = TerDecisions(obs, "frontiers" if masking else "all_nodes",
@@ -113,86 +117,3 @@ class GvnExplorer:
             self._memory_mask = torch.cat([self._memory_mask[:, 1:], torch.ones(1, 1)], 1)
         goal, self.waypoint = d.act(action)
         return goal
-
-
-def _shipped_weights(name: str) -> Path:
-    return shipped_policy(DEFAULT_WEIGHTS.with_name(f"{name}_policy.safetensors"), name)
-
-
-class _ShippedGvnExplorer(GvnExplorer):
-    """A GVN explorer whose default weights are ``training/{weights}_policy.safetensors``,
-    run with the mask or without it (``masked``)."""
-
-    weights: str
-    masked: bool
-
-    def __init__(self, policy: str | os.PathLike | None = None,
-                 deterministic: bool = True) -> None:
-        super().__init__(policy or _shipped_weights(self.weights), masking=self.masked,
-                         deterministic=deterministic)
-
-
-@register("gvn_unmasked")
-class GvnUnmaskedExplorer(GvnExplorer):
-    """The paper's "masking removed" ablation: a policy trained with masking, run without
-    it (any TER node may be chosen; padding slots never)."""
-
-    def __init__(self, policy: str | os.PathLike | None = None,
-                 deterministic: bool = True) -> None:
-        super().__init__(policy, masking=False, deterministic=deterministic)
-
-
-@register("gvn_naive")
-class GvnNaiveExplorer(_ShippedGvnExplorer):
-    """The "naive masking" ablation: a policy trained with masked sampling but an unmasked
-    gradient (training/gvn_naive.yaml), run with the mask."""
-
-    weights, masked = "gvn_naive", True
-
-
-@register("gvn_none")
-class GvnNoMaskingExplorer(_ShippedGvnExplorer):
-    """The "without IAM" ablation: a policy trained with every TER node valid and no mask
-    (training/gvn_none.yaml), run the same way."""
-
-    weights, masked = "gvn_none", False
-
-
-@register("gvn_v2")
-class GvnV2Explorer(_ShippedGvnExplorer):
-    """The v2 recipe's GVN (training/gvn_v2.yaml: time reward, path-aware features, a
-    residual on the nearest-node rule), its shipped weights
-    ``training/gvn_v2_policy.safetensors``, run with the mask."""
-
-    weights, masked = "gvn_v2", True
-
-
-@register("gvn_v3")
-class GvnV3Explorer(_ShippedGvnExplorer):
-    """The v3 recipe's GVN (training/gvn_v3.yaml: the v2 recipe with each frontier node's
-    predicted pocket, mjexplore/topology/pockets.py), its shipped weights
-    ``training/gvn_v3_policy.safetensors``, run with the mask."""
-
-    weights, masked = "gvn_v3", True
-
-
-def _register_masking_variants(recipe: str) -> None:
-    """Registers the masking ablation (the paper's Table 2) of a recipe's GVN, ``recipe``
-    such as ``gvn_v2``: explorers ``{recipe}_unmasked``, ``{recipe}_naive`` and
-    ``{recipe}_none``, classes such as ``GvnV2NaiveExplorer``."""
-    for suffix, weights, masked, about in (
-            ("unmasked", recipe, False, "masking removed: {r}'s policy run without the mask"),
-            ("naive", f"{recipe}_naive", True, "naive masking (training/{r}_naive.yaml: "
-             "masked sampling, unmasked gradient), run with the mask"),
-            ("none", f"{recipe}_none", False, "without IAM (training/{r}_none.yaml: every "
-             "TER node valid, no mask), run the same way")):
-        name = f"{recipe}_{suffix}"
-        class_name = f"{name.title().replace('_', '')}Explorer"
-        # A module attribute, so that pickle finds the class by its name.
-        globals()[class_name] = register(name)(type(class_name, (_ShippedGvnExplorer,), {
-            "weights": weights, "masked": masked, "__module__": __name__,
-            "__doc__": f"The masking ablation of {recipe}, {about.format(r=recipe)}."}))
-
-
-for _recipe in ("gvn_v2", "gvn_v3"):
-    _register_masking_variants(_recipe)

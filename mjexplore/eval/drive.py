@@ -21,7 +21,6 @@ from mjexplore.io.atomic import atomic_directory, write_bytes_atomic, write_text
 from mjexplore.maps import GridMap
 from mjexplore.navigation.wander import WanderController
 from mjexplore.scenes.scene import SceneFiles, encode_png, preview_image
-from mjexplore.sim.kinematics import KinematicsLog
 from mjexplore.sim.odometry import odom_in_map
 from mjexplore.sim.simulator import SimConfig
 from mjexplore.sim.world import make_world
@@ -70,12 +69,6 @@ def trajectory_image(grid: GridMap, truth: np.ndarray, odom: np.ndarray,
     return img
 
 
-def kinematics_csv(log: KinematicsLog) -> str:
-    rows = [",".join(log.COLUMNS)]
-    rows += [",".join(f"{v:.6g}" for v in row) for row in log.as_table()]
-    return "\n".join(rows) + "\n"
-
-
 def run_drive(scene: SceneFiles, config: DriveConfig, out_dir: str | os.PathLike) -> dict:
     """Drives the robot through ``scene`` and writes the run folder atomically.
 
@@ -119,7 +112,7 @@ def run_drive(scene: SceneFiles, config: DriveConfig, out_dir: str | os.PathLike
                 "scene_metadata": scene.metadata}
     odom_path = odom_in_map(sim.odom_origin, log.odom_pose)
     with atomic_directory(out_dir, "summary.json") as tmp:
-        write_text_atomic(tmp / "kinematics.csv", kinematics_csv(log))
+        write_text_atomic(tmp / "kinematics.csv", log.to_csv())
         write_text_atomic(tmp / "summary.json", json.dumps(summary, indent=2) + "\n")
         write_text_atomic(tmp / "config.json", json.dumps(resolved, indent=2, default=str) + "\n")
         if scene.ground_truth is not None:

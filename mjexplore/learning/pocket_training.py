@@ -27,7 +27,7 @@ import numpy as np
 
 from mjexplore.config import load_yaml_config, to_dict
 from mjexplore.envs.exploration import EnvConfig
-from mjexplore.explorers.base import ExplorationState
+from mjexplore.episode.explorer import ExplorationState
 from mjexplore.io.atomic import write_text_atomic
 from mjexplore.io.provenance import git_revision
 
@@ -136,8 +136,8 @@ def collect_episode(config: PocketTrainingConfig, index: int) -> dict[str, np.nd
     ``index``."""
     import torch
 
-    from mjexplore.episode import Episode
     from mjexplore.envs import ExplorationEnv
+    from mjexplore.episode import Episode
     from mjexplore.topology.pockets import PATCH_CELLS, PATCH_CHANNELS
 
     torch.set_num_threads(1)

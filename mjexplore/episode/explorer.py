@@ -9,12 +9,10 @@ behind the same interface, so one harness evaluates them all.
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
-from typing import Callable, Protocol
+from typing import Protocol
 
 import numpy as np
 
-from mjexplore.errors import UserInputError
 from mjexplore.maps import GridMap
 from mjexplore.navigation.planner import Costmap
 from mjexplore.topology.frontiers import Frontier
@@ -68,7 +66,8 @@ class ExplorationState:
         windows = []
         for f in self.frontiers:
             r, c = f.goal_cell
-            w = (slice(max(r - k, 0), min(r + k + 1, rows)), slice(max(c - k, 0), min(c + k + 1, cols)))
+            w = (slice(max(r - k, 0), min(r + k + 1, rows)),
+                 slice(max(c - k, 0), min(c + k + 1, cols)))
             mask[w] = True
             windows.append(w)
         return mask, windows
@@ -97,49 +96,3 @@ class Explorer(Protocol):
 
     def select_goal(self, state: ExplorationState) -> np.ndarray | None:
         """A goal (x, y) in the ``map`` frame, or None if nothing is left to explore."""
-
-
-EXPLORERS: dict[str, Callable[[], Explorer]] = {}
-
-
-def register(name: str):
-    """Class decorator adding an explorer to :data:`EXPLORERS`."""
-
-    def wrap(cls):
-        EXPLORERS[name] = cls
-        cls.name = name
-        return cls
-
-    return wrap
-
-
-def shipped_policy(path: Path, name: str) -> Path:
-    """``path``, the weights file that ``--explorer name`` runs by default.
-
-    Raises:
-        UserInputError: The file is not there yet (says how to train and export it).
-    """
-    if not path.is_file():
-        raise UserInputError(
-            f"--explorer {name} runs the policy in {path}, which is not there yet: train it "
-            f"with 'mjexplore train --config training/{name}.yaml --out runs/train/{name}', "
-            f"then 'python tools/export_policy.py runs/train/{name}/checkpoints/step_N.pt "
-            f"{path}' (or pass --policy).")
-    return path
-
-
-def make_explorer(name: str, **kwargs) -> Explorer:
-    """An explorer by name.
-
-    Raises:
-        UserInputError: unknown name.
-    """
-    import importlib
-
-    for module in ("nearest", "potential", "rrt", "oracle", "explore_lite", "frontier_tsp",
-                   "gvn", "cnn"):  # Each registers itself.
-        importlib.import_module(f"mjexplore.explorers.{module}")
-
-    if name not in EXPLORERS:
-        raise UserInputError(f"unknown explorer {name!r}: use one of {', '.join(sorted(EXPLORERS))}.")
-    return EXPLORERS[name](**kwargs)

@@ -7,11 +7,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from mjexplore.explorers.base import ExplorationState, register
+from mjexplore.episode.explorer import ExplorationState
 
 
-@register("nearest")
 class NearestFrontier:
+    name = "nearest"
+
     def reset(self, rng: np.random.Generator) -> None:
         del rng
 

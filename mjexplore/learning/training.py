@@ -31,18 +31,21 @@ import torch
 import yaml
 
 from mjexplore.config import from_dict, load_yaml_config, to_dict
-from mjexplore.envs.exploration import (EnvConfig, ExplorationEnv, ProceduralScenes,
-                                        heldout_scenes)
+from mjexplore.envs.exploration import EnvConfig, ExplorationEnv, ProceduralScenes, heldout_scenes
 from mjexplore.envs.observation import POSED
-from mjexplore.errors import UserInputError
 from mjexplore.episode import EpisodeConfig
-from mjexplore.imitation import ImitationConfig
+from mjexplore.episode.workers import (
+    init_episode_worker,
+    reuse_freed_memory,
+    single_thread_children,
+    thread_counts,
+)
+from mjexplore.errors import UserInputError
 from mjexplore.io.atomic import write_bytes_atomic, write_text_atomic
 from mjexplore.io.provenance import git_revision
-from mjexplore.memory import init_episode_worker, reuse_freed_memory
+from mjexplore.learning.imitation import ImitationConfig
 from mjexplore.policies.registry import layout_of
-from mjexplore.policies.weights import (build_policy, read_policy_weights,
-                                        save_policy_weights)
+from mjexplore.policies.weights import build_policy, read_policy_weights, save_policy_weights
 
 log = logging.getLogger(__name__)
 
@@ -66,7 +69,7 @@ class PpoConfig:
     vf_coef: float = 0.5
     max_grad_norm: float = 0.5
     # Minibatches of runs of this many consecutive decisions of one env, not single ones
-    # (mjexplore/rollout_blocks.py: the GVN then encodes about a third of the TERs).
+    # (mjexplore/learning/rollout_blocks.py: the GVN then encodes about a third of the TERs).
     minibatch_block: int = 1
 
     def __post_init__(self) -> None:
@@ -187,7 +190,7 @@ class TrainConfig:
         ppo: PPO hyperparameters.
         eval: Held-out evaluation.
         imitation: Behaviour cloning of the ground-truth oracle before PPO (a fresh run's
-            warm start; see :mod:`mjexplore.imitation`).
+            warm start; see :mod:`mjexplore.learning.imitation`).
         total_steps: Decision steps to train for (all envs together).
         n_envs: Environments, each in its own worker process when more than one.
         checkpoint_every: Checkpoint after at least this many steps since the last one.
@@ -249,9 +252,19 @@ def load_train_config(path: str | Path, total_steps: int | None = None,
     return dataclasses.replace(config, **overrides) if overrides else config
 
 
-def _make_env(config: EnvConfig):
-    # A partial of a module-level class: plain pickle sends it to any worker or machine.
-    return functools.partial(ExplorationEnv, config)
+def worker_env(config: EnvConfig) -> ExplorationEnv:
+    """An env in a worker process of its own (a subprocess or a Ray actor): the worker runs
+    one thread per library (:func:`~mjexplore.episode.workers.init_episode_worker`) and the
+    env records them in ``worker_threads``."""
+    init_episode_worker()
+    env = ExplorationEnv(config)
+    env.worker_threads = thread_counts()
+    return env
+
+
+def _make_env(config: EnvConfig, own_process: bool):
+    # Partials of module-level callables: plain pickle sends them to any worker or machine.
+    return functools.partial(worker_env if own_process else ExplorationEnv, config)
 
 
 def make_vec_env(config: TrainConfig, seed: int, ray_address: str | None = None):
@@ -263,7 +276,7 @@ def make_vec_env(config: TrainConfig, seed: int, ray_address: str | None = None)
         seed: Seed of the first env (the others: ``seed + 1``, ...).
         ray_address: None: each env in a worker process when more than one
             (``SubprocVecEnv``). Otherwise each env in a Ray actor
-            (:mod:`mjexplore.ray_vec_env`): 'local' on a Ray instance started on this
+            (:mod:`mjexplore.learning.ray_vec_env`): 'local' on a Ray instance started on this
             machine, 'auto' or 'HOST:PORT' on a running cluster. Ray is shut down when the
             envs are closed if this call initialised it.
 
@@ -272,9 +285,12 @@ def make_vec_env(config: TrainConfig, seed: int, ray_address: str | None = None)
     """
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
 
-    makers = [_make_env(config.env) for _ in range(config.n_envs)]
+    own_process = ray_address is not None or config.n_envs > 1
+    makers = [_make_env(config.env, own_process) for _ in range(config.n_envs)]
+    if own_process:
+        single_thread_children()  # Before the workers (and a forkserver) start.
     if ray_address is not None:
-        from mjexplore.ray_vec_env import RayVecEnv, connect
+        from mjexplore.learning.ray_vec_env import RayVecEnv, connect
 
         venv = RayVecEnv(makers, shutdown_ray=connect(ray_address, config.n_envs))
     elif config.n_envs > 1:
@@ -285,8 +301,9 @@ def make_vec_env(config: TrainConfig, seed: int, ray_address: str | None = None)
     return VecMonitor(venv)
 
 
-def make_model(config: TrainConfig, venv, seed: int, tensorboard_log: str | None = None):
-    """The MaskablePPO learner of ``config`` on the envs ``venv``."""
+def make_model(config: TrainConfig, venv, seed: int, tensorboard_log: str | None = None,
+               device: str = "auto"):
+    """The MaskablePPO learner of ``config`` on the envs ``venv``, on torch ``device``."""
     from sb3_contrib import MaskablePPO
 
     from mjexplore.policies.registry import policy_class
@@ -294,7 +311,7 @@ def make_model(config: TrainConfig, venv, seed: int, tensorboard_log: str | None
     ppo = config.ppo
     buffer = {}
     if ppo.minibatch_block > 1:
-        from mjexplore.rollout_blocks import BlockDictRolloutBuffer
+        from mjexplore.learning.rollout_blocks import BlockDictRolloutBuffer
 
         buffer = {"rollout_buffer_class": BlockDictRolloutBuffer,
                   "rollout_buffer_kwargs": {"block": ppo.minibatch_block, "seed": seed}}
@@ -304,7 +321,8 @@ def make_model(config: TrainConfig, venv, seed: int, tensorboard_log: str | None
                        gae_lambda=ppo.gae_lambda, clip_range=ppo.clip_range,
                        ent_coef=ppo.ent_coef, vf_coef=ppo.vf_coef,
                        max_grad_norm=ppo.max_grad_norm, policy_kwargs=_policy_kwargs(config),
-                       tensorboard_log=tensorboard_log, seed=seed, verbose=0, **buffer)
+                       tensorboard_log=tensorboard_log, seed=seed, verbose=0, device=device,
+                       **buffer)
 
 
 def set_phase_threads(config: TrainConfig, updating: bool) -> None:
@@ -313,8 +331,8 @@ def set_phase_threads(config: TrainConfig, updating: bool) -> None:
                           else config.torch_threads)
 
 
-def ppo_round(config: TrainConfig, seed: int | None = None,
-              model_setup=None) -> dict[str, float]:
+def ppo_round(config: TrainConfig, seed: int | None = None, model_setup=None,
+              device: str = "auto") -> dict[str, float]:
     """One rollout and one PPO update of ``config``, as :func:`train` runs them (torch
     threads included), timed: wall seconds of each and the decisions collected.
 
@@ -322,6 +340,7 @@ def ppo_round(config: TrainConfig, seed: int | None = None,
         config: The recipe.
         seed: Seed of the model and envs (default: the config's).
         model_setup: Called with the fresh model before the round (to load weights).
+        device: The learner's torch device.
     """
     from stable_baselines3.common.callbacks import BaseCallback
 
@@ -343,7 +362,7 @@ def ppo_round(config: TrainConfig, seed: int | None = None,
     _seed_everything(seed)
     venv = make_vec_env(config, seed)
     try:
-        model = make_model(config, venv, seed)
+        model = make_model(config, venv, seed, device=device)
         if model_setup is not None:
             model_setup(model)
         decisions = config.ppo.n_steps * config.n_envs
@@ -444,7 +463,7 @@ def _fresh_policy(config: TrainConfig):
 def _warm_start(policy, config: TrainConfig, out: Path) -> None:
     """Clones the oracle into ``policy`` (a fresh run only); the figures go to
     ``imitation.json``."""
-    from mjexplore.imitation import clone, collect_expert_decisions
+    from mjexplore.learning.imitation import clone, collect_expert_decisions
 
     cfg = config.imitation
     observations, masks, actions, stats = collect_expert_decisions(config.env, cfg.episodes,
@@ -562,11 +581,13 @@ def _best_score(path: Path) -> float | None:
 
 
 def train(config: TrainConfig, out: str | Path, resume: bool = False,
-          progress: bool = True, ray_address: str | None = None) -> dict[str, Any]:
+          progress: bool = True, ray_address: str | None = None,
+          device: str = "auto") -> dict[str, Any]:
     """Trains a policy into the run folder ``out`` (see the module docstring).
 
-    ``ray_address`` runs the envs as Ray actors (see :func:`make_vec_env`); it is no part of
-    the config, so a run may resume with or without Ray, on any cluster. The process's
+    ``ray_address`` runs the envs as Ray actors (see :func:`make_vec_env`) and ``device``
+    is the learner's torch device ('auto': a GPU when there is one); neither is part of
+    the config, so a run may resume with or without Ray, on any cluster or device. The process's
     malloc keeps freed memory for reuse from then on (:func:`reuse_freed_memory`).
 
     Returns:
@@ -599,14 +620,15 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
                                  f"(only {', '.join(RESUMABLE_CHANGES)} may change): resume "
                                  f"with {str(out / 'config.yaml')!r}.")
     done = int(state["num_timesteps"]) if state else 0
-    reuse_freed_memory()  # The learner's tensors: see mjexplore/memory.py.
+    reuse_freed_memory()  # The learner's tensors: see mjexplore/episode/workers.py.
     _seed_everything(config.seed + done)
     torch.set_num_threads(config.torch_threads)
     venv = make_vec_env(config, config.seed + done, ray_address)  # Before writing: may refuse.
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "config.yaml", f"# git revision {ckpt.revision}\n" +
                       yaml.safe_dump(to_dict(config), sort_keys=False))
-    model = make_model(config, venv, config.seed + done, tensorboard_log=str(out / "tb"))
+    model = make_model(config, venv, config.seed + done, tensorboard_log=str(out / "tb"),
+                       device=device)
     if state is not None:
         model.policy.load_state_dict(state["policy"])
         model.policy.optimizer.load_state_dict(state["optimizer"])

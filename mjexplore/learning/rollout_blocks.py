@@ -14,8 +14,10 @@ from __future__ import annotations
 from collections.abc import Generator
 
 import numpy as np
-from sb3_contrib.common.maskable.buffers import (MaskableDictRolloutBuffer,
-                                                 MaskableDictRolloutBufferSamples)
+from sb3_contrib.common.maskable.buffers import (
+    MaskableDictRolloutBuffer,
+    MaskableDictRolloutBufferSamples,
+)
 
 
 def _check_block(block: int, num_steps: int) -> None:

@@ -4,31 +4,33 @@ map image; the reachable frontier nearest that cell is driven to."""
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import numpy as np
 import torch
 
-from mjexplore.explorers.base import ExplorationState, register, shipped_policy
+from mjexplore.episode.explorer import ExplorationState
+from mjexplore.policies.models import resolve_policy, run_label
+from mjexplore.policies.weights import load_policy, weights_sha256
 
-DEFAULT_WEIGHTS = Path(__file__).resolve().parents[2] / "training" / "cnn_policy.safetensors"
 
-
-@register("cnn")
 class CnnExplorer:
-    """Chooses goals with a trained CNN policy.
+    """Chooses goals with a trained CNN policy (always masked: only cells with a reachable
+    frontier near them are goals).
 
     Args:
-        policy: Weights file (default: the shipped ``training/cnn_policy.safetensors``).
+        policy: A shipped model's name, a weights file, or a folder holding
+            ``policy.safetensors``; None: the recommended model (``cnn_paper``).
         deterministic: Take the most probable cell (True) or sample.
     """
 
+    name = "cnn"
+
     def __init__(self, policy: str | os.PathLike | None = None,
                  deterministic: bool = True) -> None:
-        from mjexplore.policies.weights import load_policy, weights_sha256
-
-        self.policy, meta = load_policy(policy or DEFAULT_WEIGHTS, expected_kind="cnn")
-        self.weights_sha256 = weights_sha256(policy or DEFAULT_WEIGHTS)
+        self.policy_name, path = resolve_policy(policy, "cnn")
+        self.policy, meta = load_policy(path, expected_kind="cnn")
+        self.weights_sha256 = weights_sha256(path)
+        self.label = run_label("cnn", self.policy_name, True, "iam")
         self.decisions = meta["decisions"]
         self.deterministic = deterministic
         self.reset(np.random.default_rng(0))
@@ -51,14 +53,3 @@ class CnnExplorer:
                 action = int(self.rng.choice(len(p), p=p / p.sum()))
         goal, _ = d.act(action)
         return goal
-
-
-@register("cnn_v2")
-class CnnV2Explorer(CnnExplorer):
-    """The CNN baseline trained with the v2 recipe (training/cnn_v2.yaml), its weights
-    ``training/cnn_v2_policy.safetensors``."""
-
-    def __init__(self, policy: str | os.PathLike | None = None,
-                 deterministic: bool = True) -> None:
-        super().__init__(policy or shipped_policy(
-            DEFAULT_WEIGHTS.with_name("cnn_v2_policy.safetensors"), "cnn_v2"), deterministic)

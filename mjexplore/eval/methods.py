@@ -1,0 +1,139 @@
+"""Every exploration method by name, and the run labels of learned ones.
+
+A method is one explorer: a classic planner (:mod:`mjexplore.explorers`) or a learned one
+(``gvn``, ``cnn``: :mod:`mjexplore.policies`), which runs a policy (``--policy NAME|PATH``),
+with or without the mask at evaluation. A *spec* names one run setting as text, as
+``bench --explorers`` and sweep folders take it: a method (``gvn`` runs its recommended
+model), ``METHOD:POLICY`` with an optional ``:unmasked``, or a run label (``gvn_v3``,
+``gvn_v3_unmasked``, the paper's recipe as ``gvn``... see
+:func:`~mjexplore.policies.models.run_label`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+from mjexplore.episode.explorer import Explorer
+from mjexplore.errors import UserInputError
+from mjexplore.explorers import make_explorer as make_classic
+from mjexplore.policies.models import (
+    DEFAULT_MODEL,
+    resolve_policy,
+    run_label,
+    shipped_models,
+    trained_masking,
+    weights_metadata,
+)
+
+LEARNED = ("gvn", "cnn")
+METHODS: dict[str, str] = {
+    "nearest": "nearest frontier by path (Yamauchi 1997)",
+    "explore_lite": "ROS m-explore's explore_lite (frontier cost with size and orientation)",
+    "frontier_tsp": "a global tour over the frontiers (TARE/FUEL style)",
+    "rrt": "rrt_exploration (RRT frontier detection, information-gain utility)",
+    "potential": "MMPF potential field",
+    "oracle": "the ground-truth bound: coverage viewpoints and an OR-Tools tour",
+    "gvn": "the learned GVN policy on the TER (--policy picks the model; default gvn_v3)",
+    "cnn": "the 'Naive Exp' CNN on the map image (--policy picks the model; default cnn_paper)",
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class MethodSpec:
+    """One method run setting.
+
+    Attributes:
+        method: A name of :data:`METHODS`.
+        policy: A learned method's model name or weights path (None: its default model).
+        masking: A learned GVN's masking at evaluation (None: as it was trained).
+    """
+
+    method: str
+    policy: str | None = None
+    masking: bool | None = None
+
+    def build(self, deterministic: bool = True) -> Explorer:
+        """The explorer this spec describes (loads and checks a learned one's weights)."""
+        if self.method == "gvn":
+            from mjexplore.policies.gvn_explorer import GvnExplorer
+
+            return GvnExplorer(self.policy, self.masking, deterministic)
+        if self.method == "cnn":
+            from mjexplore.policies.cnn_explorer import CnnExplorer
+
+            if self.masking is False:
+                raise UserInputError("the cnn explorer always runs with its mask: drop "
+                                     "--no-masking (or ':unmasked').")
+            return CnnExplorer(self.policy, deterministic)
+        return make_classic(self.method)
+
+    @property
+    def text(self) -> str:
+        """This spec as unambiguous text (a learned method's model named), which
+        :func:`parse_method` reads back to the same setting."""
+        if self.method not in LEARNED:
+            return self.method
+        text = f"{self.method}:{self.policy or DEFAULT_MODEL[self.method]}"
+        return text + (":unmasked" if self.masking is False else "")
+
+    @property
+    def label(self) -> str:
+        """The label its runs are filed under (a learned method's names its model)."""
+        if self.method not in LEARNED:
+            return self.method
+        name, path = resolve_policy(self.policy, self.method)
+        trained = trained_masking(json.loads(weights_metadata(path).get("provenance", "{}")))
+        masked = self.masking if self.masking is not None else trained != "none"
+        return run_label(self.method, name, masked, trained)
+
+
+def _legacy_labels() -> dict[str, MethodSpec]:
+    """Run labels of every shipped model, masked and unmasked, as specs."""
+    specs = {}
+    for name, model in shipped_models().items():
+        for masked in (True, False):
+            label = run_label(model.kind, name, masked, model.masking)
+            specs.setdefault(label, MethodSpec(model.kind, name, masked))
+    return specs
+
+
+def parse_method(spec: str) -> MethodSpec:
+    """The :class:`MethodSpec` a spec names.
+
+    Raises:
+        UserInputError: an unknown method, or a policy given to a classic one.
+    """
+    text = spec.strip()
+    method, _, rest = text.partition(":")
+    if method in METHODS and not rest:
+        return MethodSpec(method)
+    if method in LEARNED and rest:
+        policy, masking = rest, None
+        if rest.endswith(":unmasked"):
+            policy, masking = rest[:-len(":unmasked")], False
+        return MethodSpec(method, policy or None, masking)
+    if not rest and text in (legacy := _legacy_labels()):
+        return legacy[text]
+    if method in METHODS:
+        raise UserInputError(f"{text!r}: only the learned methods ({', '.join(LEARNED)}) take a "
+                             "policy (METHOD:POLICY).")
+    raise UserInputError(f"unknown explorer {text!r}: use one of {', '.join(METHODS)}, "
+                         "METHOD:POLICY for a learned one, or a shipped model's run label "
+                         "('mjexplore policies' lists them).")
+
+
+def make_explorer(spec: str, **kwargs) -> Explorer:
+    """The explorer a spec names; ``kwargs`` go to a classic explorer's constructor, or are
+    ``policy``/``masking``/``deterministic`` for a learned one (they override the spec's).
+
+    Raises:
+        UserInputError: an unknown spec, or unusable weights.
+    """
+    parsed = parse_method(spec)
+    if parsed.method not in LEARNED:
+        return make_classic(parsed.method, **kwargs)
+    deterministic = kwargs.pop("deterministic", True)
+    parsed = dataclasses.replace(parsed, **kwargs)
+    return parsed.build(deterministic)
+

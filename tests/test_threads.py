@@ -1,0 +1,31 @@
+"""Every process that runs episodes for training or evaluation runs one thread per library
+(torch, numba, BLAS/OpenMP), so that N workers on N cores do not oversubscribe them."""
+
+import subprocess
+import sys
+
+from mjexplore.envs import EnvConfig
+from mjexplore.learning.training import TrainConfig, make_vec_env
+
+
+def test_training_workers_run_one_thread_per_library():
+    config = TrainConfig(n_envs=2, env=EnvConfig(scenes=("train_loop",)))
+    venv = make_vec_env(config, seed=0)
+    try:
+        counts = venv.get_attr("worker_threads")
+    finally:
+        venv.close()
+    assert counts == [{"blas_openmp": 1, "torch": 1, "numba": 1}] * 2
+
+
+def test_a_limited_process_caps_pools_that_were_loaded_before():
+    # numpy's BLAS and torch load with a pool per core; limit_threads caps them at run time.
+    code = ("import os; os.environ.pop('OMP_NUM_THREADS', None)\n"
+            "import numpy, torch, numba\n"
+            "from mjexplore.episode.workers import limit_threads, thread_counts\n"
+            "torch.set_num_threads(2)\n"
+            "numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))\n"
+            "limit_threads(); print(sorted(thread_counts().items()))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.strip()
+    assert out == "[('blas_openmp', 1), ('numba', 1), ('torch', 1)]"
