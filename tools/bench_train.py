@@ -188,20 +188,32 @@ def recipe_round(n_envs: int, default_threads: bool = False, device: str = "auto
                 os.environ[k] = v
 
 
+def _fresh(*args) -> dict[str, float]:
+    """:func:`recipe_round` in a fresh process: each round starts its own workers (and
+    forkserver), so that one round's thread settings cannot reach another's."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    # Not a multiprocessing.Pool: its daemonic workers may not start the envs' workers.
+    with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn")) as pool:
+        return pool.submit(recipe_round, *args).result()
+
+
 def recipe_figures(n_envs: list[int], device: str,
                    n_steps: int | None = None) -> dict[str, object]:
-    """The shipped recipe's figures (see the module docstring)."""
+    """The shipped recipe's figures (see the module docstring). A first short round fills
+    numba's compile caches, so that no measured round pays for compiling."""
     import os
 
     cores = os.cpu_count() or 1
+    _fresh(1, False, device, 64)
+    base = _fresh(n_envs[0], True, device, n_steps)
     by_envs, main = {}, None
     for n in n_envs:
-        r = recipe_round(n, device=device, n_steps=n_steps)
+        r = _fresh(n, False, device, n_steps)
         by_envs[str(n)] = round(_rate(r), 2)
         if main is None:
             main = (n, r)
     n, r = main
-    base = recipe_round(n, default_threads=True, device=device, n_steps=n_steps)
     env_ms = r["rollout_s"] / r["decisions"] * 1e3 * min(n, cores)
     return {"recipe": "training/gvn_v3.yaml", "recipe_envs": n,
             "recipe_decisions_per_s": by_envs[str(n)],
