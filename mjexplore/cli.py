@@ -328,7 +328,7 @@ def cmd_policies(args: argparse.Namespace) -> int:
     for name, m in models.items():
         default = f" (default for --explorer {m.kind})" if DEFAULT_MODEL[m.kind] == name else ""
         print(f"{name:<{width}}  {m.kind}  masking {m.masking:<5}  {m.summary}{default}")
-    print(f"\nEach is a folder in {MODELS_DIR} (policy.safetensors, recipe.yaml, README.md); "
+    print(f"\nEach is a folder in {MODELS_DIR} (policy.safetensors, config.yaml, README.md); "
           "run one with 'mjexplore explore --explorer KIND --policy NAME'.")
     return 0
 

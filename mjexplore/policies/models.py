@@ -1,8 +1,8 @@
 """Shipped policies as models: one folder each under ``models/`` (RL Zoo style).
 
 A model folder holds ``policy.safetensors`` (the weights, with the resolved training config
-in their metadata), ``recipe.yaml`` (the training recipe they were trained from) and
-``README.md`` (the model card: what it is, data and budget, figures, sha256). A learned
+in their metadata), ``config.yaml`` (that config as YAML; the recipe it came from is
+``training/NAME.yaml``, named in the card) and ``README.md`` (the model card: what it is, data and budget, figures, sha256). A learned
 explorer takes ``--policy NAME`` (a model here) or ``--policy PATH`` (a weights file, or a
 folder holding ``policy.safetensors``, such as a training run's output).
 """
