@@ -536,7 +536,17 @@ class Episode:
 
     def control(self) -> None:
         """One control period of navigation towards the current goal."""
-        cfg = self.config
+        pose = self.command()
+        for scan in self.sim.step(1.0 / self.config.control_rate_hz):
+            self._integrate(scan)
+        self.record_visit(pose)
+        if self.observer is not None:
+            self.observer.on_step(self)
+
+    def command(self) -> np.ndarray:
+        """Commands the robot for the next control period: the navigator's twist towards
+        the goal, or the recovery's while the robot is stuck; returns the pose it steered
+        from."""
         sim = self.sim
         pose = self.pose
         v, w = self.navigator.update(pose, sim.time, self.costmap)
@@ -554,13 +564,13 @@ class Episode:
             v, w = ((-0.5 * p.max_linear_speed, 0.0), (v, w), (0.0, p.max_angular_speed),
                     (0.0, -p.max_angular_speed))[(self._stuck - 1) // 20 % 4]
         sim.command(v, w)
-        for scan in sim.step(1.0 / cfg.control_rate_hz):
-            self._integrate(scan)
+        return pose
+
+    def record_visit(self, pose: np.ndarray) -> None:
+        """Adds ``pose``'s position to ``visited`` once it is 0.25 m from the last one."""
         last = self.visited[-1] if self.visited else None
         if last is None or np.hypot(pose[0] - last[0], pose[1] - last[1]) > 0.25:
             self.visited.append(pose[:2].copy())
-        if self.observer is not None:
-            self.observer.on_step(self)
 
     def step(self) -> bool:
         """One control period; returns False once the episode has ended."""

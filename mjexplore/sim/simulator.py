@@ -203,29 +203,7 @@ class Simulator(RobotWorld):
         self.data = mujoco.MjData(self.model)
         self.profile: MotionProfile = motion_profile(self.config.profile)
         m = self.model
-        try:
-            self._base = m.body(BASE_BODY).id
-            self._wheel_qpos = np.array([m.joint(j).qposadr[0] for j in WHEEL_JOINTS])
-            self._act_left, self._act_right = (m.actuator(a).id for a in WHEEL_ACTUATORS)
-            self._actadr_left, self._actadr_right = (m.actuator_actadr[i] for i in (
-                self._act_left, self._act_right))
-            m.site(SCAN_SITE)
-            wheel_geoms = [m.geom(g).id for g in WHEEL_GEOMS]
-        except KeyError as exc:
-            raise UserInputError(f"MJCF {str(self.scene.xml)!r} lacks the robot's {exc}: include "
-                                 "assets/turtlebot3_waffle/robot.xml.") from None
-        m.geom_friction[wheel_geoms, 0] = self.config.wheel_friction
-        # The IMU's (gyro, accelerometer) sensordata addresses; an MJCF from before the
-        # IMU has none, and its IMU columns are NaN.
-        names = [m.sensor(i).name for i in range(m.nsensor)]
-        self._imu_adr = tuple(int(m.sensor_adr[names.index(n)]) for n in IMU_SENSORS) if all(
-            n in names for n in IMU_SENSORS) else None
-        free = m.body_jntadr[self._base]
-        if m.jnt_type[free] != mujoco.mjtJoint.mjJNT_FREE:
-            raise UserInputError("the robot's base_link must have a free joint.")
-        self._qpos0 = m.jnt_qposadr[free]
-        self._qvel0 = m.jnt_dofadr[free]
-        self._z0 = float(m.body_pos[self._base][2])
+        self._bind_robot("")
         # Walls are static, so any contact with one involves the robot.
         self._is_wall_geom = (m.geom_bodyid == 0) & (m.geom_group == 0) & (
             m.geom_type != mujoco.mjtGeom.mjGEOM_PLANE)
@@ -245,6 +223,36 @@ class Simulator(RobotWorld):
         if self.config.dynamics == "kinematic":
             self._clearance = wall_clearance(self.scene.ground_truth)
         self.reset()
+
+    def _bind_robot(self, prefix: str) -> None:
+        """Finds the robot whose MJCF names start with ``prefix`` (``""`` for a scene's one
+        robot; ``robot_0/``... in a team's model) and sets its addresses."""
+        m = self.model
+        try:
+            self._base = m.body(prefix + BASE_BODY).id
+            self._wheel_qpos = np.array([m.joint(prefix + j).qposadr[0] for j in WHEEL_JOINTS])
+            self._act_left, self._act_right = (m.actuator(prefix + a).id
+                                               for a in WHEEL_ACTUATORS)
+            self._actadr_left, self._actadr_right = (m.actuator_actadr[i] for i in (
+                self._act_left, self._act_right))
+            m.site(prefix + SCAN_SITE)
+            wheel_geoms = [m.geom(prefix + g).id for g in WHEEL_GEOMS]
+        except KeyError as exc:
+            raise UserInputError(f"MJCF {str(self.scene.xml)!r} lacks the robot's {exc}: include "
+                                 "assets/turtlebot3_waffle/robot.xml.") from None
+        m.geom_friction[wheel_geoms, 0] = self.config.wheel_friction
+        # The IMU's (gyro, accelerometer) sensordata addresses; an MJCF from before the
+        # IMU has none, and its IMU columns are NaN.
+        names = [m.sensor(i).name for i in range(m.nsensor)]
+        imu = [prefix + n for n in IMU_SENSORS]
+        self._imu_adr = tuple(int(m.sensor_adr[names.index(n)]) for n in imu) if all(
+            n in names for n in imu) else None
+        free = m.body_jntadr[self._base]
+        if m.jnt_type[free] != mujoco.mjtJoint.mjJNT_FREE:
+            raise UserInputError("the robot's base_link must have a free joint.")
+        self._qpos0 = m.jnt_qposadr[free]
+        self._qvel0 = m.jnt_dofadr[free]
+        self._z0 = float(m.body_pos[self._base][2])
 
     # ------------------------------------------------------------------ state
 
@@ -403,13 +411,17 @@ class Simulator(RobotWorld):
         self._kinematics.record(t, v, wz, self._cmd, (x, y, yaw), self.odometry.pose_tuple, imu)
         if self._skew:
             self.lidar.observe_base_pose(t, x, y, yaw)
-        if self._clearance is None:
-            ncon = d.ncon
-            touching = ncon > 0 and bool(self._is_wall_geom[d.contact.geom[:ncon]].any())
-        else:
-            touching = self._kinematic_contact
+        touching = self._touching()
         if touching:
             if t - self._last_contact > COLLISION_GAP_S:
                 self.collisions += 1
             self._last_contact = t
         self._in_contact = touching
+
+    def _touching(self) -> bool:
+        """Whether the robot touches a wall now (a refused kinematic move counts)."""
+        if self._clearance is not None:
+            return self._kinematic_contact
+        d = self.data
+        ncon = d.ncon
+        return ncon > 0 and bool(self._is_wall_geom[d.contact.geom[:ncon]].any())

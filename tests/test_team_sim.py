@@ -1,0 +1,201 @@
+"""N robots in one MuJoCo world: the team's MJCF, start poses, lidars that see teammates,
+robot-robot collisions, and a team of one that is the single robot."""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+import pytest
+from conftest import shared_data
+
+from mjexplore.errors import UserInputError
+from mjexplore.scenes.canonical import resolve_scene
+from mjexplore.scenes.scene import clearance
+from mjexplore.scenes.team import (
+    EXPLORE_BENCH_TEAM_STARTS,
+    check_starts,
+    draw_starts,
+    explore_bench_starts,
+    parse_starts,
+    team_spec,
+)
+from mjexplore.sim.simulator import SimConfig, Simulator
+from mjexplore.sim.team import TeamSimulator, robot_seed
+
+
+@pytest.fixture(scope="module")
+def office():
+    return resolve_scene("office")
+
+
+@pytest.fixture(scope="module")
+def open_spot(office):
+    """The office's most open point: 2.4 m from any wall."""
+    g = office.ground_truth
+    c = clearance(g.free, g.resolution)
+    r, col = np.unravel_index(np.argmax(c), c.shape)
+    return g.cell_to_world(np.array([r, col]))
+
+
+def test_team_spec_has_n_prefixed_robots(office):
+    starts = [(13.0, 17.8, 0.0), (14.5, 16.0, 1.0), (12.0, 16.0, -1.0)]
+    model = team_spec(office.xml, starts).compile()
+    names = [model.body(i).name for i in range(model.nbody)]
+    for i, (x, y, yaw) in enumerate(starts):
+        assert f"robot_{i}/base_link" in names
+        assert model.actuator(f"robot_{i}/wheel_left").id >= 0
+        assert model.sensor(f"robot_{i}/imu_gyro").id >= 0
+        assert model.site(f"robot_{i}/base_scan").id >= 0
+        assert model.geom(f"robot_{i}/silhouette").contype == 0
+        base = model.body(f"robot_{i}/base_link")
+        np.testing.assert_allclose(base.pos[:2], (x, y))
+        assert math.isclose(2 * math.atan2(base.quat[3], base.quat[0]), yaw, abs_tol=1e-9)
+    assert "base_link" not in names  # The scene's own robot is replaced.
+    assert model.nu == 2 * len(starts) and model.nsensor == 2 * len(starts)
+
+
+def test_lidars_see_teammates_not_themselves(office, open_spot):
+    x, y = open_spot
+    team = TeamSimulator(office, [(x - 0.75, y, 0.0), (x + 0.75, y, math.pi)])
+    a, b = (r.latest_scan for r in team.robots)
+    # Beam 0 of each looks at the other: lidar 0.064 m behind base_link, the teammate's
+    # box (0.281 m long, centred 0.064 m behind its axle) facing it.
+    expected = 1.5 + 0.064 + 0.064 - 0.1405
+    assert a.ranges[0] == pytest.approx(expected, abs=1e-3)
+    assert b.ranges[0] == pytest.approx(expected, abs=1e-3)
+    # Beams looking away see the walls, more than 1.5 m off, not their own silhouette.
+    assert a.ranges[180] > 1.5 and b.ranges[180] > 1.5
+
+
+@pytest.mark.parametrize("dynamics", ["physics", "kinematic"])
+def test_robots_collide_with_each_other(office, open_spot, dynamics):
+    x, y = open_spot
+    team = TeamSimulator(office, [(x - 0.75, y, 0.0), (x + 0.75, y, math.pi)],
+                         SimConfig(dynamics=dynamics))
+    for _ in range(60):
+        for r in team.robots:
+            r.command(0.3, 0.0)
+        team.step(0.1)
+    assert team.robot_collisions == 1  # One long push: one collision.
+    assert [r.robot_contacts for r in team.robots] == [1, 1]
+    assert [r.collisions for r in team.robots] == [0, 0]  # Walls are counted apart.
+    assert all(r.in_collision for r in team.robots)
+    bodies = [np.array(r.body_centre) for r in team.robots]
+    # The bodies touch and do not pass through each other.
+    assert np.hypot(*(bodies[0] - bodies[1])) > 0.2
+    assert team.robots[0].pose[0] < team.robots[1].pose[0]
+    assert team.warnings() == {}
+
+
+@pytest.mark.parametrize("dynamics", ["physics", "kinematic"])
+def test_team_of_one_is_the_single_robot(office, dynamics):
+    config = SimConfig(dynamics=dynamics, seed=3)
+    single = Simulator(office, config)
+    team = TeamSimulator(office, [office.start], config)
+    robot = team.robots[0]
+    rng = np.random.default_rng(0)
+    for _ in range(100):
+        v, w = rng.uniform(-0.2, 0.5), rng.uniform(-1.0, 1.0)
+        single.command(v, w)
+        robot.command(v, w)
+        a, b = single.step(0.1), team.step(0.1)[0]
+    np.testing.assert_allclose(robot.pose, single.pose, atol=1e-9)
+    np.testing.assert_allclose(robot.odom_pose, single.odom_pose, atol=1e-9)
+    np.testing.assert_array_equal(a[-1].ranges, b[-1].ranges)
+    assert len(robot.kinematics_rows) == len(single.kinematics_rows)
+
+
+def test_each_robot_has_its_own_noise_and_logs(office, open_spot):
+    x, y = open_spot
+    config = SimConfig(lidar=None, seed=5, odometry_error="typical")
+    team = TeamSimulator(office, [(x - 1.0, y, 0.0), (x + 1.0, y, 0.0)], config)
+    assert robot_seed(5, 0) == 5 and robot_seed(5, 1) != 5
+    team.robots[0].command(0.3, 0.0)
+    team.step(2.0)
+    k0, k1 = (r.kinematics() for r in team.robots)
+    assert len(k0.t) == len(k1.t) == 41
+    assert k0.linear_velocity[-1] > 0.2 and abs(k1.linear_velocity[-1]) < 1e-3
+    assert team.robots[1].pose[0] == pytest.approx(x + 1.0, abs=1e-3)
+
+
+def test_random_driving_raises_no_warnings(office):
+    """Menagerie's model test: step the team under random commands, no MuJoCo warning."""
+    starts = draw_starts(office.ground_truth, office.start, 3, np.random.default_rng(1))
+    team = TeamSimulator(office, starts)
+    rng = np.random.default_rng(2)
+    for _ in range(100):
+        for r in team.robots:
+            r.command(rng.uniform(-0.5, 0.5), rng.uniform(-1.8, 1.8))
+        team.step(0.1)
+    assert team.warnings() == {}
+    assert all(r.is_upright for r in team.robots)
+
+
+def test_team_robots_refuse_their_own_reset(office):
+    team = TeamSimulator(office, [office.start])
+    with pytest.raises(TypeError, match="together"):
+        team.robots[0].step(0.1)
+
+
+def test_parse_starts():
+    assert parse_starts("1,2,0.5;3,4") == [(1.0, 2.0, 0.5), (3.0, 4.0, 0.0)]
+    for bad in ("1,2,3,4", "a,b", "1;2,3", "nan,1"):
+        with pytest.raises(UserInputError, match="X,Y"):
+            parse_starts(bad)
+
+
+def test_check_starts_refuses_walls_and_overlaps(office):
+    g = office.ground_truth
+    x, y, yaw = office.start
+    check_starts(g, [(x, y, yaw)])
+    with pytest.raises(UserInputError, match="apart"):
+        check_starts(g, [(x, y, yaw), (x + 0.3, y, yaw)])
+    with pytest.raises(UserInputError, match="outside"):
+        check_starts(g, [(x, y, yaw), (-50.0, 0.0, 0.0)])
+
+
+def test_draw_starts_is_seeded_and_keeps_clear(office):
+    g = office.ground_truth
+    a = draw_starts(g, office.start, 3, np.random.default_rng(7))
+    b = draw_starts(g, office.start, 3, np.random.default_rng(7))
+    c = draw_starts(g, office.start, 3, np.random.default_rng(8))
+    assert a == b and a != c and a[0] == tuple(office.start)
+    check_starts(g, a, min_separation=1.0)
+    free_clearance = clearance(g.free, g.resolution)
+    for x, y, _ in a[1:]:
+        r, col = g.world_to_cell(np.array([x, y]))
+        assert free_clearance[r, col] >= 0.5
+        assert 1.0 <= math.hypot(x - a[0][0], y - a[0][1]) <= 3.0
+
+
+@pytest.mark.parametrize("name", sorted(EXPLORE_BENCH_TEAM_STARTS))
+def test_explore_bench_placements_are_free(name):
+    scene = resolve_scene(shared_data("explore_bench", f"{name}.yaml"))
+    for placement in ("close", "far"):
+        starts = explore_bench_starts(name, placement)
+        check_starts(scene.ground_truth, starts)
+        d = math.hypot(starts[0][0] - starts[1][0], starts[0][1] - starts[1][1])
+        assert (d < 4.0) == (placement == "close")
+
+
+def test_explore_bench_placements_refuse_other_maps():
+    with pytest.raises(UserInputError, match="not one of its maps"):
+        explore_bench_starts("office", "close")
+    with pytest.raises(UserInputError, match="unknown"):
+        explore_bench_starts("room", "near")
+
+
+def test_team_needs_physics_or_kinematic(office):
+    with pytest.raises(UserInputError, match="physics or kinematic"):
+        TeamSimulator(office, [office.start], SimConfig(dynamics="grid"))
+
+
+def test_model_compiles_fast(office):
+    """Eight robots' model compiles in well under a second (no <replicate> sites)."""
+    starts = draw_starts(office.ground_truth, office.start, 8, np.random.default_rng(0))
+    spec = team_spec(office.xml, starts)
+    model = spec.compile()
+    assert model.nbody == 1 + 3 * 8
+    assert isinstance(mujoco.MjData(model), mujoco.MjData)
