@@ -54,3 +54,33 @@ def test_nearest_traversable_matches_the_numpy_form(k):
         assert got == _nearest_reference(cost, int(r), int(c), k)
         found += got >= 0
     assert 0 < found < 400  # Both outcomes were exercised.
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_distances_near_nodes_equal_the_whole_maps_least_over_each_square(seed):
+    from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
+    from mjexplore.navigation.planner import Costmap, PlannerConfig
+    from mjexplore.topology.gvd import DynamicGVD
+
+    rng = np.random.default_rng(seed)
+    data = np.full((70, 90), FREE, np.int8)
+    for r, c in rng.integers(5, 60, (6, 2)):  # Walls the paths must go round.
+        data[r:r + 3, c:c + 25] = OCCUPIED
+    data[:, 60:] = UNKNOWN  # Unreached cells beside reached ones.
+    grid = GridMap(data, 0.1)
+    gvd = DynamicGVD(grid.shape)
+    gvd.update(grid.occupied, grid.known)
+    costmap = Costmap(grid, gvd.distance2, PlannerConfig())
+    costmap.update(None)
+    cells = np.column_stack([rng.integers(0, 70, 40), rng.integers(0, 90, 40)])
+    cells[:3] = [[0, 0], [69, 89], [35, 59]]  # Squares clipped at the edges; half unknown.
+    start = np.array([1.0, 1.5])
+    for half in (0, 3, 10):
+        whole = costmap.distances_from(start)
+        offsets = np.arange(-half, half + 1)
+        r = np.clip(cells[:, 0, None] + offsets, 0, 69)
+        c = np.clip(cells[:, 1, None] + offsets, 0, 89)
+        reference = whole[r[:, :, None], c[:, None, :]].reshape(len(cells), -1).min(axis=1)
+        near = costmap.distances_near(start, cells, half)
+        assert np.array_equal(near, reference)  # Bit for bit, inf included.
+        assert np.isfinite(near).sum() > 10 and np.isinf(near).any()

@@ -45,7 +45,7 @@ def _rollout(venv, steps: int) -> list:
 def test_ray_envs_step_exactly_as_subprocess_envs(local_ray, monkeypatch):
     import mjexplore.learning.ray_vec_env as ray_vec_env
 
-    makers = [_make_env(ENV) for _ in range(2)]
+    makers = [_make_env(ENV, own_process=True) for _ in range(2)]
     reference = SubprocVecEnv(makers, start_method="forkserver")
     try:
         expected = _rollout(reference, 5)

@@ -100,10 +100,10 @@ class TerDecisions:
         if real.any():
             grid = state.grid
             positions = padded.node_positions[real]
-            distances = state.costmap.distances_from(state.pose[:2])
             half = int(round(self.config.path_radius / grid.resolution))
             cells = np.clip(grid.world_to_cell(positions), 0, np.array(grid.shape) - 1)
-            extra[real, :3] = path_features(distances, cells, state.allowed(positions), half)
+            path = state.costmap.distances_near(state.pose[:2], cells, half)
+            extra[real, :3] = path_features(path, state.allowed(positions))
         if self.pockets is not None and frontiers:
             extra[:, 3] = self._pocket_feature(padded, state, frontiers)
         return extra

@@ -166,28 +166,14 @@ def ter_arrays(padded: PaddedTer, extra: np.ndarray | None = None) -> dict[str, 
             "node_mask": padded.node_mask.astype(np.float32)}
 
 
-def window_min(values: np.ndarray, cells: np.ndarray, half: int) -> np.ndarray:
-    """The least of ``values`` (rows, cols) in the (2 half + 1)-cell square around each
-    (row, col) of ``cells`` (k, 2), the square clipped to the grid."""
-    rows, cols = values.shape
-    offsets = np.arange(-half, half + 1)
-    r = np.clip(cells[:, 0, None] + offsets, 0, rows - 1)  # (k, w)
-    c = np.clip(cells[:, 1, None] + offsets, 0, cols - 1)
-    return values[r[:, :, None], c[:, None, :]].reshape(len(cells), -1).min(axis=1)
-
-
-def path_features(distances: np.ndarray, cells: np.ndarray, allowed: np.ndarray,
-                  half: int) -> np.ndarray:
+def path_features(path: np.ndarray, allowed: np.ndarray) -> np.ndarray:
     """The v2 node features [path, unreachable, blacklisted] (k, 3).
 
     Args:
-        distances: (rows, cols) path cost from the robot, metres, inf where unreachable
-            (``Costmap.distances_from``).
-        cells: (k, 2) (row, col) cells of the nodes.
+        path: (k,) path cost from the robot to each node's square, metres, inf where
+            unreachable (``Costmap.distances_near``).
         allowed: (k,) False for nodes at a blacklisted goal.
-        half: Window half-side in cells (the path radius).
     """
-    path = window_min(distances, np.asarray(cells, np.int64).reshape(-1, 2), half)
     reachable = np.isfinite(path)
     return np.column_stack([np.where(reachable, path, 0.0), ~reachable,
                             ~np.asarray(allowed, bool)]).astype(np.float32)

@@ -221,6 +221,21 @@ def _nearest_traversable(cost, rows, cols, r, c, k):
     return best
 
 
+@numba.njit(cache=True)
+def _window_min(dist, stamp, search_id, rows, cols, cells, half, resolution, out):
+    """``out[i]``: the least ``dist * resolution`` over the cells reached by search
+    ``search_id`` in the square of half-side ``half`` around ``cells[i]`` (clipped)."""
+    for i in range(len(cells)):
+        r, c = cells[i, 0], cells[i, 1]
+        for rr in range(max(r - half, 0), min(r + half, rows - 1) + 1):
+            for cc in range(max(c - half, 0), min(c + half, cols - 1) + 1):
+                y = rr * cols + cc
+                if abs(stamp[y]) == search_id:
+                    v = dist[y] * resolution
+                    if v < out[i]:
+                        out[i] = v
+
+
 class Costmap:
     """Step costs over a map, kept up to date cell by cell.
 
@@ -325,16 +340,41 @@ class Costmap:
         if start < 0:
             return out
         if targets is None and stop_after == 0:  # Every cell: the bucket queue.
-            self._search_id += 1
-            self._bucket_cells, self._bucket_nexts = _bucket_search(
-                self.cost, start, *self.grid.shape, self._dist, self._stamp, self._search_id,
-                self._bucket_cells, self._bucket_nexts, self._bucket_heads)
+            self._search_everywhere(start)
         else:
             mask = None if targets is None else np.ascontiguousarray(targets.reshape(-1))
             self._run(start, -1, mask, stop_after)
         reached = np.abs(self._stamp) == self._search_id
         out.reshape(-1)[reached] = self._dist[reached] * self.grid.resolution
         return out
+
+    def distances_near(self, xy: np.ndarray, cells: np.ndarray, half: int) -> np.ndarray:
+        """The least path cost (metres, as :meth:`distances_from`) from ``xy`` to the
+        (2 half + 1)-cell square around each cell, the square clipped to the grid; inf where
+        none of it is reached. The same numbers as the least of :meth:`distances_from`'s map
+        over each square, read at the squares alone (no pass over the whole map).
+
+        Args:
+            xy: Start point in the ``map`` frame.
+            cells: (k, 2) (row, col) cells inside the grid.
+            half: Square half-side, cells.
+        """
+        out = np.full(len(cells), np.inf)
+        start = self.nearest_traversable(xy)
+        if start < 0 or len(cells) == 0:
+            return out
+        self._search_everywhere(start)
+        _window_min(self._dist, self._stamp, self._search_id, *self.grid.shape,
+                    np.ascontiguousarray(cells, np.int64).reshape(-1, 2), half,
+                    self.grid.resolution, out)
+        return out
+
+    def _search_everywhere(self, start: int) -> None:
+        """Dijkstra from cell ``start`` to every reachable cell (the bucket queue)."""
+        self._search_id += 1
+        self._bucket_cells, self._bucket_nexts = _bucket_search(
+            self.cost, start, *self.grid.shape, self._dist, self._stamp, self._search_id,
+            self._bucket_cells, self._bucket_nexts, self._bucket_heads)
 
     def plan(self, start_xy: np.ndarray, goal_xy: np.ndarray,
              goal_radius: float = 1.0) -> np.ndarray | None:

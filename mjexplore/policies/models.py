@@ -2,9 +2,10 @@
 
 A model folder holds ``policy.safetensors`` (the weights, with the resolved training config
 in their metadata), ``config.yaml`` (that config as YAML; the recipe it came from is
-``training/NAME.yaml``, named in the card) and ``README.md`` (the model card: what it is, data and budget, figures, sha256). A learned
-explorer takes ``--policy NAME`` (a model here) or ``--policy PATH`` (a weights file, or a
-folder holding ``policy.safetensors``, such as a training run's output).
+``training/NAME.yaml``, named in the card) and ``README.md`` (the model card: what it
+is, data and budget, figures, sha256). A learned explorer takes ``--policy NAME`` (a model
+here) or ``--policy PATH`` (a weights file, or a folder holding ``policy.safetensors``, such
+as a training run's output).
 """
 
 from __future__ import annotations
