@@ -22,7 +22,7 @@ from mjexplore.scenes.team import (
     team_spec,
 )
 from mjexplore.sim.simulator import SimConfig, Simulator
-from mjexplore.sim.team import TeamSimulator, robot_seed
+from mjexplore.sim.team import TeamSimulator, ray_boxes, robot_seed
 
 
 @pytest.fixture(scope="module")
@@ -199,3 +199,33 @@ def test_model_compiles_fast(office):
     model = spec.compile()
     assert model.nbody == 1 + 3 * 8
     assert isinstance(mujoco.MjData(model), mujoco.MjData)
+
+
+def test_silhouette_rays_match_mujoco(office, open_spot):
+    """ray_boxes meets the silhouettes where MuJoCo's own rays do, turned or not."""
+    x, y = open_spot
+    rng = np.random.default_rng(4)
+    starts = [(x, y, 0.3), (x + 1.2, y + 0.4, 1.1), (x - 0.9, y - 1.0, -2.0)]
+    team = TeamSimulator(office, starts)
+    lidar = team.robots[0].lidar
+    d = team.data
+    origin = d.site_xpos[lidar.site_id].copy()
+    angles = rng.uniform(-np.pi, np.pi, 500)
+    vec = np.column_stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)])
+    ids = np.array(team._silhouettes[1:])
+    dist, which, normal = ray_boxes(origin, vec, d.geom_xpos[ids],
+                                    d.geom_xmat[ids].reshape(-1, 3, 3),
+                                    team.model.geom_size[ids[0]])
+    group = np.array([0, 0, 0, 0, 0, 1], np.uint8)
+    geomid = np.zeros(1, np.int32)
+    hits = 0
+    for k in range(len(vec)):
+        n = np.zeros(3)
+        expected = mujoco.mj_ray(team.model, d, origin, vec[k], group, 0,
+                                 team.robots[0]._base, geomid, n)
+        assert dist[k] == pytest.approx(expected, abs=1e-9)
+        if expected >= 0:
+            hits += 1
+            assert ids[which[k]] == geomid[0]
+            np.testing.assert_allclose(normal[k], n, atol=1e-9)
+    assert hits > 20

@@ -34,7 +34,7 @@ import numpy as np
 from mjexplore.errors import UserInputError
 from mjexplore.robot import motion_profile
 from mjexplore.scenes.scene import SceneFiles, load_scene_files
-from mjexplore.scenes.team import SILHOUETTE, SILHOUETTE_GROUP, robot_prefix, team_spec
+from mjexplore.scenes.team import SILHOUETTE, robot_prefix, team_spec
 from mjexplore.sim.kinematics import KinematicsRecorder
 from mjexplore.sim.lidar import LaserScan, Lidar, LidarConfig
 from mjexplore.sim.motion import BODY_CENTRE_X, BODY_RADIUS, wall_clearance
@@ -47,8 +47,6 @@ from mjexplore.sim.simulator import (
     _steps_per,
 )
 
-SILHOUETTE_GEOMGROUP = np.array([int(g == SILHOUETTE_GROUP) for g in range(6)], np.uint8)
-
 
 def robot_seed(seed: int, i: int) -> int:
     """The seed of robot ``i``'s noise and errors: ``seed`` itself for robot 0."""
@@ -57,43 +55,91 @@ def robot_seed(seed: int, i: int) -> int:
     return int(np.random.SeedSequence([seed, i]).generate_state(1)[0])
 
 
+def ray_boxes(origin: np.ndarray, vec: np.ndarray, centres: np.ndarray, rot: np.ndarray,
+              half: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rays against boxes whose axes include the vertical (upright bodies): the slab
+    method in each box's horizontal frame, with the hit's height checked.
+
+    Args:
+        origin: (3,) the rays' origin, metres.
+        vec: (n, 3) unit ray directions.
+        centres: (k, 3) box centres.
+        rot: (k, 3, 3) box orientations (columns: the box axes in the world).
+        half: (3,) half sizes.
+
+    Returns:
+        (n,) distance to the nearest box hit (-1 for none), (n,) the box hit (-1), and
+        (n, 3) the unit normal of the face hit.
+    """
+    n = len(vec)
+    best = np.full(n, -1.0)
+    which = np.full(n, -1, np.int64)
+    normal = np.zeros((n, 3))
+    for b in range(len(centres)):
+        axes = rot[b][:, :2]  # The box's horizontal axes in the world.
+        o = (origin - centres[b]) @ axes
+        d = vec @ axes
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / np.where(np.abs(d) < 1e-12, 1e-12, d)
+            t1 = (-half[:2] - o) * inv
+            t2 = (half[:2] - o) * inv
+        tmin, tmax = np.minimum(t1, t2), np.maximum(t1, t2)
+        near = tmin.max(axis=1)
+        far = tmax.min(axis=1)
+        z = origin[2] + near * vec[:, 2] - centres[b][2]
+        hit = (near <= far) & (near > 0) & (np.abs(z) <= half[2])
+        hit &= (best < 0) | (near < best)
+        if not hit.any():
+            continue
+        best[hit] = near[hit]
+        which[hit] = b
+        face = np.argmax(tmin[hit], axis=1)
+        sign = -np.sign(d[hit, face])
+        normal[hit] = sign[:, None] * axes.T[face]
+    return best, which, normal
+
+
 class TeamLidar(Lidar):
     """A lidar that also sees the teammates' silhouettes (not its own robot's).
+
+    The walls are cast as a single robot's lidar casts them; the silhouettes, upright
+    boxes, by :func:`ray_boxes` (the same geometry MuJoCo's rays would meet, at a fraction
+    of a full-model ``mj_multiRay``); the nearer return wins.
 
     Args:
         model: The team's compiled model.
         site: The lidar frame site's full name (``robot_{i}/base_scan``).
         config: Lidar settings.
         rng: Generator for noise and dropouts.
-        own_body: Body id of the robot carrying the lidar (its silhouette is ignored).
+        silhouettes: Geom ids of the teammates' silhouettes (boxes).
     """
 
     def __init__(self, model: mujoco.MjModel, site: str, config: LidarConfig,
-                 rng: np.random.Generator, own_body: int) -> None:
+                 rng: np.random.Generator, silhouettes: list[int]) -> None:
         super().__init__(model, site, config, rng)
-        self._own_body = int(own_body)
-        n = config.num_beams
-        self._dist_r = np.empty(n)
-        self._geomid_r = np.empty(n, dtype=np.int32)
-        self._normal_r = None if self._normal is None else np.empty((n, 3))
-        self._robots = bool(np.any((model.geom_group == SILHOUETTE_GROUP) &
-                                   (model.geom_bodyid != self._own_body)))
+        self._silhouettes = np.asarray(silhouettes, np.int64)
+        self._half = model.geom_size[self._silhouettes[0]].copy() if len(silhouettes) else None
 
     def _multi_ray(self, origin: np.ndarray, data: mujoco.MjData, i0: int, i1: int) -> None:
         super()._multi_ray(origin, data, i0, i1)
-        if not self._robots:
+        ids = self._silhouettes
+        if len(ids) == 0:
             return
-        normal = None if self._normal_r is None else self._normal_r[i0:i1].reshape(-1)
-        mujoco.mj_multiRay(self.model, data, origin, self._vec[i0:i1].reshape(-1),
-                           SILHOUETTE_GEOMGROUP, 0, self._own_body, self._geomid_r[i0:i1],
-                           self._dist_r[i0:i1], normal, i1 - i0, self.config.range_max + 0.1)
-        walls, robots = self._dist[i0:i1], self._dist_r[i0:i1]
-        nearer = (robots >= 0) & ((walls < 0) | (robots < walls))
+        centres = data.geom_xpos[ids]
+        reach = self.config.range_max + 0.3
+        near = np.hypot(centres[:, 0] - origin[0], centres[:, 1] - origin[1]) <= reach
+        if not near.any():
+            return
+        dist, which, normal = ray_boxes(np.asarray(origin, float), self._vec[i0:i1],
+                                        centres[near],
+                                        data.geom_xmat[ids[near]].reshape(-1, 3, 3), self._half)
+        walls = self._dist[i0:i1]
+        nearer = (dist >= 0) & ((walls < 0) | (dist < walls))
         if nearer.any():
-            walls[nearer] = robots[nearer]
-            self._geomid[i0:i1][nearer] = self._geomid_r[i0:i1][nearer]
+            walls[nearer] = dist[nearer]
+            self._geomid[i0:i1][nearer] = ids[near][which[nearer]]
             if self._normal is not None:
-                self._normal[i0:i1][nearer] = self._normal_r[i0:i1][nearer]
+                self._normal[i0:i1][nearer] = normal[nearer]
 
 
 class TeamRobot(Simulator):
@@ -124,7 +170,8 @@ class TeamRobot(Simulator):
         self._rng = np.random.default_rng(self.config.seed)
         lidar_cfg = self.config.resolved_lidar()
         self.lidar = TeamLidar(self.model, robot_prefix(index) + SCAN_SITE, lidar_cfg,
-                               self._rng, self._base)
+                               self._rng, [g for j, g in enumerate(team._silhouettes)
+                                           if j != index])
         self._skew = lidar_cfg.motion_skew
         self.odometry = self.config.make_odometry()
         self._kinematics = KinematicsRecorder()
@@ -267,11 +314,11 @@ class TeamSimulator:
             self._clearance = wall_clearance(self.scene.ground_truth)
         self._steps = 0
         self._wall_touch = np.zeros(len(self.starts), bool)
+        self._silhouettes = [m.geom(robot_prefix(i) + SILHOUETTE).id
+                             for i in range(len(self.starts))]
         self.robots = [TeamRobot(self, i) for i in range(len(self.starts))]
         for r in self.robots[1:]:  # One tile cache of the walls for all lidars.
             r.lidar.static_scene = self.robots[0].lidar.static_scene
-        self._silhouettes = [m.geom(robot_prefix(i) + SILHOUETTE).id
-                             for i in range(len(self.starts))]
         self.reset()
 
     def __len__(self) -> int:
@@ -394,4 +441,4 @@ class TeamSimulator:
         return teammate
 
 
-__all__ = ["TeamLidar", "TeamRobot", "TeamSimulator", "robot_seed"]
+__all__ = ["TeamLidar", "TeamRobot", "TeamSimulator", "ray_boxes", "robot_seed"]
