@@ -232,11 +232,36 @@ def _episode_config(args: argparse.Namespace):
                                        odometry_heading=args.odometry_heading))
 
 
+def _explore_team(args: argparse.Namespace) -> int:
+    """``explore --robots N``: a team episode (eval/team_run.py)."""
+    from mjexplore.eval.team_run import team_explorers, team_starts, write_team_run
+    from mjexplore.scenes.canonical import resolve_scene
+
+    given = [o for o, v in (("--policy", args.policy), ("--no-masking", args.no_masking),
+                            ("--video", args.video), ("--live", args.live),
+                            ("--mcap-profile", args.mcap_profile)) if v not in (None, False)]
+    if given:
+        raise UserInputError(f"{', '.join(given)}: not available with --robots yet; drop "
+                             f"{'it' if len(given) == 1 else 'them'} or run one robot.")
+    if args.localization != "ground_truth":
+        raise UserInputError("a team explores with known start poses: use --localization "
+                             "ground_truth with --robots.")
+    team_explorers(args.explorer, args.robots)  # Fails early on a bad name.
+    scene, config = resolve_scene(args.scene), _episode_config(args)
+    starts = team_starts(scene, args.starts, args.robots)
+    metrics = write_team_run(args.out, scene, args.explorer, args.robots, args.seed, config,
+                             starts, mcap=not args.no_mcap, progress=not args.no_progress)
+    print(json.dumps(metrics))
+    return 0
+
+
 def cmd_explore(args: argparse.Namespace) -> int:
     from mjexplore.eval.methods import LEARNED, MethodSpec, parse_method
     from mjexplore.eval.run import write_run
     from mjexplore.scenes.canonical import resolve_scene
 
+    if args.robots > 1 or args.starts is not None:
+        return _explore_team(args)
     spec = parse_method(args.explorer)
     if args.policy is not None or args.no_masking:
         if spec.method not in LEARNED:
@@ -578,6 +603,16 @@ def build_parser() -> argparse.ArgumentParser:
     explore.add_argument("--video", default=None, metavar="PATH",
                          help="also film the episode (3D view beside the map panel) into "
                          "an H.264 MP4 at PATH (and OUT/video.mp4)")
+    explore.add_argument("--robots", type=_count, default=1, metavar="N",
+                         help="explore with a team of N robots in one world and one shared "
+                         "map; --explorer then takes a team method (assign_greedy, "
+                         "assign_optimal, mmpf) or any single-robot one, run by every robot "
+                         "on its own (the naive team) (default: 1)")
+    explore.add_argument("--starts", default=None, metavar="X,Y,YAW;...|close|far",
+                         help="the team's start poses, one per robot separated by ';' "
+                         "(metres, radians, map frame), or Explore-Bench's 'close' or 'far' "
+                         "placement on its maps (2 robots) (default: robot 0 at the scene's "
+                         "start, the others drawn 1-3 m around it from the seed)")
     _add_video_args(explore)
     _add_episode_args(explore)
     explore.set_defaults(func=cmd_explore)

@@ -328,8 +328,9 @@ class TeamEpisode:
             this seed starts, the others drawn around it
             (:func:`~mjexplore.scenes.team.draw_starts`).
         team_config: Team settings.
-        observer: Optional object with ``on_scan(episode, index, scan)`` and
-            ``on_step(episode)`` hooks.
+        observer: Optional object with any of the hooks ``on_scan(episode, index, scan)``,
+            ``on_goal(episode, index, t, x, y)`` (a robot's new goal) and
+            ``on_step(episode)``.
     """
 
     def __init__(self, scene: SceneFiles, explorers: list[Explorer], seed: int,
@@ -539,6 +540,7 @@ class TeamEpisode:
             return False
         t = self.time
         self._set_teammates()
+        decided = [len(a.goals) for a in self.agents]
         for a in self.agents:
             if a.retired is not None:
                 continue
@@ -554,6 +556,10 @@ class TeamEpisode:
             self.end_reason = "no_frontiers"
             return False
         self._resolve_blocks()
+        if self.observer is not None and hasattr(self.observer, "on_goal"):
+            for a, n in zip(self.agents, decided):
+                for when, x, y in a.goals[n:]:
+                    self.observer.on_goal(self, a.index, when, x, y)
         poses = []
         for a in self.agents:
             if a.active or a._yield_goal is not None:

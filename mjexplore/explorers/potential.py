@@ -115,6 +115,12 @@ class PotentialField:
             return state.frontiers[int(np.argmin(d))].goal if np.isfinite(d).any() else None
         for xy in state.visited:
             potential[coarse(xy)] += self.visit_penalty
+        self.add_potential(state, potential.reshape(rows, cols), f)
         reached = _descend(potential, traversable, start, is_target, rows, cols, rows * cols)
         j = is_target[reached] if reached >= 0 else int(np.argmax(pull))
         return state.frontiers[j].goal
+
+    def add_potential(self, state: ExplorationState, potential: np.ndarray, f: int) -> None:
+        """Adds further terms to the (rows, cols) coarse ``potential`` (in place), whose
+        cells are ``f`` map cells on a side; none here (the multi-robot field adds its
+        robots' repulsion)."""

@@ -1,0 +1,77 @@
+"""``mjexplore explore --robots N``: the team's run folder, its MCAP's namespaced topics,
+and the checks on --robots and --starts."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+
+import pytest
+from conftest import shared_data
+
+from mjexplore.cli import main
+from mjexplore.errors import UserInputError
+from mjexplore.eval.team_run import team_explorers, team_starts
+from mjexplore.io.team_mcap import robot_topics
+from mjexplore.scenes.canonical import resolve_scene
+
+
+def test_explore_with_a_team_writes_its_run_folder(tmp_path):
+    from mcap.reader import make_reader
+
+    out = tmp_path / "team"
+    assert main(["explore", "--scene", "train_loop", "--robots", "2", "--explorer",
+                 "assign_greedy", "--max-time", "12", "--seed", "1", "--out", str(out)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["robots"] == 2 and metrics["explorer"] == "assign_greedy"
+    for key in ("exploration_ratio", "t80_s", "t90_s", "t985_s", "path_length_m",
+                "overlap_ratio", "robot_collisions", "collisions", "end_reason"):
+        assert key in metrics
+    assert [r["robot"] for r in metrics["per_robot"]] == ["robot_0", "robot_1"]
+    config = json.loads((out / "config.json").read_text())
+    assert config["robots"] == 2 and len(config["starts"]) == 2 and config["git_revision"]
+    for name in ("ratio.csv", "ratio.png", "map.png", "episode.mcap",
+                 "robot_0/kinematics.csv", "robot_1/coverage.csv"):
+        assert (out / name).stat().st_size > 100
+    with open(out / "episode.mcap", "rb") as f:
+        reader = make_reader(f)
+        counts = Counter(channel.topic for _s, channel, _m in reader.iter_messages())
+    for name in ("robot_0", "robot_1"):
+        for topic in robot_topics(name):
+            assert counts[topic] > 0, topic
+        assert counts[f"/{name}/scan"] == 12 * 10 + 1  # 10 Hz from time 0.
+    assert counts["/tf"] == 2 * (12 * 10 + 1)
+    assert counts["/map"] >= 12
+
+
+def test_naive_teams_and_labels():
+    explorers, label = team_explorers("nearest", 3)
+    assert label == "naive_nearest" and len({id(e) for e in explorers}) == 3
+    assert team_explorers("mmpf", 2)[1] == "mmpf"
+    with pytest.raises(UserInputError, match="unknown explorer"):
+        team_explorers("magic", 2)
+
+
+def test_team_starts_from_text_and_placements():
+    office = resolve_scene("office")
+    assert team_starts(office, None, 2) is None
+    assert team_starts(office, "13,17.8,0;14,16,1", 2) == [(13.0, 17.8, 0.0), (14.0, 16.0, 1.0)]
+    with pytest.raises(UserInputError, match="one per robot"):
+        team_starts(office, "13,17.8,0", 2)
+    with pytest.raises(UserInputError, match="not one of its maps"):
+        team_starts(office, "close", 2)
+    room = resolve_scene(shared_data("explore_bench", "room.yaml"))
+    assert team_starts(room, "far", 2) == [(8.0, 7.5, 1.57), (-7.5, -8.0, 1.57)]
+    with pytest.raises(UserInputError, match="--robots 2"):
+        team_starts(room, "close", 3)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--robots", "2", "--localization", "odometry"], "ground_truth"),
+    (["--robots", "2", "--video", "x.mp4"], "--video"),
+    (["--robots", "2", "--starts", "1,2"], "one per robot"),
+    (["--robots", "2", "--explorer", "nope"], "unknown explorer"),
+])
+def test_team_explore_refuses_what_it_cannot_do(tmp_path, capsys, args, message):
+    assert main(["explore", "--scene", "train_loop", "--out", str(tmp_path / "r"), *args]) == 2
+    assert message in capsys.readouterr().err
