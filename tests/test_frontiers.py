@@ -100,3 +100,59 @@ def test_window_counts_match_the_clipped_windows():
         expected = [mask[max(r - half, 0):r + half + 1, max(c - half, 0):c + half + 1].sum()
                     for r, c in cells]
         assert window_counts(mask, cells, half).tolist() == expected
+
+
+def _random_partial_map(seed: int, edge: bool) -> GridMap:
+    """A partly explored map: free rooms inside walls, unknown elsewhere; with ``edge`` the
+    free space touches the map's border."""
+    rng = np.random.default_rng(seed)
+    data = np.full((120, 160), UNKNOWN, np.int8)
+    for _ in range(6):
+        r, c = rng.integers(0, 100), rng.integers(0, 140)
+        data[r:r + rng.integers(5, 30), c:c + rng.integers(5, 40)] = FREE
+    data[rng.random(data.shape) < 0.02] = OCCUPIED
+    if edge:
+        data[0:10, 0:30] = FREE
+    return GridMap(data, 0.05)
+
+
+@pytest.mark.parametrize("seed,edge", [(0, False), (1, True), (2, False), (3, True)])
+def test_frontiers_of_the_free_box_are_the_whole_maps(seed, edge, monkeypatch):
+    from mjexplore.topology import frontiers
+
+    grid = _random_partial_map(seed, edge)
+    boxed = find_frontiers(grid)
+    monkeypatch.setattr(frontiers, "_free_box", lambda free: (slice(0, free.shape[0]),
+                                                             slice(0, free.shape[1])))
+    whole = find_frontiers(grid)
+    assert len(boxed) == len(whole) > 3
+    for a, b in zip(boxed, whole):
+        assert np.array_equal(a.cells, b.cells) and a.goal_cell == b.goal_cell
+        assert np.array_equal(a.centre, b.centre) and np.array_equal(a.goal, b.goal)
+
+
+def test_frontier_distances_read_at_the_windows_equal_the_whole_maps():
+    from mjexplore.episode.explorer import ExplorationState
+    from mjexplore.navigation.planner import Costmap, PlannerConfig
+    from mjexplore.topology.gvd import DynamicGVD
+
+    grid = _random_partial_map(5, True)
+    gvd = DynamicGVD(grid.shape)
+    gvd.update(grid.occupied, grid.known)
+    costmap = Costmap(grid, gvd.distance2, PlannerConfig())
+    costmap.update(None)
+    fronts = find_frontiers(grid)
+    state = ExplorationState(grid=grid, pose=np.array([0.5, 0.5, 0.0]), time=0.0,
+                             frontiers=fronts, costmap=costmap, visited=np.zeros((0, 2)))
+    k = 10  # 0.5 m at 0.05 m.
+    for stop in (0, 1):
+        mask = np.zeros(grid.shape, bool)
+        for f in fronts:
+            r, c = f.goal_cell
+            mask[max(r - k, 0):r + k + 1, max(c - k, 0):c + k + 1] = True
+        whole = costmap.distances_from(state.pose[:2], mask, stop)
+        reference = [whole[max(f.goal_cell[0] - k, 0):f.goal_cell[0] + k + 1,
+                           max(f.goal_cell[1] - k, 0):f.goal_cell[1] + k + 1].min()
+                     for f in fronts]
+        got = state.frontier_distances(nearest_only=bool(stop))
+        assert np.array_equal(got, reference) and np.isfinite(got).any()

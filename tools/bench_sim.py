@@ -27,6 +27,10 @@ run of the reactive wanderer (closed loop on the lidar) is recorded first; then:
                        spends on its episode (issue 16's target: >= 60);
                        exploration_sim_seconds and exploration_end_reason say how far it
                        ran;
+    large_office_rtf   the same stack on a generated 100 x 100 m office (``scene-gen office
+                       --size 100x100 --seed 0``, 16 times the office's area) over its first
+                       600 simulated seconds: whether the cost grows with what changed
+                       rather than with the map (target: >= 60, beside exploration_rtf);
     ratios             full_loop_over_physics, exploration_over_physics,
                        full_loop_over_loop_without_lidar,
                        lds01_over_ideal (full_loop_rtf_lds01 / full_loop_rtf),
@@ -97,6 +101,25 @@ def replay_wall(sim: World, twists: list[tuple[float, float]]) -> float:
         sim.command(v, w)
         sim.step(CONTROL_PERIOD)
     return time.perf_counter() - t0
+
+
+def _large_office_rtf(seconds: float) -> float:
+    """Real-time factor of nearest's first ``seconds`` on a generated 100 x 100 m office."""
+    import tempfile
+    from pathlib import Path
+
+    from mjexplore.episode import Episode, EpisodeConfig
+    from mjexplore.explorers import make_explorer
+    from mjexplore.scenes.generate import generate_scene
+    from mjexplore.scenes.scene import load_scene_files, write_scene
+
+    with tempfile.TemporaryDirectory() as tmp:
+        write_scene(generate_scene("office", 100.0, 100.0, 0), Path(tmp) / "scene")
+        scene = load_scene_files(Path(tmp) / "scene")
+        episode = Episode(scene, make_explorer("nearest"), 0, EpisodeConfig(max_time=seconds))
+        t0 = time.perf_counter()
+        episode.run()
+        return round(episode.sim.time / (time.perf_counter() - t0), 1)
 
 
 def main() -> None:
@@ -178,6 +201,8 @@ def main() -> None:
     exploration_wall = time.perf_counter() - t0
     exploration_seconds = episode.sim.time
 
+    large_office_rtf = _large_office_rtf(600.0)
+
     sample = poses[:: max(1, len(poses) // 200)]
     lidar_s = seconds_per_scan(m, d, sample, lambda: sim.lidar.scan(d, 0.0))
     sm = sensor_model(str(sim.scene.xml), sim.lidar.config.num_beams)
@@ -207,6 +232,7 @@ def main() -> None:
         "physics_rtf": round(sim_seconds / physics_wall, 1),
         "exploration_rtf": round(exploration_seconds / exploration_wall, 1),
         "exploration_sim_seconds": round(exploration_seconds, 1),
+        "large_office_rtf": large_office_rtf,
         "exploration_end_reason": episode.end_reason,
         "exploration_over_physics": round(
             (exploration_seconds / exploration_wall) / (sim_seconds / physics_wall), 3),

@@ -58,32 +58,19 @@ class ExplorationState:
         d = np.linalg.norm(points[:, None] - self.blacklist[None], axis=2)
         return (d > self.blacklist_radius).all(axis=1)
 
-    def _goal_windows(self, radius: float) -> tuple[np.ndarray, list[tuple[slice, slice]]]:
-        """A mask of the cells within ``radius`` of each frontier goal, and the windows."""
-        k = max(1, int(round(radius / self.grid.resolution)))
-        rows, cols = self.grid.shape
-        mask = np.zeros(self.grid.shape, bool)
-        windows = []
-        for f in self.frontiers:
-            r, c = f.goal_cell
-            w = (slice(max(r - k, 0), min(r + k + 1, rows)),
-                 slice(max(c - k, 0), min(c + k + 1, cols)))
-            mask[w] = True
-            windows.append(w)
-        return mask, windows
-
     def frontier_distances(self, radius: float = 0.5, nearest_only: bool = False) -> np.ndarray:
         """Path cost (metres) to the nearest traversable cell within ``radius`` of each
-        frontier's goal; inf if unreachable.
+        frontier's goal (a square of that half-side); inf if unreachable.
 
         With ``nearest_only`` the search stops at the first frontier reached: only that
         frontier's distance is exact, the others read inf or more.
         """
         if not self.frontiers:
             return np.zeros(0)
-        mask, windows = self._goal_windows(radius)
-        dist = self.costmap.distances_from(self.pose[:2], mask, 1 if nearest_only else 0)
-        return np.array([dist[w].min() for w in windows])
+        k = max(1, int(round(radius / self.grid.resolution)))
+        cells = np.array([f.goal_cell for f in self.frontiers], np.int64)
+        return self.costmap.distances_to_windows(self.pose[:2], cells, k,
+                                                 1 if nearest_only else 0)
 
 
 class Explorer(Protocol):

@@ -369,6 +369,35 @@ class Costmap:
                     self.grid.resolution, out)
         return out
 
+    def distances_to_windows(self, xy: np.ndarray, cells: np.ndarray, half: int,
+                             stop_after: int = 0) -> np.ndarray:
+        """The least path cost (metres) from ``xy`` to the (2 half + 1)-cell square around
+        each cell (clipped to the grid), the squares' cells being the search's targets: the
+        numbers of ``distances_from(xy, squares, stop_after)``'s least over each square,
+        read at the squares alone.
+
+        Args:
+            xy: Start point in the ``map`` frame.
+            cells: (k, 2) (row, col) cells inside the grid.
+            half: Square half-side, cells.
+            stop_after: Stop once this many target cells are reached (0: search all); the
+                squares not reached by then read inf (or an upper bound).
+        """
+        out = np.full(len(cells), np.inf)
+        start = self.nearest_traversable(xy)
+        if start < 0 or len(cells) == 0:
+            return out
+        cells = np.ascontiguousarray(cells, np.int64).reshape(-1, 2)
+        mask = np.zeros(self.grid.shape, bool)
+        rows, cols = self.grid.shape
+        for r, c in cells:
+            mask[max(r - half, 0):min(r + half + 1, rows),
+                 max(c - half, 0):min(c + half + 1, cols)] = True
+        self._run(start, -1, mask.reshape(-1), stop_after)
+        _window_min(self._dist, self._stamp, self._search_id, rows, cols, cells, half,
+                    self.grid.resolution, out)
+        return out
+
     def _search_everywhere(self, start: int) -> None:
         """Dijkstra from cell ``start`` to every reachable cell (the bucket queue)."""
         self._search_id += 1

@@ -84,7 +84,15 @@ def find_frontiers(grid: GridMap, min_size: int = 3, max_length: float = 2.0,
         free: ``grid.free`` if already computed.
     """
     free = grid.free if free is None else free
-    mask = frontier_mask(grid, free)
+    # Frontier cells neighbour free ones: only the box round the free cells can hold them,
+    # and labelling the box gives the whole map's labels in the same (raster) order.
+    box = _free_box(free)
+    if box is None:
+        return []
+    r0, c0 = box[0].start, box[1].start
+    near_free = cv2.dilate(free[box].astype(np.uint8), FOUR_NEIGHBOURS,
+                           borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
+    mask = (grid.data[box] < 0) & near_free
     flat = np.flatnonzero(mask.reshape(-1))  # Much faster than 2D nonzero on bool.
     if len(flat) == 0:
         return []
@@ -92,7 +100,7 @@ def find_frontiers(grid: GridMap, min_size: int = 3, max_length: float = 2.0,
     lab = labels.reshape(-1)[flat]
     order = np.argsort(lab, kind="stable")
     lab = lab[order]
-    cells = np.column_stack(np.divmod(flat[order], mask.shape[1]))
+    cells = np.column_stack(np.divmod(flat[order], mask.shape[1])) + (r0, c0)
     starts = np.flatnonzero(np.r_[True, lab[1:] != lab[:-1]])
     sizes = np.diff(np.r_[starts, len(lab)])
     extent = np.maximum(np.maximum.reduceat(cells, starts) - np.minimum.reduceat(cells, starts),
@@ -120,6 +128,17 @@ def find_frontiers(grid: GridMap, min_size: int = 3, max_length: float = 2.0,
     goals = grid.cell_to_world(goal_cells)
     return [Frontier(group, centres[i], (int(goal_cells[i, 0]), int(goal_cells[i, 1])),
                      goals[i]) for i, group in enumerate(groups)]
+
+
+def _free_box(free: np.ndarray) -> tuple[slice, slice] | None:
+    """The rows and columns of the free cells' bounding box grown by one cell (clipped to
+    the map), or None without free cells."""
+    rows = np.flatnonzero(free.any(axis=1))
+    if len(rows) == 0:
+        return None
+    cols = np.flatnonzero(free.any(axis=0))
+    return (slice(max(rows[0] - 1, 0), min(rows[-1] + 2, free.shape[0])),
+            slice(max(cols[0] - 1, 0), min(cols[-1] + 2, free.shape[1])))
 
 
 def _free_neighbours(free: np.ndarray, cells: np.ndarray) -> np.ndarray:
