@@ -20,6 +20,7 @@ import numpy as np
 from mjexplore.episode import MILESTONES
 from mjexplore.errors import UserInputError
 from mjexplore.eval.plots import METHOD_LABELS, kinematics_figure, ratio_figure
+from mjexplore.eval.stats import compare_paired
 from mjexplore.eval.summaries import KINEMATIC_FIELDS, KINEMATICS_DT, ratio_curve, read_summary
 from mjexplore.eval.sweep import MEAN_STD_NOTE, format_mean_std, markdown_table, summary_table
 from mjexplore.io.atomic import write_text_atomic
@@ -461,6 +462,48 @@ def relative_table(groups, baseline: str = "nearest", places: str = "maps") -> s
                            f"PL / {baseline} PL"], rows)
 
 
+# The classic planners a learned explorer is judged against (the oracle is a bound, not one).
+CLASSIC_METHODS = ("nearest", "pocket_nearest", "explore_lite", "frontier_tsp", "rrt",
+                   "potential")
+
+
+def paired_table(groups, method: str) -> str | None:
+    """``method``'s exploration time against the best classic planner on each scene (the
+    lowest mean ET among :data:`CLASSIC_METHODS` there), paired per seed: mean of the
+    per-seed ratios, bootstrap 95 % interval, seeds faster/slower and the sign test's p; a
+    last row pools every scene's seeds. None where ``method`` ran beside no classic."""
+    rows, pooled = [], ([], [])
+    for scene, methods in groups.items():
+        classics = [m for m in CLASSIC_METHODS if m in methods]
+        if method not in methods or not classics:
+            continue
+        best = min(classics, key=lambda m: np.mean(
+            [r["metrics"]["exploration_time_s"] for r in methods[m]]))
+        mine = {r["seed"]: r["metrics"]["exploration_time_s"] for r in methods[method]}
+        theirs = {r["seed"]: r["metrics"]["exploration_time_s"] for r in methods[best]}
+        seeds = sorted(mine.keys() & theirs.keys())
+        if not seeds:
+            continue
+        a, b = [mine[s] for s in seeds], [theirs[s] for s in seeds]
+        pooled[0].extend(a)
+        pooled[1].extend(b)
+        rows.append(_paired_row(scene, f"{METHOD_LABELS.get(best, best)} (of "
+                                f"{len(classics)})", compare_paired(a, b)))
+    if not rows:
+        return None
+    if len(rows) > 1:
+        every = _paired_row("all", "each scene's best", compare_paired(*pooled))
+        # Scenes of one seed each (ARiADNE's maps) say little one by one: the pool alone.
+        rows = [every] if all(r[2] == 1 for r in rows) else rows + [every]
+    return markdown_table(["scene", "best classic", "seeds", f"{method} ET / best ET",
+                           "95 % interval", "faster / slower", "sign test p"], rows)
+
+
+def _paired_row(scene: str, best: str, c) -> list:
+    return [scene, best, len(c.ratios), f"{c.mean:.3f}", f"{c.low:.3f}-{c.high:.3f}",
+            f"{c.faster}/{c.slower}", f"{c.p_value:.3g}"]
+
+
 def _variant(method: str) -> str:
     """A masking variant's name without its explanation ('naive masking')."""
     return ABLATION_NAMES.get(method, method).split(" (")[0]
@@ -617,11 +660,23 @@ def build_report(data_dir: str | os.PathLike, out: str | os.PathLike,
     return out
 
 
+def _paired_lines(groups) -> list[str]:
+    """The paired comparison of the learned explorer with the best classic, if both ran."""
+    table = paired_table(groups, TARGET_METHOD)
+    if table is None:
+        return []
+    return [f"{TARGET_METHOD} against the best classic planner of each scene "
+            f"({', '.join(CLASSIC_METHODS)}, those that ran), paired per seed (ratios of "
+            "exploration times; the interval resamples the seeds; the sign test counts the "
+            "seeds it was faster and slower on). The best is picked on these same runs, "
+            "which favours the classics most where a scene has few seeds:", "", table, ""]
+
+
 def _section(name: str, summary, groups, figures: Path, rel: str) -> list[str]:
     if name == "ariadne":
         note = _unfinished_note(summary)
-        return [relative_table(groups), "", reference_table(summary), "",
-                _other_ends(groups, episode=summary.get("episode")), ""] + \
+        return [relative_table(groups), "", *_paired_lines(groups), reference_table(summary),
+                "", _other_ends(groups, episode=summary.get("episode")), ""] + \
             ([note, ""] if note else [])
     # The setting and its companions that localise themselves (at the true pose: no error).
     if name == "realistic" or name in LOCALIZATION_RUNS.keys() - {"realistic_truth"}:
@@ -644,6 +699,7 @@ def _section(name: str, summary, groups, figures: Path, rel: str) -> list[str]:
     if name == "table1":
         if any(TARGET_METHOD in methods for methods in groups.values()):
             lines += [target_verdict(groups, TARGET_METHOD), ""]
+        lines += _paired_lines(groups)
         claims, faster = claims_table(groups)
         if faster:
             lines += ["### The paper's claims", "",
@@ -681,6 +737,8 @@ def _section(name: str, summary, groups, figures: Path, rel: str) -> list[str]:
         lines += [f"Averaged over the {where}, relative to nearest-frontier on the same "
                   f"{where[:-1]} (ratios of means; below 1 is faster):", "",
                   relative_table(groups, places=where), ""]
+    if name in ("explore_bench", "lobby_real"):
+        lines += _paired_lines(groups)
     if name == "gvn_v3":
         claims, faster = claims_table(groups, TARGET_METHOD)
         lines += [target_verdict(groups, TARGET_METHOD), "",
