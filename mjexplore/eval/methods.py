@@ -29,6 +29,7 @@ from mjexplore.policies.models import (
 LEARNED = ("gvn", "cnn")
 METHODS: dict[str, str] = {
     "nearest": "nearest frontier by path (Yamauchi 1997)",
+    "pocket_nearest": "gvn_v3's prior alone: the TER frontier of least path + 50 m P(small pocket)",
     "explore_lite": "ROS m-explore's explore_lite (frontier cost with size and orientation)",
     "frontier_tsp": "a global tour over the frontiers (TARE/FUEL style)",
     "rrt": "rrt_exploration (RRT frontier detection, information-gain utility)",

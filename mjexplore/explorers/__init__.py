@@ -16,6 +16,7 @@ from mjexplore.errors import UserInputError
 # planner's solvers are heavy to import).
 CLASSIC: dict[str, tuple[str, str]] = {
     "nearest": ("mjexplore.episode.nearest", "NearestFrontier"),
+    "pocket_nearest": ("mjexplore.explorers.pocket_nearest", "PocketNearest"),
     "explore_lite": ("mjexplore.explorers.explore_lite", "ExploreLite"),
     "frontier_tsp": ("mjexplore.explorers.frontier_tsp", "FrontierTsp"),
     "rrt": ("mjexplore.explorers.rrt", "RRTExplorer"),
