@@ -358,10 +358,42 @@ def cmd_policies(args: argparse.Namespace) -> int:
     return 0
 
 
+TEAM_BENCH_METHODS = "nearest,assign_greedy,assign_optimal,mmpf"
+
+
+def _bench_team(args: argparse.Namespace) -> int:
+    """``bench --robots N``: a sweep of team episodes (eval/team_sweep.py)."""
+    from mjexplore.eval.team_run import team_explorers
+    from mjexplore.eval.team_sweep import DRAWN, run_team_sweep
+
+    text = args.explorers
+    if text == "nearest,rrt,potential,oracle":  # The single robot's default set.
+        text = TEAM_BENCH_METHODS
+    methods = [e.strip() for e in text.split(",") if e.strip()]
+    scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
+    placements = [p.strip() for p in (args.starts or DRAWN).split(",") if p.strip()]
+    if not methods or not scenes or not placements:
+        raise UserInputError("--scenes, --explorers and --starts must each name one or more, "
+                             "comma-separated.")
+    if args.workers < 1 or args.seeds < 1:
+        raise UserInputError("--workers and --seeds must be at least 1.")
+    if args.localization != "ground_truth" or args.mcap is not None:
+        raise UserInputError("a team sweep runs with --localization ground_truth and without "
+                             "--mcap.")
+    for method in methods:
+        team_explorers(method, args.robots)  # Fails early on a bad name.
+    run_team_sweep(scenes, methods, args.robots, placements, list(range(args.seeds)),
+                   Path(args.out), _episode_config(args), workers=args.workers)
+    print((Path(args.out) / "results.md").read_text())
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from mjexplore.eval.methods import parse_method
     from mjexplore.eval.sweep import run_sweep
 
+    if args.robots > 1:
+        return _bench_team(args)
     specs = [parse_method(e) for e in args.explorers.split(",") if e.strip()]
     explorers = [spec.label for spec in specs]
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
@@ -641,6 +673,15 @@ def build_parser() -> argparse.ArgumentParser:
                        choices=["foxglove", "ros2"], metavar="PROFILE",
                        help="also write an MCAP per episode; PROFILE foxglove (default) or "
                        "ros2 as explore's --mcap-profile")
+    bench.add_argument("--robots", type=_count, default=1, metavar="N",
+                       help="sweep team episodes of N robots (team methods or single-robot "
+                       "ones as naive teams; default methods "
+                       f"{TEAM_BENCH_METHODS}), each scene also run by one robot with "
+                       "nearest for the time beside (default: 1, single-robot sweeps)")
+    bench.add_argument("--starts", default=None, metavar="PLACEMENTS",
+                       help="with --robots: comma-separated start placements, 'close' and "
+                       "'far' (Explore-Bench's, on its maps) or 'drawn' (robot 0 at the "
+                       "scene's start, the others around it) (default: drawn)")
     _add_episode_args(bench)
     bench.set_defaults(func=cmd_bench)
 

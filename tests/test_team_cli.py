@@ -75,3 +75,21 @@ def test_team_starts_from_text_and_placements():
 def test_team_explore_refuses_what_it_cannot_do(tmp_path, capsys, args, message):
     assert main(["explore", "--scene", "train_loop", "--out", str(tmp_path / "r"), *args]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_bench_with_a_team_puts_the_single_robot_beside(tmp_path):
+    out = tmp_path / "bench"
+    args = ["bench", "--scenes", "train_loop", "--robots", "2", "--explorers",
+            "assign_greedy", "--seeds", "1", "--workers", "1", "--max-time", "6",
+            "--out", str(out)]
+    assert main(args) == 0
+    table = (out / "results.md").read_text()
+    assert "| train_loop | - | single nearest | 1 | 1 |" in table
+    assert "| train_loop | drawn | assign_greedy | 2 | 1 |" in table
+    for folder in ("single/nearest/seed0", "drawn/assign_greedy/seed0"):
+        assert (out / "runs" / "train_loop" / folder / "metrics.json").is_file()
+    done = out / "runs" / "train_loop" / "drawn" / "assign_greedy" / "seed0" / "metrics.json"
+    stamp = done.stat().st_mtime_ns
+    assert main(args) == 0  # Finished episodes are kept.
+    assert done.stat().st_mtime_ns == stamp
+    assert main([*args[:-2], "--starts", "close", "--out", str(tmp_path / "b2")]) == 2

@@ -1,0 +1,171 @@
+"""Sweeps of team episodes (``bench --robots N``), with the single robot's time beside.
+
+Every scene x start placement x team method x seed runs as a team episode
+(:func:`~mjexplore.eval.team_run.write_team_run`) into
+``OUT/runs/SCENE/PLACEMENT/METHOD/seedK`` (``PLACEMENT``: ``close`` or ``far``, Explore-Bench's
+on its maps, or ``drawn``: robot 0 at the scene's start, the others drawn around it); each
+scene and seed also runs the single robot with ``single`` (default ``nearest``) into
+``OUT/runs/SCENE/single/METHOD/seedK``. Finished runs are kept (an interrupted sweep resumes).
+``results.md`` and ``results.csv`` hold, per scene, placement and method: runs, explored,
+the team's time to 98.5 % (mean +- std), the same over the single robot's of the same seeds
+(mean of the per-seed ratios), time to 90 %, overlap ratio, summed and longest path, and
+robot-robot collisions.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import csv
+import dataclasses
+import io
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mjexplore.episode import EpisodeConfig
+from mjexplore.errors import UserInputError
+from mjexplore.eval.run import write_run
+from mjexplore.eval.sweep import format_mean_std, markdown_table, scene_label
+from mjexplore.eval.team_run import team_starts, write_team_run
+from mjexplore.io.atomic import write_text_atomic
+from mjexplore.scenes.canonical import resolve_scene
+
+log = logging.getLogger(__name__)
+DRAWN = "drawn"
+
+
+@dataclasses.dataclass(frozen=True)
+class TeamJob:
+    """One episode of a team sweep (``robots`` 1: the single-robot baseline)."""
+
+    scene: str
+    placement: str
+    method: str
+    seed: int
+    robots: int
+
+    def folder(self, out: Path) -> Path:
+        where = "single" if self.robots == 1 else self.placement
+        return out / "runs" / scene_label(self.scene) / where / self.method / f"seed{self.seed}"
+
+
+def _finished(folder: Path) -> dict[str, Any] | None:
+    try:
+        metrics = json.loads((folder / "metrics.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return None if metrics.get("end_reason") == "interrupted" else metrics
+
+
+def _run(args: tuple[TeamJob, Path, EpisodeConfig]) -> dict[str, Any]:
+    job, out, config = args
+    folder = job.folder(out)
+    done = _finished(folder)
+    if done is not None:
+        return done
+    try:
+        scene = resolve_scene(job.scene)
+        if job.robots == 1:
+            return write_run(folder, scene, job.method, job.seed, config, mcap=False)
+        starts = None if job.placement == DRAWN else team_starts(scene, job.placement,
+                                                                 job.robots)
+        return write_team_run(folder, scene, job.method, job.robots, job.seed, config,
+                              starts, mcap=False)
+    except Exception as exc:  # noqa: BLE001 - one broken episode must not end the sweep
+        log.exception("episode %s failed", job)
+        return {"end_reason": "error", "error": f"{type(exc).__name__}: {exc}"}
+
+
+def team_jobs(scenes: list[str], methods: list[str], robots: int, placements: list[str],
+              seeds: list[int], single: str | None = "nearest") -> list[TeamJob]:
+    """The jobs of a team sweep, the single-robot baseline's first."""
+    jobs = []
+    if single:
+        jobs += [TeamJob(s, DRAWN, single, k, 1) for s in scenes for k in seeds]
+    jobs += [TeamJob(s, p, m, k, robots) for s in scenes for p in placements for m in methods
+             for k in seeds]
+    return jobs
+
+
+def run_team_sweep(scenes: list[str], methods: list[str], robots: int, placements: list[str],
+                   seeds: list[int], out: Path, config: EpisodeConfig, workers: int = 1,
+                   single: str | None = "nearest") -> list[dict[str, Any]]:
+    """Runs (or resumes) a team sweep and writes its summary; returns every episode's
+    metrics.
+
+    Raises:
+        UserInputError: a placement a scene does not define (checked before anything
+            runs).
+    """
+    if robots < 2:
+        raise UserInputError("a team sweep needs --robots 2 or more.")
+    for scene in scenes:
+        for placement in placements:
+            if placement != DRAWN:
+                team_starts(resolve_scene(scene), placement, robots)
+    jobs = team_jobs(scenes, methods, robots, placements, seeds, single)
+    out.mkdir(parents=True, exist_ok=True)
+    args = [(job, out, config) for job in jobs]
+    if workers <= 1:
+        results = [_run(a) for a in args]
+    else:
+        with concurrent.futures.ProcessPoolExecutor(workers) as pool:
+            results = list(pool.map(_run, args))
+    write_team_summary(out, jobs)
+    return results
+
+
+def write_team_summary(out: Path, jobs: list[TeamJob]) -> None:
+    """``results.md`` and ``results.csv`` of the finished runs among ``jobs``."""
+    single: dict[tuple[str, int], dict[str, Any]] = {}
+    groups: dict[tuple[str, str, str, int], list[tuple[int, dict[str, Any]]]] = {}
+    for job in jobs:
+        metrics = _finished(job.folder(out))
+        if metrics is None:
+            continue
+        if job.robots == 1:
+            single[(scene_label(job.scene), job.seed)] = metrics
+        else:
+            key = (scene_label(job.scene), job.placement, job.method, job.robots)
+            groups.setdefault(key, []).append((job.seed, metrics))
+    header = ["scene", "placement", "method", "robots", "runs", "explored", "T98.5 (s)",
+              "x single", "T90 (s)", "overlap", "path (m)", "longest path (m)",
+              "robot collisions"]
+    rows = []
+    scenes = sorted({k[0] for k in groups} | {k[0] for k in single})
+    for scene in scenes:
+        seeds = [s for (sc, s) in single if sc == scene]
+        if seeds:
+            ms = [single[(scene, s)] for s in seeds]
+            rows.append([scene, "-", f"single {ms[0].get('explorer', '')}", 1, len(ms),
+                         sum(m["end_reason"] == "explored" for m in ms),
+                         format_mean_std([m.get("t985_s") for m in ms]), "1", "-", "-",
+                         format_mean_std([m.get("path_length_m") for m in ms]), "-", "-"])
+        for key in sorted(k for k in groups if k[0] == scene):
+            runs = groups[key]
+            ms = [m for _, m in runs]
+            ratios = [m["t985_s"] / single[(scene, s)]["t985_s"] for s, m in runs
+                      if m.get("t985_s") and (scene, s) in single and
+                      single[(scene, s)].get("t985_s")]
+            rows.append([scene, key[1], key[2], key[3], len(ms),
+                         sum(m["end_reason"] == "explored" for m in ms),
+                         format_mean_std([m.get("t985_s") for m in ms]),
+                         f"{np.mean(ratios):.3f}" if ratios else "-",
+                         format_mean_std([m.get("t90_s") for m in ms]),
+                         format_mean_std([m.get("overlap_ratio") for m in ms]),
+                         format_mean_std([m.get("path_length_m") for m in ms]),
+                         format_mean_std([m.get("max_path_length_m") for m in ms]),
+                         format_mean_std([m.get("robot_collisions") for m in ms])])
+    buf = io.StringIO()
+    csv.writer(buf).writerows([header] + rows)
+    write_text_atomic(out / "results.csv", buf.getvalue())
+    write_text_atomic(out / "results.md", markdown_table(header, rows) + (
+        "\n\nMean +- std over runs; (k/n) where only k of n runs reached the level. "
+        "'x single': the team's time to 98.5 % over the single robot's on the same scene "
+        "and seed, averaged over the seeds where both reached it.\n"))
+
+
+__all__ = ["DRAWN", "TeamJob", "run_team_sweep", "team_jobs", "write_team_summary"]
