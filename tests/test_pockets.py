@@ -185,3 +185,47 @@ def test_v3_needs_a_predictor_and_the_pocket_prior_needs_v3():
     with pytest.raises(ValueError, match="prior_pocket_m"):
         dataclasses.replace(config, policy=dataclasses.replace(config.policy,
                                                                prior_pocket_m=50.0))
+
+
+def _patches_from_padded_layers(grid, frontiers):
+    """The patches as the predictor was trained on them: windows of whole-map layers padded
+    by a patch on every side (the reference the per-frontier windows must reproduce)."""
+    import cv2
+
+    from mjexplore.topology.pockets import PATCH_CELLS, PATCH_RESOLUTION
+
+    out = np.zeros((len(frontiers), 3, PATCH_CELLS, PATCH_CELLS), np.uint8)
+    side = max(1, int(round(PATCH_CELLS * PATCH_RESOLUTION / grid.resolution)))
+    half = side // 2
+    data = grid.data
+    layers = np.zeros((2, data.shape[0] + side, data.shape[1] + side), np.float32)
+    layers[0, half:half + data.shape[0], half:half + data.shape[1]] = data == 0
+    layers[1, half:half + data.shape[0], half:half + data.shape[1]] = data > 0
+    own = np.zeros((side, side), np.float32)
+    for i, f in enumerate(frontiers):
+        r0, c0 = np.round(f.cells.mean(axis=0)).astype(int) - half
+        cells = f.cells - (r0, c0)
+        inside = ((cells >= 0) & (cells < side)).all(axis=1)
+        own[:] = 0.0
+        own[cells[inside, 0], cells[inside, 1]] = 1.0
+        window = layers[:, r0 + half:r0 + half + side, c0 + half:c0 + half + side]
+        for k, layer in enumerate((window[0], window[1], own)):
+            resized = layer if side == PATCH_CELLS else cv2.resize(
+                layer, (PATCH_CELLS, PATCH_CELLS), interpolation=cv2.INTER_AREA)
+            out[i, k] = np.round(np.clip(resized, 0.0, 1.0) * 255.0)
+    return out
+
+
+@pytest.mark.parametrize("resolution", [0.05, 0.1, 0.07])
+def test_patches_cut_per_frontier_equal_the_padded_whole_map_ones(resolution):
+    rng = np.random.default_rng(int(resolution * 100))
+    data = np.full((90, 130), -1, np.int8)
+    for _ in range(8):  # Rooms, some against the map's border.
+        r, c = rng.integers(0, 80), rng.integers(0, 120)
+        data[r:r + rng.integers(4, 30), c:c + rng.integers(4, 40)] = 0
+    data[rng.random(data.shape) < 0.03] = 100
+    grid = GridMap(data, resolution)
+    frontiers = find_frontiers(grid)
+    assert len(frontiers) > 5
+    assert np.array_equal(frontier_patches(grid, frontiers),
+                          _patches_from_padded_layers(grid, frontiers))

@@ -60,19 +60,21 @@ def frontier_patches(grid: GridMap, frontiers: list[Frontier]) -> np.ndarray:
     side = max(1, int(round(PATCH_CELLS * PATCH_RESOLUTION / grid.resolution)))
     half = side // 2
     data = grid.data
-    layers = np.zeros((2, data.shape[0] + side, data.shape[1] + side), np.float32)
-    layers[0, half:half + data.shape[0], half:half + data.shape[1]] = data == 0
-    layers[1, half:half + data.shape[0], half:half + data.shape[1]] = data > 0
-    own = np.zeros((side, side), np.float32)
+    rows, cols = data.shape
+    window = np.zeros((3, side, side), np.float32)  # Free, occupied, the frontier's cells.
     for i, f in enumerate(frontiers):
         r0, c0 = np.round(f.cells.mean(axis=0)).astype(int) - half
+        window[:] = 0.0  # Outside the map reads as unknown.
+        a0, a1 = max(r0, 0), min(r0 + side, rows)
+        b0, b1 = max(c0, 0), min(c0 + side, cols)
+        if a0 < a1 and b0 < b1:
+            part = data[a0:a1, b0:b1]
+            window[0, a0 - r0:a1 - r0, b0 - c0:b1 - c0] = part == 0
+            window[1, a0 - r0:a1 - r0, b0 - c0:b1 - c0] = part > 0
         cells = f.cells - (r0, c0)
         inside = ((cells >= 0) & (cells < side)).all(axis=1)
-        own[:] = 0.0
-        own[cells[inside, 0], cells[inside, 1]] = 1.0
-        # Padded layers: map cell (r, c) sits at (r + half, c + half).
-        window = layers[:, r0 + half:r0 + half + side, c0 + half:c0 + half + side]
-        for k, layer in enumerate((window[0], window[1], own)):
+        window[2, cells[inside, 0], cells[inside, 1]] = 1.0
+        for k, layer in enumerate(window):
             resized = layer if side == PATCH_CELLS else cv2.resize(
                 layer, (PATCH_CELLS, PATCH_CELLS), interpolation=cv2.INTER_AREA)
             out[i, k] = np.round(np.clip(resized, 0.0, 1.0) * 255.0)
