@@ -70,7 +70,7 @@ class _Compare:
         p = self.pocket
         if goal is not None and nearest is not None:
             frontiers = state.extras["tracker"].frontiers(state.grid)
-            probability = p.pocket_probability(p.padded, state.grid, frontiers)
+            probability = p.pockets.node_probability(p.padded, state.grid, frontiers)
             at = np.flatnonzero(p.mask & np.all(np.abs(p.padded.node_positions - nearest)
                                                 <= 1e-3, axis=1))
             if len(at):

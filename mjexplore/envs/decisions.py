@@ -105,28 +105,8 @@ class TerDecisions:
             path = state.costmap.distances_near(state.pose[:2], cells, half)
             extra[real, :3] = path_features(path, state.allowed(positions))
         if self.pockets is not None and frontiers:
-            extra[:, 3] = self._pocket_feature(padded, state, frontiers)
+            extra[:, 3] = self.pockets.node_probability(padded, state.grid, frontiers)
         return extra
-
-    def _pocket_feature(self, padded: PaddedTer, state: ExplorationState,
-                        frontiers: list[Frontier]) -> np.ndarray:
-        """(N,) each frontier node's pocket probability (a node sits at its frontier's goal
-        cell); 0 for the other nodes."""
-        grid = state.grid
-        nodes = np.flatnonzero((padded.node_mask > 0)
-                               & (padded.node_features[:, 5] == FRONTIER_FLAG))
-        out = np.zeros(len(padded.node_mask), np.float32)
-        if len(nodes) == 0:
-            return out
-        index = {tuple(f.goal_cell): i for i, f in reversed(list(enumerate(frontiers)))}
-        cells = grid.world_to_cell(padded.node_positions[nodes].astype(float))
-        matched = [(n, index.get((int(r), int(c)))) for n, (r, c) in zip(nodes, cells)]
-        matched = [(n, i) for n, i in matched if i is not None]
-        if matched:
-            probability = self.pockets.small_probability(
-                grid, [frontiers[i] for _, i in matched])
-            out[[n for n, _ in matched]] = probability
-        return out
 
     def prepare(self, state: ExplorationState) -> bool:
         """Builds the observation and mask; False when no valid frontier is left (the

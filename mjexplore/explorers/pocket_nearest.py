@@ -35,11 +35,10 @@ import os
 import numpy as np
 
 from mjexplore.episode.explorer import ExplorationState
-from mjexplore.maps import GridMap
 from mjexplore.topology.frontiers import Frontier
 from mjexplore.topology.pipeline import TopologyConfig, TopologyTracker
 from mjexplore.topology.pockets import PocketPredictor, pocket_predictor
-from mjexplore.topology.ter import FRONTIER_FLAG, PaddedTer
+from mjexplore.topology.ter import PaddedTer
 
 # gvn_v3's settings (its weights file's stored layout and policy arguments).
 GVN_V3_POCKETS = "training/pockets.safetensors"
@@ -164,32 +163,7 @@ class PocketNearest:
         path = np.clip(path, -FEATURE_BOUND, FEATURE_BOUND)
         cost = path + np.float32(EXCLUDED_M) * unreachable
         if self.pockets is not None and frontiers:
-            pocket = self.pocket_probability(padded, grid, frontiers)
+            pocket = self.pockets.node_probability(padded, grid, frontiers)
             cost = cost + np.float32(self.pocket_m) * np.clip(pocket, -FEATURE_BOUND,
                                                               FEATURE_BOUND)
         return cost.astype(np.float32)
-
-    def pocket_probability(self, padded: PaddedTer, grid: GridMap,
-                           frontiers: list[Frontier]) -> np.ndarray:
-        """(N_max,) float32 probability that each frontier node's pocket is small (a node
-        sits at its frontier's goal cell; every frontier node is predicted in one batch, as
-        in the v3 observation); 0 for the other nodes.
-
-        Args:
-            padded: The decision's padded TER.
-            grid: The partial map.
-            frontiers: The frontiers the TER was built from.
-        """
-        out = np.zeros(len(padded.node_mask), np.float32)
-        nodes = np.flatnonzero((padded.node_mask > 0)
-                               & (padded.node_features[:, 5] == FRONTIER_FLAG))
-        if len(nodes) == 0 or self.pockets is None:
-            return out
-        index = {tuple(f.goal_cell): i for i, f in reversed(list(enumerate(frontiers)))}
-        cells = grid.world_to_cell(padded.node_positions[nodes].astype(float))
-        matched = [(n, index.get((int(r), int(c)))) for n, (r, c) in zip(nodes, cells)]
-        matched = [(n, i) for n, i in matched if i is not None]
-        if matched:
-            out[[n for n, _ in matched]] = self.pockets.small_probability(
-                grid, [frontiers[i] for _, i in matched])
-        return out

@@ -36,6 +36,7 @@ from mjexplore.io.provenance import REPO, file_sha256
 from mjexplore.io.tensor_file import read_tensor_file
 from mjexplore.maps import GridMap
 from mjexplore.topology.frontiers import Frontier, information_gain
+from mjexplore.topology.ter import FRONTIER_FLAG, PaddedTer
 
 PATCH_CELLS = 64  # Patch side, cells.
 PATCH_RESOLUTION = 0.1  # Patch cell side, metres (a 6.4 m square).
@@ -164,6 +165,31 @@ class PocketPredictor:
             raise UserInputError(f"weights in {str(path)!r} do not fit the pocket network "
                                  f"({str(exc).splitlines()[0]}).") from None
         self.net.eval()
+
+    def node_probability(self, padded: PaddedTer, grid: GridMap,
+                         frontiers: list[Frontier]) -> np.ndarray:
+        """(N_max,) float32: each frontier node's probability that its pocket is small (a
+        node sits at its frontier's goal cell; every frontier node is predicted in one
+        batch); 0 for the other nodes.
+
+        Args:
+            padded: A decision's padded TER.
+            grid: The partial map.
+            frontiers: The frontiers the TER was built from.
+        """
+        out = np.zeros(len(padded.node_mask), np.float32)
+        nodes = np.flatnonzero((padded.node_mask > 0)
+                               & (padded.node_features[:, 5] == FRONTIER_FLAG))
+        if len(nodes) == 0:
+            return out
+        index = {tuple(f.goal_cell): i for i, f in reversed(list(enumerate(frontiers)))}
+        cells = grid.world_to_cell(padded.node_positions[nodes].astype(float))
+        matched = [(n, index.get((int(r), int(c)))) for n, (r, c) in zip(nodes, cells)]
+        matched = [(n, i) for n, i in matched if i is not None]
+        if matched:
+            out[[n for n, _ in matched]] = self.small_probability(
+                grid, [frontiers[i] for _, i in matched])
+        return out
 
     def small_probability(self, grid: GridMap, frontiers: list[Frontier]) -> np.ndarray:
         """(n,) probability that each frontier's pocket is below ``small_area_m2``."""
