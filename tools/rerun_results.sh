@@ -39,7 +39,7 @@ else
 fi
 mj() { (cd "$WT" && PYTHONPATH="$WT${PYTHONPATH:+:$PYTHONPATH}" "$PY" -c \
     'import sys; from mjexplore.cli import main; sys.exit(main(sys.argv[1:]))' "$@"); }
-ALL=nearest,explore_lite,frontier_tsp,rrt,potential,cnn:cnn_paper,gvn:gvn_paper,oracle
+ALL=nearest,pocket_nearest,explore_lite,frontier_tsp,rrt,potential,cnn:cnn_paper,gvn:gvn_paper,oracle
 for e in $EXPERIMENTS; do
   echo "== $e $(date -u +%FT%TZ)"
   case $e in
