@@ -15,7 +15,8 @@ may choose another goal), and gives the goal up (as unreachable, to be offered a
 only after ``wait_timeout`` seconds. When two robots block each other (each waiting on
 the other, or touching), the one with the higher index yields: it drives to the reachable
 place, ``yield_distance`` metres or so away, farthest from the other robot, then explores
-on. Returns of the lidar that come from teammates (their known poses) are not mapped, so
+on; a robot that stands still for good (idle, with nothing to explore, or retired) yields to
+any robot it blocks. Returns of the lidar that come from teammates (their known poses) are not mapped, so
 robots do not leave trails of phantom walls in the shared map.
 
 The end of exploration holds for the team: the episode ends when the team's map reaches
@@ -511,7 +512,7 @@ class TeamEpisode:
         t = self.time
         tc = self.team_config
         for a in self.agents:
-            if a.retired is not None or a._yield_goal is not None:
+            if not a.active or a._yield_goal is not None:
                 a._blocked_since = None
                 continue
             blocked = a.waiting or a.sim.in_collision and a.sim._teammate_contact
@@ -526,10 +527,15 @@ class TeamEpisode:
             d = np.hypot(*(poses[:, :2] - a.pose[:2]).T)
             d[a.index] = np.inf
             other = self.agents[int(np.argmin(d))]
-            # The lower-priority robot of the pair moves aside; a robot blocked by one that
-            # is not blocked itself (idle, or driving on) moves aside as well.
+            # A robot that stands still for good (idle or retired) moves aside for the one it
+            # blocks; of two blocked robots the higher-indexed one moves aside; a robot
+            # blocked by one driving on moves aside itself.
+            if not other.active and other._yield_goal is None:
+                if other.yield_way(a):
+                    a._blocked_since = None
+                continue
             other_blocked = other._blocked_since is not None
-            if (other_blocked and a.index > other.index) or not other.active or \
+            if (other_blocked and a.index > other.index) or \
                     (not other_blocked and a.waiting and t - a.waiting_since >= tc.yield_after):
                 if a.yield_way(other):
                     a._blocked_since = None
