@@ -8,7 +8,9 @@ Usage: python tools/export_policy.py runs/train/gvn/checkpoints/step_000012288.p
 The ONNX model takes the decision's observation arrays (flat, batch first, in the order of
 its ``observation_keys`` metadata) and the boolean ``action_mask``, and returns the masked
 action logits and the greedy action (see mjexplore/policies/onnx_export.py). Prints one
-JSON line; bad input gets a one-paragraph error and exit code 2.
+JSON line; bad input (a missing or damaged source, an OUT whose suffix is not the format
+written, an OUT that cannot be written) gets a one-line error and exit code 2, and nothing is
+written.
 """
 
 from __future__ import annotations
@@ -16,8 +18,24 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 from mjexplore.errors import UserInputError
+from mjexplore.io.atomic import check_output_file
+
+
+def _check_out(args: argparse.Namespace) -> None:
+    """Refuses an OUT whose suffix is not the format written, or that cannot be written."""
+    suffix = Path(args.out).suffix.lower()
+    if args.onnx and suffix != ".onnx":
+        raise UserInputError(f"{args.out!r}: --onnx writes an ONNX model: give OUT ending in "
+                             ".onnx.")
+    if not args.onnx and suffix != ".safetensors":
+        hint = (" To get an ONNX model, export the weights first, then run --onnx on them."
+                if suffix == ".onnx" else "")
+        raise UserInputError(f"{args.out!r}: a checkpoint exports as policy weights: give OUT "
+                             f"ending in .safetensors.{hint}")
+    check_output_file(args.out, "OUT")
 
 
 def main() -> int:
@@ -33,6 +51,7 @@ def main() -> int:
                         "records another")
     args = parser.parse_args()
     try:
+        _check_out(args)
         if args.onnx:
             if args.git_revision is not None:
                 raise UserInputError("--git-revision applies to checkpoint exports; an ONNX "
@@ -53,7 +72,13 @@ def main() -> int:
 
         provenance = export_checkpoint(args.source, args.out, args.git_revision)
     except UserInputError as exc:
-        print(f"export_policy: error: {exc}", file=sys.stderr)
+        print(f"export_policy: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        where = " or ".join(repr(str(f)) for f in (exc.filename, exc.filename2) if f) or "a file"
+        print(f"export_policy: error: cannot use {where}: {exc.strerror or exc}: check that "
+              "path (a file in the way, permissions, a read-only filesystem) or choose another.",
+              file=sys.stderr)
         return 2
     print(json.dumps({"out": args.out, "num_timesteps": provenance["num_timesteps"],
                       "git_revision": provenance["git_revision"]}))

@@ -19,7 +19,9 @@ provenance.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import io
 import json
 import logging
 import os
@@ -37,6 +39,8 @@ from mjexplore.io.atomic import write_bytes_atomic
 from mjexplore.policies.gvn import GVN, SpatialEncoder, masked_mean, memory_pose_features
 from mjexplore.policies.weights import actor_logits, load_policy
 from mjexplore.topology.ter import NUM_FEATURES
+
+log = logging.getLogger(__name__)
 
 FORMAT = "mjexplore-policy-onnx-v1"
 MASKED_LOGIT = -1.0e8  # sb3-contrib's MaskableCategorical value for invalid actions.
@@ -222,8 +226,12 @@ def export_onnx(weights: str | os.PathLike, out: str | os.PathLike,
     registration = logging.getLogger("torch.onnx._internal.exporter._registration")
     level = registration.level
     registration.setLevel(logging.ERROR)
+    # torch.export prints the partial graph of a capture strategy that fails (18 KB for the
+    # v3 GVN) before the exporter falls back to the next one: kept for -v, not shown.
+    chatter = io.StringIO()
     try:
-        with torch.no_grad(), warnings.catch_warnings():
+        with (torch.no_grad(), warnings.catch_warnings(), contextlib.redirect_stderr(chatter),
+              contextlib.redirect_stdout(chatter)):
             warnings.filterwarnings("ignore", r"`isinstance\(treespec, LeafSpec\)`",
                                     FutureWarning)
             warnings.filterwarnings("ignore", r"# The axis name: batch", UserWarning)
@@ -234,6 +242,8 @@ def export_onnx(weights: str | os.PathLike, out: str | os.PathLike,
                 dynamic_shapes=(tuple({0: batch} for _ in signature),), verbose=False)
     finally:
         registration.setLevel(level)
+        if chatter.getvalue():
+            log.debug("the ONNX exporter's output:\n%s", chatter.getvalue())
     model = program.model_proto
     props = {"format": FORMAT, "kind": meta["kind"],
              "weights_file": Path(weights).name, "weights_sha256": file_sha256(weights),
@@ -283,13 +293,34 @@ class OnnxActor:
     def __call__(self, obs: dict[str, np.ndarray], action_mask: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray]:
         """Masked logits (B, A) and greedy actions (B,) of one decision's (or a batch's)
-        observation arrays; unbatched arrays get a batch axis of 1."""
+        observation arrays; unbatched arrays get a batch axis of 1.
+
+        Raises:
+            UserInputError: ``obs`` lacks arrays the model takes, or their shapes differ
+                from the model's.
+        """
         batched = np.ndim(action_mask) == 2
+        missing = [k for k in self.keys if k not in obs]
+        if missing:
+            raise UserInputError(
+                f"the observation lacks {', '.join(missing)}: this model takes "
+                f"{', '.join(self.keys)} (its policy's layout; the observation holds "
+                f"{', '.join(sorted(obs)) or 'nothing'}). Build the observation with the "
+                "decision space of the policy the model was exported from.")
         feed = {k: np.asarray(obs[k], np.float32) for k in self.keys}
         feed["action_mask"] = np.asarray(action_mask, bool)
         if not batched:
             feed = {k: v[None] for k, v in feed.items()}
-        logits, action = self.session.run(["masked_logits", "action"], feed)
+        try:
+            logits, action = self.session.run(["masked_logits", "action"], feed)
+        except Exception as exc:  # onnxruntime's errors have no common Python base.
+            if type(exc).__module__.startswith("onnxruntime"):
+                shapes = {k: list(v.shape) for k, v in feed.items()}
+                raise UserInputError(
+                    f"the observation does not fit the model ({str(exc).splitlines()[0]}): "
+                    f"it takes {self.metadata.get('inputs')} per decision, it was given "
+                    f"{shapes}.") from None
+            raise
         return logits, action
 
 

@@ -86,6 +86,34 @@ def _require(meta: dict, key: str, path: Path):
     return meta[key]
 
 
+# What each numeric entry is, for messages.
+_NUMBERS = {"resolution": "metres per pixel, e.g. 0.05",
+            "negate": "0 or 1; drop the line for 0",
+            "occupied_thresh": f"a number in [0, 1]; drop the line for map_saver's "
+                               f"{OCCUPIED_THRESH}",
+            "free_thresh": f"a number in [0, 1]; drop the line for map_saver's {FREE_THRESH}"}
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _number(meta: dict, key: str, path: Path, default: float | None = None) -> float:
+    """The number ``meta[key]`` (``default`` when the key is absent; required without one)."""
+    value = _require(meta, key, path) if default is None else meta.get(key, default)
+    if key == "negate" and isinstance(value, bool):
+        return float(value)  # YAML's true and false.
+    if isinstance(value, str):
+        try:
+            value = float(value)
+        except ValueError:
+            pass
+    if not _is_number(value):
+        what = "is empty" if value is None else f"is {value!r}, not a number"
+        raise UserInputError(f"map YAML {str(path)!r}: {key} {what}: give {_NUMBERS[key]}.")
+    return float(value)
+
+
 def read_map(yaml_path: str | os.PathLike) -> GridMap:
     """Reads a map_server map into a :class:`GridMap` (trinary interpretation).
 
@@ -104,17 +132,16 @@ def read_map(yaml_path: str | os.PathLike) -> GridMap:
         raise UserInputError(f"map YAML {str(yaml_path)!r} is not a mapping of keys: it must "
                              "hold image, resolution, origin, ...")
     image = _require(meta, "image", yaml_path)
-    try:
-        resolution = float(_require(meta, "resolution", yaml_path))
-        origin = [float(v) for v in _require(meta, "origin", yaml_path)]
-        negate = int(meta.get("negate", 0))
-        mode = str(meta.get("mode", "trinary"))
-        occ_th = float(meta.get("occupied_thresh", OCCUPIED_THRESH))
-        free_th = float(meta.get("free_thresh", FREE_THRESH))
-    except (TypeError, ValueError) as exc:
-        raise UserInputError(f"map YAML {str(yaml_path)!r} has a non-numeric value ({exc}): "
-                             "resolution and thresholds are numbers, origin is [x, y, yaw].") \
-            from None
+    resolution = _number(meta, "resolution", yaml_path)
+    origin = _require(meta, "origin", yaml_path)
+    if not isinstance(origin, list) or not all(_is_number(v) for v in origin):
+        raise UserInputError(f"map YAML {str(yaml_path)!r}: origin {origin!r} is not [x, y, yaw]: "
+                             "give three numbers in metres and radians, e.g. [0.0, 0.0, 0.0].")
+    origin = [float(v) for v in origin]
+    negate = _number(meta, "negate", yaml_path, 0)
+    mode = str(meta.get("mode", "trinary"))
+    occ_th = _number(meta, "occupied_thresh", yaml_path, OCCUPIED_THRESH)
+    free_th = _number(meta, "free_thresh", yaml_path, FREE_THRESH)
     if not resolution > 0 or len(origin) != 3:
         raise UserInputError(f"map YAML {str(yaml_path)!r}: resolution must be > 0 and origin "
                              "must be [x, y, yaw].")

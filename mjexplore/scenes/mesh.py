@@ -79,7 +79,7 @@ from scipy import ndimage, sparse, spatial
 from scipy.sparse import csgraph
 
 from mjexplore.errors import UserInputError
-from mjexplore.io.atomic import write_bytes_atomic
+from mjexplore.io.atomic import check_output_file, write_bytes_atomic
 from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
 from mjexplore.robot import ROBOT_XML, TURTLEBOT3_WAFFLE
 from mjexplore.scenes.scene import (
@@ -693,9 +693,7 @@ def check_export_path(out: str | os.PathLike) -> Path:
         raise UserInputError(f"--export {str(out)!r}: give a file ending in "
                              f"{', '.join(EXPORT_FORMATS)} (GLB for Foxglove, Blender and "
                              "Gazebo).")
-    if out.is_dir():
-        raise UserInputError(f"--export {str(out)!r} is a folder: give a file name.")
-    return out
+    return check_output_file(out, "--export")
 
 
 def export_scene_mesh(xml: str | os.PathLike, out: str | os.PathLike) -> Path:
