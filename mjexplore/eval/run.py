@@ -101,6 +101,9 @@ def run_episode(scene: SceneFiles, explorer: str, seed: int, config: EpisodeConf
         interrupted, result = exc, exc.result
     finally:
         observers.close()  # Also on Ctrl-C: the MCAP and video are finished, readable files.
+    recipe = getattr(built, "policy_recipe", None)  # A learned explorer's policy.
+    if recipe is not None:
+        result.metrics["policy_recipe"] = recipe
     if stills_dir is not None:
         from mjexplore.render.recorder import write_stills
 

@@ -10,7 +10,7 @@ import torch
 
 from mjexplore.episode.explorer import ExplorationState
 from mjexplore.policies.models import resolve_policy, run_label
-from mjexplore.policies.weights import load_policy, weights_sha256
+from mjexplore.policies.weights import load_policy, policy_recipe, weights_sha256
 
 
 class CnnExplorer:
@@ -30,6 +30,7 @@ class CnnExplorer:
         self.policy_name, path = resolve_policy(policy, "cnn")
         self.policy, meta = load_policy(path, expected_kind="cnn")
         self.weights_sha256 = weights_sha256(path)
+        self.policy_recipe = policy_recipe(path, meta)  # For run records (metrics.json).
         self.label = run_label("cnn", self.policy_name, True, "iam")
         self.decisions = meta["decisions"]
         self.deterministic = deterministic

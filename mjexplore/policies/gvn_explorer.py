@@ -25,7 +25,7 @@ import torch
 from mjexplore.envs.decisions import TerDecisions
 from mjexplore.episode.explorer import ExplorationState
 from mjexplore.policies.models import resolve_policy, run_label, trained_masking
-from mjexplore.policies.weights import actor_logits, load_policy, weights_sha256
+from mjexplore.policies.weights import actor_logits, load_policy, policy_recipe, weights_sha256
 
 
 class GvnExplorer:
@@ -47,6 +47,7 @@ class GvnExplorer:
         self.policy_name, path = resolve_policy(policy, "gvn")
         self.policy, meta = load_policy(path, expected_kind="gvn")
         self.weights_sha256 = weights_sha256(path)
+        self.policy_recipe = policy_recipe(path, meta)  # For run records (metrics.json).
         trained = trained_masking(meta["provenance"])
         if masking is None:
             masking = trained != "none"

@@ -2,17 +2,19 @@
 
 A model folder holds ``policy.safetensors`` (the weights, with the resolved training config
 in their metadata), ``config.yaml`` (that config as YAML; the recipe it came from is
-``training/NAME.yaml``, named in the card) and ``README.md`` (the model card: what it
-is, data and budget, figures, sha256). A learned explorer takes ``--policy NAME`` (a model
-here) or ``--policy PATH`` (a weights file, or a folder holding ``policy.safetensors``, such
-as a training run's output).
+``training/NAME.yaml``, named in the card) and ``README.md`` (the model card: what it is,
+data and budget, figures, and the weights file's sha256, which loading checks). A learned
+explorer takes ``--policy NAME`` (a model here) or ``--policy PATH`` (a weights file, or a
+folder holding ``policy.safetensors``, such as a training run's output).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import os
+import re
 from pathlib import Path
 
 from mjexplore.errors import UserInputError
@@ -68,6 +70,24 @@ def trained_masking(provenance: dict) -> str:
     return provenance.get("config", {}).get("policy", {}).get("masking", "iam")
 
 
+def describe(kind: str, layout: dict, provenance: dict) -> str:
+    """A policy's kind, feature set (GVN) and training masking, e.g. 'gvn v3, masking iam':
+    what its explorer and decision space depend on."""
+    what = kind + (f" {layout.get('features', 'v1')}" if kind == "gvn" else "")
+    return f"{what}, masking {trained_masking(provenance)}"
+
+
+def describe_file(path: str | os.PathLike) -> str:
+    """:func:`describe` of a weights file, from its header alone."""
+    meta = weights_metadata(path)
+    try:
+        return describe(meta.get("kind", "?"), json.loads(meta.get("layout", "{}")),
+                        json.loads(meta.get("provenance", "{}")))
+    except ValueError:
+        raise UserInputError(f"{str(path)!r} has damaged metadata: give a weights file "
+                             "written by 'mjexplore train'.") from None
+
+
 def _summary(card: Path) -> str:
     if not card.is_file():
         return ""
@@ -109,6 +129,63 @@ def resolve_policy(policy: str | os.PathLike | None, kind: str) -> tuple[str, Pa
     raise UserInputError(f"--policy {text!r} is neither a shipped {kind} model ({names}) nor "
                          "a weights file: give one of those names, or the path of a "
                          "policy.safetensors ('mjexplore policies' lists the models).")
+
+
+@dataclasses.dataclass(frozen=True)
+class Card:
+    """What a shipped model's card (``models/NAME/README.md``) says of its weights.
+
+    Attributes:
+        name: The model's name.
+        sha256: The weights file's full sha256 (None if the card names none).
+        recipe: The training config it came from, e.g. ``gvn_v3.yaml`` (None if unnamed).
+    """
+
+    name: str
+    sha256: str | None
+    recipe: str | None
+
+
+def read_card(name: str) -> Card:
+    """The card of the shipped model ``name`` (fields None where it says nothing)."""
+    path = MODELS_DIR / name / "README.md"
+    text = path.read_text() if path.is_file() else ""
+    sha = re.search(r"sha256 `([0-9a-f]{64})`", text)
+    recipe = re.search(r"\| recipe \| `(?:training/)?([^`]+)`", text)
+    return Card(name, sha and sha.group(1), recipe and recipe.group(1))
+
+
+def _header(path: str | os.PathLike) -> bytes | None:
+    """A safetensors file's header (its length and JSON: tensor names, dtypes, shapes,
+    offsets and metadata), None if it has none."""
+    try:
+        with open(path, "rb") as f:
+            length = int.from_bytes(f.read(8), "little")
+            return f.read(length) if 0 < length < 1 << 26 else None
+    except OSError:
+        return None
+
+
+@functools.lru_cache(maxsize=1)
+def _shipped_headers() -> dict[bytes, str]:
+    """The header of each shipped model's weights, to its name."""
+    headers = {}
+    for weights in sorted(MODELS_DIR.glob(f"*/{WEIGHTS_NAME}")):
+        header = _header(weights)
+        if header is not None:
+            headers.setdefault(header, weights.parent.name)
+    return headers
+
+
+def shipped_model_of(path: str | os.PathLike) -> str | None:
+    """The shipped model whose weights ``path`` is, or is a copy of (the same header:
+    tensor layout and metadata), None for any other file."""
+    path = Path(path)
+    with_name = path.resolve()
+    if with_name.name == WEIGHTS_NAME and with_name.parent.parent == MODELS_DIR.resolve():
+        return with_name.parent.name
+    header = _header(path)
+    return None if header is None else _shipped_headers().get(header)
 
 
 def run_label(kind: str, name: str, masked: bool, trained: str) -> str:
