@@ -17,10 +17,27 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from mjexplore.errors import UserInputError
+from mjexplore.io.atomic import check_output_file, check_output_folder
 
 log = logging.getLogger("mjexplore")
 
 DEFAULT_SCENE_SIZE = (40.0, 25.0)  # Generated scenes, metres (the paper's office).
+# bench's defaults: the paper's Table 1 scenes and the classic explorers.
+BENCH_SCENES = "loop_with_corridor,maze,office"
+BENCH_EXPLORERS = "nearest,rrt,potential,oracle"
+BENCH_SEEDS = 3
+
+
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Every option's help ends with its default, unless the help says it already or there
+    is none to say (flags, required options, None)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if ("default" in text or action.required or not action.option_strings
+                or any(action.default is v for v in (None, False, argparse.SUPPRESS))):
+            return text
+        return text + " (default: %(default)s)"
 
 
 def _size(text: str) -> tuple[float, float]:
@@ -95,6 +112,7 @@ def cmd_scene_gen(args: argparse.Namespace) -> int:
         return _export_existing_scene(args)
     if args.out is None:
         raise UserInputError("scene-gen needs --out DIR: the folder to write the scene to.")
+    check_output_folder(args.out)
     if args.export is not None:
         from mjexplore.scenes.mesh import check_export_path
 
@@ -210,6 +228,7 @@ def cmd_drive(args: argparse.Namespace) -> int:
     from mjexplore.scenes.canonical import resolve_scene
     from mjexplore.sim.simulator import SimConfig
 
+    check_output_folder(args.out)
     lidar = _lidar_config(args, ideal_noise=0.0)
     config = DriveConfig(duration=args.duration, seed=args.seed,
                          sim=SimConfig(profile=args.profile, lidar=lidar, seed=args.seed))
@@ -247,6 +266,7 @@ def _explore_team(args: argparse.Namespace) -> int:
         raise UserInputError("a team explores with known start poses: use --localization "
                              "ground_truth with --robots.")
     team_explorers(args.explorer, args.robots)  # Fails early on a bad name.
+    check_output_folder(args.out)
     scene, config = resolve_scene(args.scene), _episode_config(args)
     starts = team_starts(scene, args.starts, args.robots)
     metrics = write_team_run(args.out, scene, args.explorer, args.robots, args.seed, config,
@@ -267,8 +287,13 @@ def cmd_explore(args: argparse.Namespace) -> int:
         if spec.method not in LEARNED:
             raise UserInputError("--policy and --no-masking apply to the learned explorers "
                                  f"only ({', '.join(LEARNED)}), not {args.explorer!r}.")
+        if args.policy is not None and spec.policy is not None:
+            _check_policy_fits_label(args.explorer, spec.method, spec.policy, args.policy)
         spec = MethodSpec(spec.method, args.policy or spec.policy,
                           False if args.no_masking else spec.masking)
+    check_output_folder(args.out)
+    if args.video is not None:
+        _check_video_path(Path(args.video), Path(args.out))
     explorer = spec.build()  # Fails early on a bad name or weights file.
     label = getattr(explorer, "label", spec.method)
     video = _video_config(args) if args.video is not None else None
@@ -294,6 +319,21 @@ def cmd_explore(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_policy_fits_label(label: str, kind: str, model: str, policy: str) -> None:
+    """``--explorer LABEL`` names a shipped model (``model``, a ``kind`` policy) and
+    ``--policy`` another policy: refused unless that policy is of the same recipe (kind,
+    feature set, training masking), with the explorer that fits it."""
+    from mjexplore.policies.models import describe_file, resolve_policy, weights_metadata
+
+    _, path = resolve_policy(policy, kind)
+    wanted, given = describe_file(resolve_policy(model, kind)[1]), describe_file(path)
+    if wanted != given:
+        theirs = weights_metadata(path).get("kind", kind)
+        raise UserInputError(f"--explorer {label} runs the shipped model {model} ({wanted}), "
+                             f"and --policy {policy!r} holds a policy of another recipe "
+                             f"({given}): run it with --explorer {theirs} --policy {policy}.")
+
+
 def _live_server(args: argparse.Namespace):
     """explore's Foxglove live server (a context manager), or a null context without --live."""
     if args.no_mcap and args.mcap_profile is not None:
@@ -316,6 +356,19 @@ def _live_server(args: argparse.Namespace):
     return live
 
 
+def _check_video_path(video: Path, out: Path) -> None:
+    """Refuses a --video path that is not an MP4 or cannot be written. Its folder must exist,
+    unless it is the run folder or the folder the run folder is made in (made anyway)."""
+    if video.suffix.lower() != ".mp4":
+        raise UserInputError(f"--video {str(video)!r}: the video is written as H.264 MP4: give "
+                             "a file name ending in .mp4.")
+    folder = video.parent.resolve()
+    if folder in (out.resolve(), out.resolve().parent) and not folder.exists():
+        check_output_folder(folder, "--video's folder")
+        return
+    check_output_file(video, "--video", (".mp4",))
+
+
 def _video_config(args: argparse.Namespace):
     from mjexplore.render.recorder import VideoConfig
 
@@ -329,18 +382,22 @@ def _video_config(args: argparse.Namespace):
 
 def _add_video_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--video-size", type=_size, default=(640.0, 480.0), metavar="WxH",
-                   help="size of each panel in pixels; the frame is two panels wide (640x480)")
-    p.add_argument("--video-fps", type=_positive, default=20.0, help="video frame rate (20)")
+                   help="size of each panel in pixels; the frame is two panels wide "
+                   "(default: 640x480)")
+    p.add_argument("--video-fps", type=_positive, default=20.0, help="video frame rate")
     p.add_argument("--video-period", type=_positive, default=1.0,
-                   help="simulated seconds between frames (1.0: 20x real time at 20 fps)")
+                   help="simulated seconds between frames (default: 1.0, 20x real time at "
+                   "20 fps)")
 
 
 def cmd_render(args: argparse.Namespace) -> int:
     from mjexplore.render.gl import check_rendering
     from mjexplore.render.replay import render_run
 
+    out = check_output_file(args.out or Path(args.run_dir) / "video.mp4", "--out", (".mp4",))
+    config = _video_config(args)
     check_rendering()
-    print(json.dumps(render_run(args.run_dir, args.out, _video_config(args))))
+    print(json.dumps(render_run(args.run_dir, out, config, progress=not args.no_progress)))
     return 0
 
 
@@ -367,7 +424,7 @@ def _bench_team(args: argparse.Namespace) -> int:
     from mjexplore.eval.team_sweep import DRAWN, run_team_sweep
 
     text = args.explorers
-    if text == "nearest,rrt,potential,oracle":  # The single robot's default set.
+    if text == BENCH_EXPLORERS:  # The single robot's default set.
         text = TEAM_BENCH_METHODS
     methods = [e.strip() for e in text.split(",") if e.strip()]
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
@@ -382,6 +439,7 @@ def _bench_team(args: argparse.Namespace) -> int:
                              "--mcap.")
     for method in methods:
         team_explorers(method, args.robots)  # Fails early on a bad name.
+    check_output_folder(args.out)
     run_team_sweep(scenes, methods, args.robots, placements, list(range(args.seeds)),
                    Path(args.out), _episode_config(args), workers=args.workers)
     print((Path(args.out) / "results.md").read_text())
@@ -397,8 +455,15 @@ def cmd_bench(args: argparse.Namespace) -> int:
     specs = [parse_method(e) for e in args.explorers.split(",") if e.strip()]
     explorers = [spec.label for spec in specs]
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
+    for flag, names, example in (("--scenes", scenes, BENCH_SCENES),
+                                 ("--explorers", specs, BENCH_EXPLORERS)):
+        if not names:
+            raise UserInputError(f"{flag} {getattr(args, flag[2:])!r} names nothing: give one "
+                                 f"or more, comma-separated (e.g. {example}), or drop {flag} "
+                                 "for its default.")
     if args.workers < 1 or args.seeds < 1:
         raise UserInputError("--workers and --seeds must be at least 1.")
+    check_output_folder(args.out)
     for flag, names in (("--scenes", scenes), ("--explorers", explorers)):
         repeated = sorted({n for n in names if names.count(n) > 1})
         if repeated:
@@ -407,7 +472,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     results = run_sweep(scenes, [spec.text for spec in specs], list(range(args.seeds)),
                         Path(args.out),
                         _episode_config(args), workers=args.workers, mcap=args.mcap,
-                        command=args.command_line)
+                        command=args.command_line, progress=not args.no_progress)
     print((Path(args.out) / "results.md").read_text())
     failed = [r for r in results if r.get("end_reason") in ("error", "interrupted")]
     if failed:
@@ -439,8 +504,9 @@ def cmd_train(args: argparse.Namespace) -> int:
     _check_device(args.device)
 
     config = load_train_config(args.config, total_steps=args.total_steps, n_envs=args.n_envs)
+    check_output_folder(args.out)
     summary = train(config, args.out, resume=args.resume, progress=not args.no_progress,
-                    ray_address=args.ray, device=args.device)
+                    ray_address=args.ray, device=args.device, recipe=Path(args.config).name)
     print(json.dumps(summary))
     return 0
 
@@ -449,6 +515,7 @@ def cmd_train_pockets(args: argparse.Namespace) -> int:
     from mjexplore.learning.pocket_training import load_pocket_config, train_pockets
 
     config = load_pocket_config(args.config)
+    check_output_folder(args.out)
     if args.episodes is not None:
         config = dataclasses.replace(config, episodes=args.episodes)
     print(json.dumps(train_pockets(config, args.out, workers=args.workers)))
@@ -461,6 +528,9 @@ def cmd_collect(args: argparse.Namespace) -> int:
     if not args.experiment.replace("_", "").isalnum():
         raise UserInputError(f"--experiment {args.experiment!r}: use letters, digits and '_' "
                              "(it names the summary file).")
+    check_output_folder(args.data, "--data")
+    if args.stills is not None:
+        check_output_folder(args.figures, "--figures")
     summary = collect_sweep(args.sweep, args.experiment, command=args.command,
                             kinematics_series=args.kinematics, reference=args.reference,
                             stills=args.stills, media_dir=args.figures)
@@ -479,6 +549,12 @@ def cmd_report(args: argparse.Namespace) -> int:
     if not args.data.is_dir():
         raise UserInputError(f"{str(args.data)!r} is not a folder of sweep summaries: make them "
                              "with 'mjexplore collect SWEEP --experiment NAME'.")
+    if args.out.suffix.lower() != ".md" or args.out.is_dir():
+        raise UserInputError(f"--out {str(args.out)!r}: give the report a Markdown file name "
+                             "ending in .md (e.g. docs/results.md).")
+    check_output_folder(args.out.parent, "--out's folder")
+    check_output_folder(args.figures if args.figures is not None else args.out.with_suffix(""),
+                        "--figures")
     print(build_report(args.data, args.out, args.figures))
     return 0
 
@@ -490,9 +566,9 @@ def _add_episode_args(p: argparse.ArgumentParser) -> None:
                    help="lidar range in metres (default: the profile's, lds01's 3.5 with "
                         "--lidar-model lds01; Explore-Bench uses 7)")
     p.add_argument("--max-time", type=_positive, default=1800.0,
-                   help="time cap in simulated seconds (1800)")
+                   help="time cap in simulated seconds")
     p.add_argument("--target-ratio", type=float, default=0.985,
-                   help="exploration ratio that ends the episode (0.985)")
+                   help="exploration ratio that ends the episode")
     p.add_argument("--localization", default="ground_truth",
                    choices=["ground_truth", "odometry", "scan_matching"],
                    help="where the robot believes it is, for everything it does (mapping, "
@@ -511,7 +587,8 @@ def _add_episode_args(p: argparse.ArgumentParser) -> None:
                         "gyro as on the real Turtlebot3 (turtlebot3_node's use_imu); the "
                         "scan_matching localiser then estimates the gyro's bias")
     p.add_argument("--lidar-noise", type=float, default=None,
-                   help="the ideal lidar's Gaussian range noise std in metres (0.01)")
+                   help="the ideal lidar's Gaussian range noise std in metres "
+                   "(default: 0.01)")
     _add_lidar_model_arg(p)
 
 
@@ -538,23 +615,24 @@ def build_parser() -> argparse.ArgumentParser:
                     "preview.png and scene.json (--export: also as a mesh file).")
     gen.add_argument("family", nargs="?", help="office, maze, loop, corridor, rooms, hall, "
                      "labmaze, or several joined by '+' (e.g. loop+rooms)")
-    gen.add_argument("--seed", type=_seed, default=0, help="generator seed (default 0)")
+    gen.add_argument("--seed", type=_seed, default=0, help="generator seed")
     gen.add_argument("--size", type=_size, default=None,
                      help="WIDTHxHEIGHT in metres, outer walls included (default "
                      f"{DEFAULT_SCENE_SIZE[0]:g}x{DEFAULT_SCENE_SIZE[1]:g})")
     gen.add_argument("--wall-thickness", type=_positive, default=None,
                      help="metres (default 0.15)")
     gen.add_argument("--resolution", type=_positive, default=None,
-                     help="ground-truth cell size in metres (0.05); for --from-map IMAGE, "
-                     "the image's metres per pixel")
+                     help="ground-truth cell size in metres (default: 0.05); for --from-map "
+                     "IMAGE, the image's metres per pixel (no default: give it)")
     gen.add_argument("--from-map", metavar="MAP", help="map_server YAML, or an image with "
-                     "--resolution (bright pixels free)")
+                     "--resolution (bright pixels free) (default: none, a generated scene)")
     gen.add_argument("--from-mesh", metavar="FILE", help="3D building model (GLB, glTF, OBJ, "
-                     "STL, PLY, OFF), cut at the lidar's height")
+                     "STL, PLY, OFF), cut at the lidar's height (default: none)")
     gen.add_argument("--mesh-units", default=None, metavar="UNIT",
                      help="--from-mesh file's unit: m (default), cm, mm, in or ft")
     gen.add_argument("--mesh-scale", type=_positive, default=None, metavar="S",
-                     help="--from-mesh file's metres per unit (instead of --mesh-units)")
+                     help="--from-mesh file's metres per unit, instead of --mesh-units "
+                     "(default: that of --mesh-units)")
     gen.add_argument("--up-axis", choices=["y", "z"], default=None,
                      help="--from-mesh file's up axis (default: y for GLB, glTF and OBJ; z for "
                      "STL, PLY and OFF)")
@@ -566,14 +644,18 @@ def build_parser() -> argparse.ArgumentParser:
                      "lidar's, 0.132)")
     gen.add_argument("--start", type=_pose, default=None, metavar="X,Y[,YAW]",
                      help="start pose for --from-map and --from-mesh, metres and radians in "
-                     "the map frame")
+                     "the map frame (default: a free cell picked from the seed)")
     gen.add_argument("--name", default=None, help="scene name (default from family and size)")
-    gen.add_argument("--out", type=Path, default=None, help="output folder")
+    gen.add_argument("--out", type=Path, default=None,
+                     help="output folder (no default: needed unless --list or "
+                     "--from-scene)")
     gen.add_argument("--export", type=Path, default=None, metavar="FILE",
                      help="also write the scene's walls and floor as a mesh (.glb y-up for "
-                     "Foxglove, Blender, Gazebo; .obj, .stl, .ply)")
+                     "Foxglove, Blender, Gazebo; .obj, .stl, .ply) in an existing folder "
+                     "(default: no mesh)")
     gen.add_argument("--from-scene", metavar="SCENE", help="with --export: write an existing "
-                     "scene (canonical name, folder or MJCF) as a mesh, nothing else")
+                     "scene (canonical name, folder or MJCF) as a mesh, nothing else "
+                     "(default: none)")
     gen.add_argument("--list", action="store_true", help="list families and canonical scenes")
     gen.set_defaults(func=cmd_scene_gen)
 
@@ -583,16 +665,18 @@ def build_parser() -> argparse.ArgumentParser:
                     "kinematics.csv, trajectory.png, summary.json and config.json.")
     drive.add_argument("--scene", default="office",
                        help="canonical scene name, scene folder, MJCF or map_server YAML")
-    drive.add_argument("--duration", type=_positive, default=120.0, help="simulated seconds")
+    drive.add_argument("--duration", type=_positive, default=120.0,
+                       help="simulated seconds to drive")
     drive.add_argument("--profile", default="sim", choices=["sim", "real"],
                        help="motion profile: sim (0.5 m/s) or real (0.18 m/s)")
     drive.add_argument("--lidar-range", type=_positive, default=None,
                        help="lidar range in metres (default: the profile's, lds01's 3.5 "
                             "with --lidar-model lds01)")
     drive.add_argument("--lidar-noise", type=float, default=None,
-                       help="the ideal lidar's Gaussian range noise std in metres (0)")
+                       help="the ideal lidar's Gaussian range noise std in metres "
+                       "(default: 0)")
     _add_lidar_model_arg(drive)
-    drive.add_argument("--seed", type=_seed, default=0)
+    drive.add_argument("--seed", type=_seed, default=0, help="seed of the drive")
     drive.add_argument("--out", type=Path, required=True, help="run folder")
     drive.set_defaults(func=cmd_drive)
 
@@ -600,12 +684,14 @@ def build_parser() -> argparse.ArgumentParser:
         "explore", help="run one exploration episode and write its run folder",
         description="Explore a scene with one explorer in full physics until the exploration "
                     "ratio reaches the target, the robot lingers, or time runs out. Writes "
-                    "metrics.json, config.json, ratio.csv, kinematics.csv, plots and an MCAP.")
+                    "metrics.json, config.json, ratio.csv, kinematics.csv, plots and an MCAP. "
+                    "Unless told otherwise it explores the office scene (40 x 25 m) with the "
+                    "nearest-frontier explorer, seed 0, for at most 1800 simulated seconds.")
     explore.add_argument("--scene", default="office",
                          help="canonical scene name, scene folder, MJCF or map_server YAML")
     explore.add_argument("--explorer", default="nearest", metavar="METHOD",
                          help="one of: " + "; ".join(f"{k}: {v}" for k, v in METHODS.items())
-                         + " (default: nearest)")
+                         + " (default: %(default)s)")
     explore.add_argument("--policy", default=None, metavar="NAME|PATH",
                          help="the policy a learned explorer (gvn, cnn) runs: a shipped "
                          "model's name ('mjexplore policies' lists them) or a weights file "
@@ -613,7 +699,8 @@ def build_parser() -> argparse.ArgumentParser:
     explore.add_argument("--no-masking", action="store_true",
                          help="run a learned GVN without invalid action masking (any TER "
                          "node may be chosen; the paper's 'masking removed' ablation)")
-    explore.add_argument("--seed", type=_seed, default=0)
+    explore.add_argument("--seed", type=_seed, default=0,
+                         help="episode seed (start jitter, noise, odometry errors)")
     explore.add_argument("--out", type=Path, required=True, help="run folder")
     explore.add_argument("--no-mcap", action="store_true", help="do not write episode.mcap")
     explore.add_argument("--mcap-profile", default=None, choices=["foxglove", "ros2"],
@@ -621,10 +708,11 @@ def build_parser() -> argparse.ArgumentParser:
                          "default) or ros2 (ROS 2 messages, CDR: for ros2 bag play)")
     explore.add_argument("--live", type=_port, nargs="?", const=8765, default=None,
                          metavar="PORT", help="serve the episode's topics to Foxglove while it "
-                         "runs (Open connection, ws://127.0.0.1:PORT; PORT 8765 if not given)")
+                         "runs (Open connection, ws://127.0.0.1:PORT; PORT 8765 if not given) "
+                         "(default: no live server)")
     explore.add_argument("--live-host", default=None, metavar="ADDRESS",
                          help="address the live server binds (127.0.0.1: this machine only; "
-                         "0.0.0.0: every interface)")
+                         "0.0.0.0: every interface) (default: 127.0.0.1)")
     explore.add_argument("--live-rate", type=_positive, default=None, metavar="R",
                          help="pace the live episode at R simulated seconds per second (1: "
                          "real time; default: as fast as it runs)")
@@ -634,7 +722,8 @@ def build_parser() -> argparse.ArgumentParser:
                          help="no progress bar (it is shown only when stderr is a terminal)")
     explore.add_argument("--video", default=None, metavar="PATH",
                          help="also film the episode (3D view beside the map panel) into "
-                         "an H.264 MP4 at PATH (and OUT/video.mp4)")
+                         "an H.264 MP4 at PATH, a .mp4 file in an existing folder, --out's "
+                         "folder or beside it (and OUT/video.mp4) (default: no video)")
     explore.add_argument("--robots", type=_count, default=1, metavar="N",
                          help="explore with a team of N robots in one world and one shared "
                          "map; --explorer then takes a team method (assign_greedy, "
@@ -655,24 +744,34 @@ def build_parser() -> argparse.ArgumentParser:
                     "it), the masking it was trained with, and its model card's summary.")
     pol.set_defaults(func=cmd_policies)
 
+    n_scenes, n_explorers = len(BENCH_SCENES.split(",")), len(BENCH_EXPLORERS.split(","))
     bench = sub.add_parser(
         "bench", help="sweep scenes x explorers x seeds; tables and plots",
-        description="Run every combination in worker processes (resuming finished ones) and "
-                    "write results.md/.csv and the ratio and kinematics plots per scene.")
-    bench.add_argument("--scenes", default="loop_with_corridor,maze,office",
-                       help="comma-separated scene names or paths (MJCF or map_server YAML)")
-    bench.add_argument("--explorers", default="nearest,rrt,potential,oracle",
+        description="Run every combination of scene, explorer and seed in worker processes "
+                    "(resuming finished ones) and write results.md/.csv and the ratio and "
+                    f"kinematics plots per scene. By default {n_scenes} scenes x {n_explorers} "
+                    f"explorers x {BENCH_SEEDS} seeds: {n_scenes * n_explorers * BENCH_SEEDS} "
+                    "full-physics episodes of up to 1800 simulated seconds each.")
+    bench.add_argument("--scenes", default=BENCH_SCENES,
+                       help="comma-separated scene names or paths (MJCF or map_server YAML) "
+                       "(default: %(default)s)")
+    bench.add_argument("--explorers", default=BENCH_EXPLORERS,
                        help="comma-separated methods (see explore --explorer), METHOD:POLICY "
                        "for a learned one with another model (':unmasked' appended runs it "
                        "without the mask), or a model's run label such as gvn_v3_naive "
-                       "(default: nearest,rrt,potential,oracle)")
-    bench.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1 per combination")
-    bench.add_argument("--workers", type=int, default=2, help="worker processes")
+                       "(default: %(default)s)")
+    bench.add_argument("--seeds", type=int, default=BENCH_SEEDS,
+                       help="seeds 0..N-1 per scene and explorer")
+    bench.add_argument("--workers", type=int, default=2,
+                       help="worker processes, one episode each at a time")
     bench.add_argument("--out", type=Path, required=True, help="sweep folder")
     bench.add_argument("--mcap", nargs="?", const="foxglove", default=None,
                        choices=["foxglove", "ros2"], metavar="PROFILE",
-                       help="also write an MCAP per episode; PROFILE foxglove (default) or "
-                       "ros2 as explore's --mcap-profile")
+                       help="also write an MCAP per episode; PROFILE foxglove (the default "
+                       "when PROFILE is not given) or ros2 as explore's --mcap-profile "
+                       "(default: no MCAPs)")
+    bench.add_argument("--no-progress", action="store_true",
+                       help="no progress bar on a terminal, no progress lines elsewhere")
     bench.add_argument("--robots", type=_count, default=1, metavar="N",
                        help="sweep team episodes of N robots (team methods or single-robot "
                        "ones as naive teams; default methods "
@@ -690,34 +789,44 @@ def build_parser() -> argparse.ArgumentParser:
         description="Rebuild the frames of a run folder written by 'mjexplore explore' from its "
                     "episode.mcap (3D view beside the map panel) into an H.264 MP4.")
     ren.add_argument("run_dir", type=Path, help="run folder")
-    ren.add_argument("--out", type=Path, default=None, help="video path (RUN_DIR/video.mp4)")
+    ren.add_argument("--out", type=Path, default=None,
+                     help="video path, a .mp4 file in an existing folder (default: "
+                     "RUN_DIR/video.mp4)")
+    ren.add_argument("--no-progress", action="store_true",
+                     help="no progress bar on a terminal, no progress lines elsewhere")
     _add_video_args(ren)
     ren.set_defaults(func=cmd_render)
 
     tr = sub.add_parser(
         "train", help="train a policy with MaskablePPO (checkpoints, resume, TensorBoard)",
         description="Train the policy a YAML config describes (see training/gvn.yaml) into a "
-                    "run folder: config.yaml, checkpoints/, tb/, eval.csv and the final "
-                    "policy.safetensors. --resume continues an interrupted run.")
+                    "run folder: config.yaml, checkpoints/, tb/ (TensorBoard: losses, KL, "
+                    "entropy, explained variance, evaluations) and the final "
+                    "policy.safetensors; from the first held-out evaluation on (every "
+                    "eval.every steps of the config; none in a shorter run) also eval.csv and "
+                    "best.safetensors. --resume continues an interrupted run.")
     tr.add_argument("--config", type=Path, required=True, help="training YAML")
     tr.add_argument("--out", type=Path, required=True, help="run folder")
     tr.add_argument("--resume", action="store_true",
                     help="continue the run in --out from its last checkpoint")
     tr.add_argument("--total-steps", type=_count, default=None, metavar="N",
-                    help="decision steps to train for, all envs together (replaces the "
-                         "config's total_steps)")
+                    help="decision steps to train for, all envs together, rounded up to "
+                         "whole rollouts of ppo.n_steps x n_envs (default: the config's "
+                         "total_steps)")
     tr.add_argument("--n-envs", type=_count, default=None, metavar="N",
-                    help="environments, one worker process each (replaces the config's n_envs; "
-                         "may change on --resume)")
+                    help="environments, one worker process each; may change on --resume "
+                         "(default: the config's n_envs)")
     tr.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
                     help="run each env in a Ray actor: without ADDRESS on a local Ray instance "
                          "on this machine; with ADDRESS (auto, or the head's HOST:6379) on an "
                          "existing cluster started with `ray start --head` (README: 'Training "
-                         "on more than one machine'); may change on --resume")
+                         "on more than one machine'); may change on --resume (default: no "
+                         "Ray, worker processes on this machine)")
     tr.add_argument("--device", default="auto", metavar="DEVICE",
                     help="the learner's torch device: auto (a GPU when there is one), cpu, "
                          "cuda, cuda:1 ... (default: auto); may change on --resume")
-    tr.add_argument("--no-progress", action="store_true", help="no progress bar")
+    tr.add_argument("--no-progress", action="store_true",
+                    help="no progress bar on a terminal, no progress lines elsewhere")
     tr.set_defaults(func=cmd_train)
 
     tp = sub.add_parser(
@@ -729,7 +838,7 @@ def build_parser() -> argparse.ArgumentParser:
     tp.add_argument("--out", type=Path, required=True, help="output folder")
     tp.add_argument("--workers", type=_count, default=2, help="collection processes")
     tp.add_argument("--episodes", type=_count, default=None, metavar="N",
-                    help="collection episodes (replaces the config's episodes)")
+                    help="collection episodes (default: the config's episodes)")
     tp.set_defaults(func=cmd_train_pockets)
 
     co = sub.add_parser(
@@ -742,17 +851,19 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("sweep", type=Path, help="the sweep's --out folder")
     co.add_argument("--experiment", required=True, help="summary name (e.g. table1)")
     co.add_argument("--data", type=Path, default=Path("docs/results/data"),
-                    help="summaries folder (docs/results/data)")
+                    help="summaries folder")
     co.add_argument("--command", default=None,
                     help="the sweep's command (default: the one recorded in sweep.json)")
     co.add_argument("--kinematics", action="store_true",
                     help="also keep velocity and acceleration over time (Fig. 9)")
     co.add_argument("--reference", type=Path, default=None,
-                    help="JSON-lines reference results to keep (ARiADNE's greedy_reference)")
+                    help="JSON-lines reference results to keep (ARiADNE's greedy_reference) "
+                    "(default: none)")
     co.add_argument("--stills", default=None, metavar="METHOD",
-                    help="copy METHOD's seed-0 ter.png per scene into --figures")
+                    help="copy METHOD's seed-0 ter.png per scene into --figures (default: "
+                    "none)")
     co.add_argument("--figures", type=Path, default=Path("docs/results"),
-                    help="report figures folder, for --stills (docs/results)")
+                    help="report figures folder, for --stills")
     co.add_argument("--merge", action="store_true",
                     help="keep the existing summary's runs of methods this sweep lacks")
     co.set_defaults(func=cmd_collect)
@@ -762,12 +873,15 @@ def build_parser() -> argparse.ArgumentParser:
         description="Regenerate the results report (the paper's tables and figures) from the "
                     "summaries in --data; runs nothing.")
     rep.add_argument("--data", type=Path, default=Path("docs/results/data"),
-                     help="summaries folder (docs/results/data)")
+                     help="summaries folder")
     rep.add_argument("--out", type=Path, default=Path("docs/results.md"),
-                     help="report file (docs/results.md)")
+                     help="report file (Markdown)")
     rep.add_argument("--figures", type=Path, default=None,
-                     help="figures folder (default: docs/results beside --out)")
+                     help="figures folder (default: beside --out, named as it without "
+                     "the suffix: docs/results for docs/results.md)")
     rep.set_defaults(func=cmd_report)
+    for command in sub.choices.values():
+        command.formatter_class = _HelpFormatter
     return parser
 
 
@@ -784,6 +898,24 @@ def _check_gl_setting() -> None:
                              "to egl or osmesa, or unset it to let mjexplore choose.")
 
 
+def _one_line(text: str) -> str:
+    """``text`` on one line (a message that quotes a multi-line cause)."""
+    return " ".join(text.split())
+
+
+def _os_error_message(exc: OSError) -> str:
+    """One line for an operating-system error: the path, what went wrong and the fix."""
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    paths = [str(f) for f in (exc.filename, exc.filename2) if f is not None]
+    if not paths:
+        return (f"{reason} ({type(exc).__name__}): check the paths given (a file in the way, "
+                "permissions, a read-only or virtual filesystem, a full disk) and run again; "
+                "-v shows where it happened.")
+    return (f"cannot use {' or '.join(repr(p) for p in paths)}: {reason}: check that path (a "
+            "file in the way, permissions, a read-only or virtual filesystem, a full disk) or "
+            "choose another, and run again.")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -798,7 +930,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         _check_gl_setting()
         return args.func(args)
     except UserInputError as exc:
-        print(f"mjexplore {args.command}: error: {exc}", file=sys.stderr)
+        print(f"mjexplore {args.command}: error: {_one_line(str(exc))}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        log.debug("the error's traceback", exc_info=True)
+        print(f"mjexplore {args.command}: error: {_one_line(_os_error_message(exc))}",
+              file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"mjexplore {args.command}: interrupted; finished outputs are kept (an "

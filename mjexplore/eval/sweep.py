@@ -11,6 +11,7 @@ kinematics plot per scene (``kinematics_SCENE.png``).
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import io
@@ -21,15 +22,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from mjexplore.episode import EpisodeConfig
 from mjexplore.episode.workers import init_episode_worker
 from mjexplore.errors import UserInputError
-from mjexplore.eval.methods import parse_method
+from mjexplore.eval.methods import LEARNED, parse_method
 from mjexplore.eval.plots import kinematics_figure, ratio_figure
 from mjexplore.eval.run import write_run
 from mjexplore.io.atomic import write_text_atomic
+from mjexplore.io.progress import Progress
 from mjexplore.io.provenance import git_revision
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.sim.kinematics import KinematicsLog
@@ -108,7 +109,10 @@ def _run_job(args: tuple[Job, Path, EpisodeConfig, bool | str]) -> dict[str, Any
         metrics = write_run(folder, resolve_scene(job.scene), job.explorer, job.seed, config,
                             mcap, spec=job.spec)
     except Exception as exc:  # noqa: BLE001 - one broken episode must not end the sweep
-        log.exception("episode %s failed", job)
+        if isinstance(exc, UserInputError):  # Its message says it all.
+            log.error("episode %s/%s/seed%d failed: %s", job.label, job.explorer, job.seed, exc)
+        else:
+            log.exception("episode %s failed", job)
         failure = {"scene": job.label, "explorer": job.explorer, "seed": job.seed,
                    "end_reason": "error", "error": f"{type(exc).__name__}: {exc}"}
         folder.parent.mkdir(parents=True, exist_ok=True)
@@ -132,6 +136,13 @@ def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Pa
 
     ``command`` (the command line that started the sweep) is kept in ``OUT/sweep.json`` with
     the code revision, for the reports made from the sweep.
+
+    ``progress``: a bar of finished episodes on a terminal, a line per episode elsewhere
+    (:class:`~mjexplore.io.progress.Progress`); False shows nothing.
+
+    Raises:
+        UserInputError: a bad scene or explorer spec, or a learned explorer's weights that
+            are missing, damaged or of another kind (checked here, before any episode).
     """
     for scene in scenes:
         resolve_scene(scene)  # Fail early, in the parent, on a bad scene.
@@ -143,6 +154,9 @@ def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Pa
                 f"scenes {other!r} and {scene!r} would share the run folders "
                 f"runs/{scene_label(scene)}/: give scene folders or files with distinct names.")
     specs = [parse_method(e) for e in explorers]
+    for spec in specs:
+        if spec.method in LEARNED:
+            spec.build()  # Fail early, in the parent: the weights are read and checked.
     jobs = [Job(s, spec.label, seed, spec.text) for s in scenes for spec in specs
             for seed in seeds]
     _check_settings(jobs, out, config)
@@ -153,20 +167,29 @@ def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Pa
          "seeds": seeds}, indent=2) + "\n")
     args = [(job, out, config, mcap) for job in jobs]
     results = []
-    bar = tqdm(total=len(jobs), desc="episodes", disable=not progress, unit="ep")
-    if workers <= 1:
-        for a in args:
-            results.append(_run_job(a))
+    with (Progress(len(jobs), "bench", "episodes", enabled=progress, every=0) as bar,
+          contextlib.ExitStack() as stack):
+        if workers <= 1:
+            finished = map(_run_job, args)
+        else:
+            ctx = multiprocessing.get_context("spawn")
+            pool = stack.enter_context(ctx.Pool(workers, initializer=init_episode_worker))
+            finished = pool.imap_unordered(_run_job, args)
+        for metrics in finished:
+            results.append(metrics)
+            bar.detail(_episode_note(metrics))
             bar.update()
-    else:
-        ctx = multiprocessing.get_context("spawn")
-        with ctx.Pool(workers, initializer=init_episode_worker) as pool:
-            for metrics in pool.imap_unordered(_run_job, args):
-                results.append(metrics)
-                bar.update()
-    bar.close()
     write_summary(out, jobs)
     return results
+
+
+def _episode_note(metrics: dict[str, Any]) -> str:
+    """The last finished episode, for the progress display."""
+    where = f"{metrics.get('scene')}/{metrics.get('explorer')}/seed{metrics.get('seed')}"
+    if metrics.get("end_reason") == "error":
+        return f"last {where}: failed"
+    return (f"last {where}: {metrics.get('end_reason')} at "
+            f"{metrics.get('exploration_time_s', 0):.0f} s")
 
 
 def read_ratio_curve(folder: Path) -> np.ndarray:

@@ -15,6 +15,7 @@ continues: episodes in progress start afresh and every random stream is re-seede
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import io
@@ -22,6 +23,8 @@ import json
 import logging
 import multiprocessing
 import random
+import shutil
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -252,19 +255,60 @@ def load_train_config(path: str | Path, total_steps: int | None = None,
     return dataclasses.replace(config, **overrides) if overrides else config
 
 
-def worker_env(config: EnvConfig) -> ExplorationEnv:
+def worker_env(config: EnvConfig, report: str | None = None) -> ExplorationEnv:
     """An env in a worker process of its own (a subprocess or a Ray actor): the worker runs
     one thread per library (:func:`~mjexplore.episode.workers.init_episode_worker`) and the
-    env records them in ``worker_threads``."""
+    env records them in ``worker_threads``.
+
+    Args:
+        config: The env's settings.
+        report: A file where a worker that cannot build its env (a missing or damaged
+            input: :class:`UserInputError`) writes the message before it exits, quietly,
+            for the parent to raise (:class:`WorkerReports`); None: the error propagates.
+    """
     init_episode_worker()
-    env = ExplorationEnv(config)
+    try:
+        env = ExplorationEnv(config)
+    except UserInputError as exc:
+        if report is None:
+            raise
+        Path(report).write_text(str(exc))
+        raise SystemExit(2) from None  # No traceback: the parent tells the user.
     env.worker_threads = thread_counts()
     return env
 
 
-def _make_env(config: EnvConfig, own_process: bool):
+class WorkerReports:
+    """A temporary folder where env worker processes leave the message of a
+    :class:`UserInputError` they met (see :func:`worker_env`), and the parent's check of it:
+    a worker that dies leaves the parent a broken pipe, not the message."""
+
+    def __init__(self) -> None:
+        self.folder = Path(tempfile.mkdtemp(prefix="mjexplore-workers."))
+
+    def path(self, index: int) -> str:
+        return str(self.folder / f"env{index}.txt")
+
+    def raise_reported(self) -> None:
+        """Raises the first reported message as a UserInputError, if a worker left one."""
+        for report in sorted(self.folder.glob("env*.txt")):
+            message = report.read_text().strip()
+            if message:
+                raise UserInputError(message)
+
+    def remove(self) -> None:
+        shutil.rmtree(self.folder, ignore_errors=True)
+
+
+# A worker process that died shows in the parent as one of these.
+WORKER_DIED = (EOFError, ConnectionError, BrokenPipeError)
+
+
+def _make_env(config: EnvConfig, own_process: bool, report: str | None = None):
     # Partials of module-level callables: plain pickle sends them to any worker or machine.
-    return functools.partial(worker_env if own_process else ExplorationEnv, config)
+    if not own_process:
+        return functools.partial(ExplorationEnv, config)
+    return functools.partial(worker_env, config, report)
 
 
 def make_vec_env(config: TrainConfig, seed: int, ray_address: str | None = None):
@@ -280,25 +324,51 @@ def make_vec_env(config: TrainConfig, seed: int, ray_address: str | None = None)
             machine, 'auto' or 'HOST:PORT' on a running cluster. Ray is shut down when the
             envs are closed if this call initialised it.
 
+    The worker processes' failures to build their envs are raised here with their own
+    message (see :class:`WorkerReports`); the returned envs' ``worker_reports`` (None without
+    worker processes) holds those of failures that come later, removed by ``close()``.
+
     Raises:
-        UserInputError: No Ray cluster at ``ray_address``, or one that cannot run the envs.
+        UserInputError: No Ray cluster at ``ray_address``, or one that cannot run the envs,
+            or a worker that cannot build its env (a missing or damaged input).
     """
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
 
     own_process = ray_address is not None or config.n_envs > 1
-    makers = [_make_env(config.env, own_process) for _ in range(config.n_envs)]
+    reports = WorkerReports() if ray_address is None and config.n_envs > 1 else None
+    makers = [_make_env(config.env, own_process, reports and reports.path(i))
+              for i in range(config.n_envs)]
     if own_process:
         single_thread_children()  # Before the workers (and a forkserver) start.
     if ray_address is not None:
         from mjexplore.learning.ray_vec_env import RayVecEnv, connect
 
         venv = RayVecEnv(makers, shutdown_ray=connect(ray_address, config.n_envs))
-    elif config.n_envs > 1:
-        venv = SubprocVecEnv(makers, start_method="forkserver")
+    elif reports is not None:
+        try:
+            venv = SubprocVecEnv(makers, start_method="forkserver")
+        except WORKER_DIED:
+            try:
+                reports.raise_reported()
+            finally:
+                reports.remove()
+            raise
     else:
         venv = DummyVecEnv(makers)
     venv.seed(seed)
-    return VecMonitor(venv)
+    monitored = VecMonitor(venv)
+    monitored.worker_reports = reports
+    if reports is not None:
+        close = monitored.close
+
+        def close_and_remove() -> None:
+            try:
+                close()
+            finally:
+                reports.remove()
+
+        monitored.close = close_and_remove
+    return monitored
 
 
 def make_model(config: TrainConfig, venv, seed: int, tensorboard_log: str | None = None,
@@ -582,7 +652,7 @@ def _best_score(path: Path) -> float | None:
 
 def train(config: TrainConfig, out: str | Path, resume: bool = False,
           progress: bool = True, ray_address: str | None = None,
-          device: str = "auto") -> dict[str, Any]:
+          device: str = "auto", recipe: str | None = None) -> dict[str, Any]:
     """Trains a policy into the run folder ``out`` (see the module docstring).
 
     ``ray_address`` runs the envs as Ray actors (see :func:`make_vec_env`) and ``device``
@@ -590,16 +660,26 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
     the config, so a run may resume with or without Ray, on any cluster or device. The process's
     malloc keeps freed memory for reuse from then on (:func:`reuse_freed_memory`).
 
+    PPO collects whole rollouts (``ppo.n_steps`` decisions of each env), so a run trains
+    ``total_steps`` rounded up to a whole number of them: a line on stderr says so when
+    that differs. ``progress`` shows the decisions trained and the phase (collecting,
+    updating, evaluating): a bar on a terminal, a line every 30 s elsewhere
+    (:class:`~mjexplore.io.progress.Progress`). TensorBoard (``tb/``) gets PPO's losses,
+    KL, entropy, explained variance and clip fraction after every update, the held-out
+    evaluations' figures, and each phase's wall time.
+
+    Args:
+        recipe: The name of the config the run was made from (its file's name), kept in the
+            weights' provenance.
+
     Returns:
         Summary: steps, checkpoints written, final weights path.
 
     Raises:
         UserInputError: ``out`` already holds a run and ``resume`` is not set, or
             ``resume`` is set and there is nothing to resume, or no Ray cluster at
-            ``ray_address``.
+            ``ray_address``, or an env worker cannot build its env (its message).
     """
-    from stable_baselines3.common.callbacks import BaseCallback
-
     out = Path(out)
     ckpt = _Checkpointer(out, config)
     latest = ckpt.latest()
@@ -624,98 +704,162 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
     _seed_everything(config.seed + done)
     torch.set_num_threads(config.torch_threads)
     venv = make_vec_env(config, config.seed + done, ray_address)  # Before writing: may refuse.
-    out.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(out / "config.yaml", f"# git revision {ckpt.revision}\n" +
-                      yaml.safe_dump(to_dict(config), sort_keys=False))
-    model = make_model(config, venv, config.seed + done, tensorboard_log=str(out / "tb"),
-                       device=device)
-    if state is not None:
-        model.policy.load_state_dict(state["policy"])
-        model.policy.optimizer.load_state_dict(state["optimizer"])
-        model.num_timesteps = done
-        model._n_updates = int(state["n_updates"])
-        log.info("resumed from %s at %d steps", latest, done)
-    elif config.imitation.episodes > 0:
-        _warm_start(model.policy, config, out)
+    return _train(config, out, ckpt, state, latest, venv, progress, device, recipe)
 
-    layout = layout_of(config.kind, config.env)
-    provenance = {"git_revision": ckpt.revision, "config": to_dict(config)}
-    written: list[str] = []
-    best = {"score": _best_score(out / "best.safetensors") if state is not None else None}
 
-    def export(name: str, steps: int, extra: dict | None = None) -> Path:
-        path = out / name
-        save_policy_weights(path, model.policy, config.kind, _policy_kwargs(config), layout,
-                            {**provenance, "num_timesteps": steps, **(extra or {})})
-        return path
-
-    class Callback(BaseCallback):
-        def _on_training_start(self) -> None:
-            self.last_ckpt = self.num_timesteps
-            self.last_eval = self.num_timesteps
-            self.bar = None
-            if progress:
-                from tqdm import tqdm
-
-                self.bar = tqdm(total=config.total_steps, initial=self.num_timesteps,
-                                unit="decision", desc="train")
-
-        def _on_rollout_end(self) -> None:
-            set_phase_threads(config, updating=True)
-
-        def _on_rollout_start(self) -> None:
-            set_phase_threads(config, updating=False)
-            # Between updates: the policy and optimizer are consistent with num_timesteps.
-            n = self.num_timesteps
-            if n - self.last_ckpt >= config.checkpoint_every:
-                written.append(ckpt.save(self.model, n).name)
-                self.last_ckpt = n
-            if config.eval.every and n - self.last_eval >= config.eval.every:
-                self.last_eval = n
-                self._evaluate(n)
-
-        def _evaluate(self, n: int) -> None:
-            # The env workers wait meanwhile: the evaluation takes as many processes.
-            results = evaluate_policy_episodes(self.model.policy, config,
-                                               workers=config.n_envs)
-            self.logger.record("eval/exploration_time_s",
-                               float(np.mean([r["exploration_time_s"] for r in results])))
-            self.logger.record("eval/exploration_ratio",
-                               float(np.mean([r["exploration_ratio"] for r in results])))
-            self.logger.record("eval/path_length_m",
-                               float(np.mean([r["path_length_m"] for r in results])))
-            header = not (out / "eval.csv").exists()
-            with open(out / "eval.csv", "a") as f:
-                if header:
-                    f.write("steps,scene,exploration_time_s,path_length_m,exploration_ratio,"
-                            "end_reason\n")
-                for r in results:
-                    f.write(f"{n},{r['scene']},{r['exploration_time_s']},{r['path_length_m']},"
-                            f"{r['exploration_ratio']},{r['end_reason']}\n")
-            score = eval_score(results)
-            if best["score"] is None or score > best["score"]:
-                best["score"] = score
-                export("best.safetensors", n, {"eval": results})
-
-        def _on_step(self) -> bool:
-            if self.bar is not None:
-                self.bar.update(self.training_env.num_envs)
-            return True
-
-        def _on_training_end(self) -> None:
-            if self.bar is not None:
-                self.bar.close()
-
+def planned_steps(config: TrainConfig, done: int) -> int:
+    """The steps a run that has ``done`` trains to: ``total_steps`` rounded up to whole
+    rollouts of ``ppo.n_steps`` decisions of each of the ``n_envs`` envs."""
+    rollout = config.ppo.n_steps * config.n_envs
     remaining = config.total_steps - done
+    return done + -(-remaining // rollout) * rollout if remaining > 0 else done
+
+
+def _train(config: TrainConfig, out: Path, ckpt: _Checkpointer, state: dict | None,
+           latest: Path | None, venv, progress: bool, device: str,
+           recipe: str | None) -> dict[str, Any]:
+    """:func:`train` once its envs run (they are closed when it returns or raises)."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from mjexplore.io.progress import Progress
+
+    done = int(state["num_timesteps"]) if state else 0
+    failed = True
     try:
-        if remaining > 0:
-            model.learn(remaining, callback=Callback(), reset_num_timesteps=False,
-                        tb_log_name="ppo")
-        written.append(ckpt.save(model, model.num_timesteps).name)
-        final = export("policy.safetensors", model.num_timesteps)
+        out.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(out / "config.yaml", f"# git revision {ckpt.revision}\n" +
+                          yaml.safe_dump(to_dict(config), sort_keys=False))
+        model = make_model(config, venv, config.seed + done, tensorboard_log=str(out / "tb"),
+                           device=device)
+        if state is not None:
+            model.policy.load_state_dict(state["policy"])
+            model.policy.optimizer.load_state_dict(state["optimizer"])
+            model.num_timesteps = done
+            model._n_updates = int(state["n_updates"])
+            log.info("resumed from %s at %d steps", latest, done)
+        elif config.imitation.episodes > 0:
+            _warm_start(model.policy, config, out)
+
+        layout = layout_of(config.kind, config.env)
+        provenance = {"git_revision": ckpt.revision, "config": to_dict(config)}
+        if recipe is not None:
+            provenance["recipe"] = recipe
+        written: list[str] = []
+        best = {"score": _best_score(out / "best.safetensors") if state is not None else None}
+        target = planned_steps(config, done)
+        shown = Progress(target, "train", "decisions", enabled=progress, initial=done)
+        if target != max(config.total_steps, done):
+            rollout = config.ppo.n_steps * config.n_envs
+            shown.note(f"train: {config.total_steps - done} more decision steps asked, "
+                       f"{target - done} trained: PPO collects whole rollouts of "
+                       f"{config.ppo.n_steps} decisions x {config.n_envs} envs = {rollout}, so "
+                       f"the run ends at {target} steps.", always=True)
+
+        def export(name: str, steps: int, extra: dict | None = None) -> Path:
+            path = out / name
+            save_policy_weights(path, model.policy, config.kind, _policy_kwargs(config),
+                                layout, {**provenance, "num_timesteps": steps, **(extra or {})})
+            return path
+
+        class Callback(BaseCallback):
+            def _on_training_start(self) -> None:
+                self.last_ckpt = self.num_timesteps
+                self.last_eval = self.num_timesteps
+                self.evaluations = 0
+                self.mark = time.perf_counter()
+                shown.phase("collecting")
+
+            def _on_rollout_end(self) -> None:
+                set_phase_threads(config, updating=True)
+                now = time.perf_counter()
+                self.logger.record("time/collect_s", now - self.mark)
+                self.mark = now
+                shown.phase("updating")
+
+            def _on_rollout_start(self) -> None:
+                set_phase_threads(config, updating=False)
+                # Between updates: the policy and optimizer are consistent with num_timesteps.
+                n = self.num_timesteps
+                if n > done:  # After an update: its losses, KL, entropy ... go out now.
+                    self.logger.record("time/update_s", time.perf_counter() - self.mark)
+                if n - self.last_ckpt >= config.checkpoint_every:
+                    shown.phase("checkpointing")
+                    written.append(ckpt.save(self.model, n).name)
+                    self.last_ckpt = n
+                if config.eval.every and n - self.last_eval >= config.eval.every:
+                    self.last_eval = n
+                    shown.phase("evaluating")
+                    self._evaluate(n)
+                if n > done:
+                    self.logger.dump(step=n)
+                self.mark = time.perf_counter()
+                shown.phase("collecting")
+
+            def _evaluate(self, n: int) -> None:
+                # The env workers wait meanwhile: the evaluation takes as many processes.
+                results = evaluate_policy_episodes(self.model.policy, config,
+                                                   workers=config.n_envs)
+                self.evaluations += 1
+                for key in ("exploration_time_s", "exploration_ratio", "path_length_m"):
+                    self.logger.record(f"eval/{key}", float(np.mean([r[key] for r in results])))
+                self.logger.record("eval/explored", float(np.mean(
+                    [r["end_reason"] == "explored" for r in results])))
+                score = eval_score(results)
+                self.logger.record("eval/score", score)
+                header = not (out / "eval.csv").exists()
+                with open(out / "eval.csv", "a") as f:
+                    if header:
+                        f.write("steps,scene,exploration_time_s,path_length_m,"
+                                "exploration_ratio,end_reason\n")
+                    for r in results:
+                        f.write(f"{n},{r['scene']},{r['exploration_time_s']},"
+                                f"{r['path_length_m']},{r['exploration_ratio']},"
+                                f"{r['end_reason']}\n")
+                shown.detail(f"held-out {np.mean([r['exploration_time_s'] for r in results]):.0f}"
+                             " s")
+                if best["score"] is None or score > best["score"]:
+                    best["score"] = score
+                    export("best.safetensors", n, {"eval": results})
+
+            def _on_step(self) -> bool:
+                shown.update(self.training_env.num_envs)
+                return True
+
+            def _on_training_end(self) -> None:
+                # The last update's figures (SB3 writes them at the next rollout's end).
+                self.logger.record("time/update_s", time.perf_counter() - self.mark)
+                self.logger.dump(step=self.num_timesteps)
+
+        callback = Callback()
+        callback.evaluations = 0
+        try:
+            if target > done:
+                model.learn(target - done, callback=callback, reset_num_timesteps=False,
+                            tb_log_name="ppo")
+            shown.phase("saving")
+            written.append(ckpt.save(model, model.num_timesteps).name)
+            final = export("policy.safetensors", model.num_timesteps)
+            shown.phase("done")
+        finally:
+            shown.close()
+        if config.eval.every and not callback.evaluations and not (out / "eval.csv").exists():
+            shown.note(f"train: no held-out evaluation ran (one every eval.every = "
+                       f"{config.eval.every} steps, and the run trained "
+                       f"{model.num_timesteps - done}): eval.csv and best.safetensors are "
+                       "written from the first evaluation on.", always=True)
+        failed = False
+    except WORKER_DIED:
+        reports = getattr(venv, "worker_reports", None)
+        if reports is not None:
+            reports.raise_reported()  # A worker's own message, not the broken pipe.
+        raise
     finally:
         set_phase_threads(config, updating=False)
-        venv.close()
+        if failed:
+            with contextlib.suppress(*WORKER_DIED):
+                venv.close()  # Workers that died cannot be told to close.
+        else:
+            venv.close()
     return {"num_timesteps": int(model.num_timesteps), "checkpoints": written,
             "weights": str(final), "resumed_from": done}
 

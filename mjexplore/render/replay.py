@@ -17,6 +17,7 @@ import mujoco
 import numpy as np
 
 from mjexplore.errors import UserInputError
+from mjexplore.io.progress import Progress
 from mjexplore.io.video import VideoWriter
 from mjexplore.maps import GridMap
 from mjexplore.render.panel import PanelContent, gvd_segments, render_panel
@@ -118,8 +119,11 @@ class RecordedEpisode:
 
 
 def render_run(run_dir: str | os.PathLike, out: str | os.PathLike | None = None,
-               config: VideoConfig | None = None) -> dict:
+               config: VideoConfig | None = None, progress: bool = False) -> dict:
     """Renders ``run_dir/episode.mcap`` to a video (default ``run_dir/video.mp4``).
+
+    ``progress`` shows the frames rendered on stderr (a bar on a terminal, a line every 30 s
+    elsewhere: :class:`~mjexplore.io.progress.Progress`).
 
     Returns:
         {"video": path, "frames": n, "duration_s": video seconds}.
@@ -151,10 +155,11 @@ def render_run(run_dir: str | os.PathLike, out: str | os.PathLike | None = None,
     out = Path(out) if out is not None else run_dir / "video.mp4"
     tracker, gvd_map, segments = None, None, None
     frames = 0
-    with VideoWriter(out, config.fps) as writer:
-        times = np.arange(0.0, poses[-1, 0] + 1e-9, config.sim_seconds_per_frame)
-        if poses[-1, 0] > times[-1] + 1e-9:
-            times = np.append(times, poses[-1, 0])  # The final state, as the live video.
+    times = np.arange(0.0, poses[-1, 0] + 1e-9, config.sim_seconds_per_frame)
+    if poses[-1, 0] > times[-1] + 1e-9:
+        times = np.append(times, poses[-1, 0])  # The final state, as the live video.
+    with (VideoWriter(out, config.fps) as writer,
+          Progress(len(times), "render", "frames", enabled=progress) as shown):
         for t in times:
             k = max(int(np.searchsorted(poses[:, 0], t + 1e-9)) - 1, 0)
             _, x, y, yaw = poses[k]
@@ -183,4 +188,5 @@ def render_run(run_dir: str | os.PathLike, out: str | os.PathLike | None = None,
             right = render_panel(content, config.width, config.height)
             writer.append(np.concatenate([left, right], axis=1))
             frames += 1
+            shown.update()
     return {"video": str(out), "frames": frames, "duration_s": frames / config.fps}

@@ -1,0 +1,163 @@
+"""How long work shows it is alive, the same way in every command.
+
+On a terminal, a tqdm bar with the work's phase ("collecting", "updating", ...) and details
+after it, redrawn at most a few times a second, whose clock keeps ticking while a phase runs
+without updates (a PPO update, a held-out evaluation). Anywhere else (a pipe, a log file)
+no bar and no carriage returns: a plain line at most every ``every`` seconds and one at the
+end, or nothing at all (``every=None``, as ``explore`` does). ``enabled=False`` (the
+commands' ``--no-progress``) shows nothing anywhere.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from typing import TextIO
+
+from tqdm import tqdm
+
+DEFAULT_FORMAT = ("{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} {unit} "
+                  "[{elapsed}<{remaining}{postfix}]")
+
+
+def is_terminal(stream: TextIO) -> bool:
+    """Whether ``stream`` is a terminal (a bar may be drawn there)."""
+    isatty = getattr(stream, "isatty", None)
+    try:
+        return bool(isatty and isatty())
+    except ValueError:  # A closed stream.
+        return False
+
+
+def _clock(seconds: float) -> str:
+    seconds = int(seconds)
+    return f"{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}"
+
+
+class Progress:
+    """A progress display of ``total`` units of work (see the module docstring).
+
+    Args:
+        total: Units of work in all (the bar's end).
+        desc: The work's name, first on the bar and on each line ("train", "bench").
+        unit: The units' name, plural ("decisions", "episodes", "frames").
+        stream: Where it goes (default: ``sys.stderr`` at construction time).
+        enabled: False shows nothing.
+        every: Off a terminal, seconds between plain lines (0: a line at every update or
+            phase); None: no lines at all.
+        bar_format: tqdm's format of the bar on a terminal.
+        min_interval: Seconds between redraws of the bar.
+        tick: Seconds between redraws of a bar that gets no updates (its clock); 0: none.
+    """
+
+    def __init__(self, total: float, desc: str, unit: str, stream: TextIO | None = None,
+                 enabled: bool = True, every: float | None = 30.0,
+                 bar_format: str = DEFAULT_FORMAT, min_interval: float = 0.25,
+                 tick: float = 1.0, initial: float = 0) -> None:
+        self.stream = sys.stderr if stream is None else stream
+        self.terminal = enabled and is_terminal(self.stream)
+        self.lines = enabled and not self.terminal and every is not None
+        self.enabled = self.terminal or self.lines
+        self.desc, self.unit, self.every = desc, unit, every
+        self.total, self.n = total, initial
+        self.phase_text, self.detail_text = "", ""
+        self.start = time.monotonic()
+        self._last_line = self.start
+        self._printed = False  # The first line comes at once: the work has started.
+        self._closed = False
+        self.bar = tqdm(total=total, initial=initial, file=self.stream,
+                        disable=not self.terminal, desc=desc, unit=unit,
+                        mininterval=min_interval, bar_format=bar_format, dynamic_ncols=True)
+        self._stop = threading.Event()
+        self._ticker = None
+        if self.terminal and tick > 0:
+            self._ticker = threading.Thread(target=self._tick, args=(tick,), daemon=True,
+                                            name=f"{desc}-progress")
+            self._ticker.start()
+
+    def _tick(self, period: float) -> None:
+        while not self._stop.wait(period):
+            self.bar.refresh()
+
+    def _postfix(self) -> str:
+        return ", ".join(t for t in (self.phase_text, self.detail_text) if t)
+
+    def _line(self, force: bool = False) -> None:
+        if not self.lines:
+            return
+        now = time.monotonic()
+        if not force and now - self._last_line < self.every and self._printed:
+            return
+        self._printed = True
+        self._last_line = now
+        done = f"{self.n:g}/{self.total:g} {self.unit}"
+        if self.total:
+            done += f" ({100.0 * self.n / self.total:.0f}%)"
+        postfix = self._postfix()
+        print(f"{self.desc}: {done}{', ' + postfix if postfix else ''}; "
+              f"{_clock(now - self.start)} elapsed", file=self.stream, flush=True)
+
+    def _show(self, force: bool = False) -> None:
+        if self.terminal:
+            self.bar.set_postfix_str(self._postfix(), refresh=False)
+            self.bar.n = min(self.n, self.total) if self.total else self.n
+            if force:
+                self.bar.refresh()
+            else:
+                self.bar.update(0)  # Redraws when min_interval has passed.
+        self._line()
+
+    def update(self, n: float = 1) -> None:
+        """Adds ``n`` units of work done."""
+        self.set(self.n + n)
+
+    def set(self, n: float) -> None:
+        """Sets the units of work done to ``n``."""
+        self.n = n
+        if self.enabled:
+            self._show()
+
+    def phase(self, text: str) -> None:
+        """Names what the work is doing now (shown until the next phase)."""
+        if text != self.phase_text:
+            self.phase_text = text
+            if self.enabled:
+                self._show(force=True)
+
+    def detail(self, text: str) -> None:
+        """Details shown after the phase (figures of the work so far)."""
+        self.detail_text = text
+        if self.enabled:
+            self._show()
+
+    def note(self, text: str, always: bool = False) -> None:
+        """A line of its own: above the bar on a terminal, plain elsewhere where lines are
+        shown; ``always``: also where nothing else is (what a user must be told)."""
+        if self.terminal:
+            self.bar.write(text, file=self.stream)
+        elif self.lines or always:
+            print(text, file=self.stream, flush=True)
+
+    def close(self) -> None:
+        """Draws the final state (a last line off a terminal) and stops (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        self._stop.set()
+        if self._ticker is not None:
+            self._ticker.join()
+        if self.terminal:
+            self._show(force=True)
+        elif self.lines:
+            self._line(force=True)
+        self.bar.close()
+
+    def __enter__(self) -> Progress:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+__all__ = ["Progress", "is_terminal"]
