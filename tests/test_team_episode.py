@@ -133,6 +133,13 @@ def test_team_explores_a_scene(rooms):
     assert len(result.ratio_curve) == sum(len(c) for c in result.robot_curves)
 
 
+def test_team_explores_in_the_grid_world(rooms):
+    config = EpisodeConfig(sim=SimConfig(dynamics="grid"), start_jitter=(0.0, 0.0),
+                           max_time=600.0)
+    m = TeamEpisode(rooms, [NearestFrontier(), NearestFrontier()], 0, config).run().metrics
+    assert m["end_reason"] == "explored" and m["robots"] == 2
+
+
 def test_a_team_of_one_is_the_single_robot_episode(rooms):
     config = _config(max_time=400.0)
     single = Episode(rooms, NearestFrontier(), 3, config).run()

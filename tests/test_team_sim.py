@@ -21,8 +21,10 @@ from mjexplore.scenes.team import (
     parse_starts,
     team_spec,
 )
+from mjexplore.sim.grid_world import GridWorld
 from mjexplore.sim.simulator import SimConfig, Simulator
 from mjexplore.sim.team import TeamSimulator, ray_boxes, robot_seed
+from mjexplore.sim.team_grid import TeamGridWorld, make_team_world
 
 
 @pytest.fixture(scope="module")
@@ -229,3 +231,37 @@ def test_silhouette_rays_match_mujoco(office, open_spot):
             assert ids[which[k]] == geomid[0]
             np.testing.assert_allclose(normal[k], n, atol=1e-9)
     assert hits > 20
+
+
+def test_grid_team_of_one_is_the_grid_world(office):
+    config = SimConfig(dynamics="grid", seed=3)
+    single = GridWorld(office, config)
+    team = TeamGridWorld(office, [office.start], config)
+    robot = team.robots[0]
+    rng = np.random.default_rng(0)
+    for _ in range(100):
+        v, w = rng.uniform(-0.2, 0.5), rng.uniform(-1.0, 1.0)
+        single.command(v, w)
+        robot.command(v, w)
+        a, b = single.step(0.1), team.step(0.1)[0]
+    np.testing.assert_array_equal(robot.pose, single.pose)
+    np.testing.assert_array_equal(a[-1].ranges, b[-1].ranges)
+
+
+def test_grid_team_sees_and_blocks_teammates(office, open_spot):
+    x, y = open_spot
+    team = make_team_world(office, [(x - 0.75, y, 0.0), (x + 0.75, y, math.pi)],
+                           SimConfig(dynamics="grid"))
+    assert isinstance(team, TeamGridWorld)
+    expected = 1.5 + 0.064 + 0.064 - 0.1405  # As the MuJoCo lidars see each other.
+    for r in team.robots:
+        assert r.latest_scan.ranges[0] == pytest.approx(expected, abs=1e-3)
+    for _ in range(60):
+        for r in team.robots:
+            r.command(0.3, 0.0)
+        team.step(0.1)
+    assert team.robot_collisions == 1 and [r.robot_contacts for r in team.robots] == [1, 1]
+    assert all(r.in_collision for r in team.robots)
+    a, b = (np.array(r.body_centre) for r in team.robots)
+    assert np.hypot(*(a - b)) >= 2 * 0.194 - 0.05
+    assert isinstance(make_team_world(office, [office.start]), TeamSimulator)

@@ -4,8 +4,9 @@ The robots start at known poses in one frame (the ``map`` frame), so every robot
 into one occupancy map, one GVD and one set of frontiers from the first scan on. Each robot
 is a :class:`RobotAgent`: the single-robot engine's decision and navigation machinery
 (:class:`~mjexplore.episode.engine.Episode`'s goal adoption, progress clock, blacklist,
-fallback, lingering and stuck recovery) bound to its robot of the
-:class:`~mjexplore.sim.team.TeamSimulator`, to the shared map, and to a costmap of its own
+fallback, lingering and stuck recovery) bound to its robot of the team's world (MuJoCo's
+:class:`~mjexplore.sim.team.TeamSimulator`, physics or kinematic, or the grid world's
+:class:`~mjexplore.sim.team_grid.TeamGridWorld`), to the shared map, and to a costmap of its own
 in which its teammates' bodies are obstacles (:class:`~mjexplore.navigation.teammates.
 TeamCostmap`, set anew every control period).
 
@@ -16,8 +17,8 @@ only after ``wait_timeout`` seconds. When two robots block each other (each wait
 the other, or touching), the one with the higher index yields: it drives to the reachable
 place, ``yield_distance`` metres or so away, farthest from the other robot, then explores
 on; a robot that stands still for good (idle, with nothing to explore, or retired) yields to
-any robot it blocks. Returns of the lidar that come from teammates (their known poses) are not mapped, so
-robots do not leave trails of phantom walls in the shared map.
+any robot it blocks. Returns of the lidar that come from teammates (their known poses) are
+not mapped, so robots do not leave trails of phantom walls in the shared map.
 
 The end of exploration holds for the team: the episode ends when the team's map reaches
 the target ratio (``explored``); when no robot finds a reachable frontier (``no_frontiers``:
@@ -63,7 +64,8 @@ from mjexplore.scenes.team import check_starts, draw_starts
 from mjexplore.sim.kinematics import KinematicsLog
 from mjexplore.sim.lidar import LaserScan
 from mjexplore.sim.motion import BODY_RADIUS
-from mjexplore.sim.team import TeamRobot, TeamSimulator
+from mjexplore.sim.team import TeamRobot
+from mjexplore.sim.team_grid import make_team_world
 from mjexplore.topology.pipeline import TopologyTracker
 
 TEAM_END_REASONS = ("explored", "no_frontiers", "lingering", "tipped_over", "time_limit",
@@ -324,7 +326,7 @@ class TeamEpisode:
         explorers: One explorer per robot (a coordinated team's share a coordinator).
         seed: Seed for the start poses, sensor noise and explorers.
         config: Episode settings, as a single robot's (``localization`` must be
-            'ground_truth'; ``sim.dynamics`` 'physics' or 'kinematic').
+            'ground_truth'; ``sim.dynamics`` any world's: physics, kinematic or grid).
         starts: One start pose per robot; None: robot 0 where a single robot's episode of
             this seed starts, the others drawn around it
             (:func:`~mjexplore.scenes.team.draw_starts`).
@@ -362,7 +364,7 @@ class TeamEpisode:
         check_starts(gt, starts)
         self.starts = starts
         sim_cfg = dataclasses.replace(cfg.sim, seed=seed)
-        self.world = TeamSimulator(scene, starts, sim_cfg)
+        self.world = make_team_world(scene, starts, sim_cfg)
         self.mapper = OccupancyMapper.like(gt, MapperConfig(resolution=gt.resolution))
         self.tracker = TopologyTracker(gt.shape, cfg.topology, gt)
         self.reference = observable_ground_truth(gt)
