@@ -177,8 +177,7 @@ def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Pa
             finished = pool.imap_unordered(_run_job, args)
         for metrics in finished:
             results.append(metrics)
-            bar.detail(_episode_note(metrics))
-            bar.update()
+            bar.update(detail=_episode_note(metrics))
     write_summary(out, jobs)
     return results
 

@@ -64,11 +64,12 @@ class Progress:
         self.phase_text, self.detail_text = "", ""
         self.start = time.monotonic()
         self._last_line = self.start
-        self._printed = False  # The first line comes at once: the work has started.
+        self._printed = ""  # The last line's text; the first comes at once.
         self._closed = False
         self.bar = tqdm(total=total, initial=initial, file=self.stream,
                         disable=not self.terminal, desc=desc, unit=unit,
                         mininterval=min_interval, bar_format=bar_format, dynamic_ncols=True)
+        self._line()  # Off a terminal, the first line says at once that the work started.
         self._stop = threading.Event()
         self._ticker = None
         if self.terminal and tick > 0:
@@ -89,14 +90,16 @@ class Progress:
         now = time.monotonic()
         if not force and now - self._last_line < self.every and self._printed:
             return
-        self._printed = True
-        self._last_line = now
         done = f"{self.n:g}/{self.total:g} {self.unit}"
         if self.total:
             done += f" ({100.0 * self.n / self.total:.0f}%)"
         postfix = self._postfix()
-        print(f"{self.desc}: {done}{', ' + postfix if postfix else ''}; "
-              f"{_clock(now - self.start)} elapsed", file=self.stream, flush=True)
+        text = f"{self.desc}: {done}{', ' + postfix if postfix else ''}"
+        if force and text == self._printed:
+            return  # The final state is on the last line already.
+        self._printed = text
+        self._last_line = now
+        print(f"{text}; {_clock(now - self.start)} elapsed", file=self.stream, flush=True)
 
     def _show(self, force: bool = False) -> None:
         if self.terminal:
@@ -108,8 +111,10 @@ class Progress:
                 self.bar.update(0)  # Redraws when min_interval has passed.
         self._line()
 
-    def update(self, n: float = 1) -> None:
-        """Adds ``n`` units of work done."""
+    def update(self, n: float = 1, detail: str | None = None) -> None:
+        """Adds ``n`` units of work done (and sets the details, as :meth:`detail`)."""
+        if detail is not None:
+            self.detail_text = detail
         self.set(self.n + n)
 
     def set(self, n: float) -> None:

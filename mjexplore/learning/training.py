@@ -591,16 +591,24 @@ _EVAL_WORKER: dict[str, Any] = {}
 
 
 def _eval_worker_init(config: TrainConfig, portable) -> None:
-    init_episode_worker()
-    policy = portable
-    if isinstance(portable, dict):
-        policy = _fresh_policy(config)
-        policy.load_state_dict(portable)
-        policy.set_training_mode(False)
+    # A pool whose initializer raises starts new workers for ever: a failure here is kept
+    # and raised by each task instead, and so reaches the parent with its message.
+    try:
+        init_episode_worker()
+        policy = portable
+        if isinstance(portable, dict):
+            policy = _fresh_policy(config)
+            policy.load_state_dict(portable)
+            policy.set_training_mode(False)
+    except Exception as exc:  # noqa: BLE001 - re-raised by _eval_worker_episode
+        _EVAL_WORKER.update(error=exc)
+        return
     _EVAL_WORKER.update(config=config, policy=policy)
 
 
 def _eval_worker_episode(scene: str) -> dict[str, Any]:
+    if "error" in _EVAL_WORKER:
+        raise _EVAL_WORKER["error"]
     return _heldout_episode(_EVAL_WORKER["policy"], _EVAL_WORKER["config"], scene)
 
 
