@@ -518,7 +518,8 @@ def cmd_train_pockets(args: argparse.Namespace) -> int:
     check_output_folder(args.out)
     if args.episodes is not None:
         config = dataclasses.replace(config, episodes=args.episodes)
-    print(json.dumps(train_pockets(config, args.out, workers=args.workers)))
+    print(json.dumps(train_pockets(config, args.out, workers=args.workers,
+                                   progress=not args.no_progress)))
     return 0
 
 
@@ -839,6 +840,8 @@ def build_parser() -> argparse.ArgumentParser:
     tp.add_argument("--workers", type=_count, default=2, help="collection processes")
     tp.add_argument("--episodes", type=_count, default=None, metavar="N",
                     help="collection episodes (default: the config's episodes)")
+    tp.add_argument("--no-progress", action="store_true",
+                    help="no progress bar on a terminal, no progress lines elsewhere")
     tp.set_defaults(func=cmd_train_pockets)
 
     co = sub.add_parser(

@@ -49,19 +49,21 @@ class Progress:
         bar_format: tqdm's format of the bar on a terminal.
         min_interval: Seconds between redraws of the bar.
         tick: Seconds between redraws of a bar that gets no updates (its clock); 0: none.
+        initial: Units of work done before (a resumed run's).
+        phase: The first phase (see :meth:`phase`).
     """
 
     def __init__(self, total: float, desc: str, unit: str, stream: TextIO | None = None,
                  enabled: bool = True, every: float | None = 30.0,
                  bar_format: str = DEFAULT_FORMAT, min_interval: float = 0.25,
-                 tick: float = 1.0, initial: float = 0) -> None:
+                 tick: float = 1.0, initial: float = 0, phase: str = "") -> None:
         self.stream = sys.stderr if stream is None else stream
         self.terminal = enabled and is_terminal(self.stream)
         self.lines = enabled and not self.terminal and every is not None
         self.enabled = self.terminal or self.lines
         self.desc, self.unit, self.every = desc, unit, every
         self.total, self.n = total, initial
-        self.phase_text, self.detail_text = "", ""
+        self.phase_text, self.detail_text = phase, ""
         self.start = time.monotonic()
         self._last_line = self.start
         self._printed = ""  # The last line's text; the first comes at once.

@@ -15,6 +15,7 @@ episode is held out for validation; the fit's figures are written beside the wei
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import logging
@@ -28,7 +29,9 @@ import numpy as np
 from mjexplore.config import load_yaml_config, to_dict
 from mjexplore.envs.exploration import EnvConfig
 from mjexplore.episode.explorer import ExplorationState
+from mjexplore.errors import UserInputError
 from mjexplore.io.atomic import write_text_atomic
+from mjexplore.io.progress import Progress
 from mjexplore.io.provenance import git_revision
 
 log = logging.getLogger(__name__)
@@ -164,14 +167,22 @@ def _collect_job(args: tuple[PocketTrainingConfig, int]) -> dict[str, np.ndarray
     return collect_episode(*args)
 
 
-def collect(config: PocketTrainingConfig, workers: int = 1) -> dict[str, np.ndarray]:
-    """All episodes' samples, with ``validation`` (bool per sample) marking held-out ones."""
+def collect(config: PocketTrainingConfig, workers: int = 1,
+            progress: Progress | None = None) -> dict[str, np.ndarray]:
+    """All episodes' samples, with ``validation`` (bool per sample) marking held-out ones;
+    ``progress`` counts the episodes collected."""
     jobs = [(config, i) for i in range(config.episodes)]
-    if workers > 1:
-        with mp.get_context("spawn").Pool(workers) as pool:
-            parts = pool.map(_collect_job, jobs, chunksize=1)
-    else:
-        parts = [_collect_job(job) for job in jobs]
+    parts = []
+    with contextlib.ExitStack() as stack:
+        if workers > 1:
+            pool = stack.enter_context(mp.get_context("spawn").Pool(workers))
+            done = pool.imap(_collect_job, jobs, chunksize=1)
+        else:
+            done = map(_collect_job, jobs)
+        for part in done:
+            parts.append(part)
+            if progress is not None:
+                progress.update()
     validation = [np.full(len(p["areas"]), p["index"] % config.validation_every == 0)
                   for p in parts]
     return {"patches": np.concatenate([p["patches"] for p in parts]),
@@ -187,8 +198,14 @@ def _symmetry(x, k: int, flip: bool):
     return (torch.flip(x, (3,)) if flip else x).contiguous()
 
 
-def fit(config: PocketTrainingConfig, data: dict[str, np.ndarray]):
-    """Fits a fresh :class:`PocketNet`; returns it and its validation figures."""
+def fit(config: PocketTrainingConfig, data: dict[str, np.ndarray],
+        progress: Progress | None = None):
+    """Fits a fresh :class:`PocketNet`; returns it and its validation figures.
+    ``progress`` counts the epochs.
+
+    Raises:
+        UserInputError: no samples in the training or the validation episodes.
+    """
     import torch
 
     from mjexplore.topology.pockets import PocketNet
@@ -200,8 +217,9 @@ def fit(config: PocketTrainingConfig, data: dict[str, np.ndarray]):
     train_rows = np.flatnonzero(~data["validation"])
     val_rows = np.flatnonzero(data["validation"])
     if len(train_rows) == 0 or len(val_rows) == 0:
-        raise ValueError("pocket training needs samples in both the training and the "
-                         "validation episodes: collect more episodes")
+        raise UserInputError("pocket training needs samples in both the training and the "
+                             "validation episodes (every validation_every-th episode is "
+                             "held out): collect more episodes (--episodes).")
     net = PocketNet()
     optimiser = torch.optim.Adam(net.parameters(), lr=config.learning_rate)
     loss_fn = torch.nn.BCEWithLogitsLoss()
@@ -227,6 +245,8 @@ def fit(config: PocketTrainingConfig, data: dict[str, np.ndarray]):
         figures.update(epoch=epoch, train_loss=round(total / max(steps, 1), 4))
         history.append(figures)
         log.info("pocket fit epoch %d: %s", epoch, figures)
+        if progress is not None:
+            progress.update(detail=f"validation accuracy {figures['accuracy']:.3f}")
     return net, history
 
 
@@ -253,18 +273,24 @@ def validate(net, data: dict[str, np.ndarray], rows: np.ndarray, small: np.ndarr
             else None}
 
 
-def train_pockets(config: PocketTrainingConfig, out: str | Path, workers: int = 1
-                  ) -> dict[str, Any]:
-    """Collects, fits and writes ``out/pockets.safetensors`` and ``out/fit.json``."""
+def train_pockets(config: PocketTrainingConfig, out: str | Path, workers: int = 1,
+                  progress: bool = False) -> dict[str, Any]:
+    """Collects, fits and writes ``out/pockets.safetensors`` and ``out/fit.json`` (``out``
+    is made only then: a run that fails leaves nothing). ``progress`` shows the episodes
+    collected, then the epochs fitted (:class:`~mjexplore.io.progress.Progress`)."""
     from mjexplore.topology.pockets import save_pocket_net
 
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     revision = git_revision()  # The code that collects and fits, before any later edit.
     started = time.perf_counter()
-    data = collect(config, workers)
+    with Progress(config.episodes, "train-pockets", "episodes", enabled=progress,
+                  phase="collecting") as shown:
+        data = collect(config, workers, shown)
     collected = time.perf_counter()
-    net, history = fit(config, data)
+    with Progress(config.epochs, "train-pockets", "epochs", enabled=progress,
+                  phase="fitting") as shown:
+        net, history = fit(config, data, shown)
+    out.mkdir(parents=True, exist_ok=True)
     summary = {"samples": int(len(data["areas"])),
                "small_share": round(float((data["areas"] < config.small_area_m2).mean()), 4),
                "collect_s": round(collected - started, 1),
