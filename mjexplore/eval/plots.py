@@ -18,7 +18,7 @@ from mjexplore.maps import GridMap  # noqa: E402
 COLOURS = {"gvn": "tab:red", "potential": "tab:blue", "nearest": "tab:green",
            "rrt": "tab:orange", "cnn": "tab:purple", "explore_lite": "tab:brown",
            "frontier_tsp": "tab:cyan", "oracle": "black", "gvn_v2": "tab:olive",
-           "gvn_v3": "magenta", "cnn_v2": "tab:gray"}
+           "gvn_v3": "magenta", "cnn_v2": "tab:gray", "pocket_nearest": "limegreen"}
 # How a method is named in tables and plots where its name alone would mislead.
 METHOD_LABELS = {"oracle": "oracle (ground-truth bound)"}
 

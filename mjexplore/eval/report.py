@@ -25,10 +25,10 @@ from mjexplore.eval.summaries import KINEMATIC_FIELDS, KINEMATICS_DT, ratio_curv
 from mjexplore.eval.sweep import MEAN_STD_NOTE, format_mean_std, markdown_table, summary_table
 from mjexplore.io.atomic import write_text_atomic
 
-METHOD_ORDER = ("nearest", "explore_lite", "frontier_tsp", "rrt", "potential", "cnn", "cnn_v2",
-                "gvn_none", "gvn_naive", "gvn_unmasked", "gvn", "gvn_v2_none", "gvn_v2_naive",
-                "gvn_v2_unmasked", "gvn_v2", "gvn_v3_none", "gvn_v3_naive", "gvn_v3_unmasked",
-                "gvn_v3", "oracle")
+METHOD_ORDER = ("nearest", "pocket_nearest", "explore_lite", "frontier_tsp", "rrt", "potential",
+                "cnn", "cnn_v2", "gvn_none", "gvn_naive", "gvn_unmasked", "gvn", "gvn_v2_none",
+                "gvn_v2_naive", "gvn_v2_unmasked", "gvn_v2", "gvn_v3_none", "gvn_v3_naive",
+                "gvn_v3_unmasked", "gvn_v3", "oracle")
 # The paper's claim (Sec. "Comparison with baselines"): gvn is faster than the potential field
 # by this range of percentages to the given exploration ratio.
 PAPER_SPEEDUP = {"t80_s": (7.0, 11.1), "t985_s": (4.0, 16.2)}
