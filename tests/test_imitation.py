@@ -1,15 +1,22 @@
-"""Behaviour cloning of the ground-truth oracle: the warm start before PPO."""
+"""Behaviour cloning of the ground-truth oracle and DAgger: the warm start before PPO."""
 
 import json
 
 import numpy as np
+import pytest
 import torch
 from gymnasium import spaces
 
 from mjexplore.envs import EnvConfig, ObservationConfig
 from mjexplore.envs.observation import observation_space
 from mjexplore.episode import EpisodeConfig
-from mjexplore.learning.imitation import ImitationConfig, clone, collect_expert_decisions
+from mjexplore.learning.imitation import (
+    ImitationConfig,
+    clone,
+    collect_expert_decisions,
+    collect_learner_decisions,
+    warm_start,
+)
 from mjexplore.learning.training import load_train_config, train
 from mjexplore.policies.sb3 import GvnPolicy
 from mjexplore.sim.simulator import SimConfig
@@ -63,3 +70,78 @@ imitation: {episodes: 1, epochs: 2}
     train(load_train_config(cfg), tmp_path / "run", progress=False)
     report = json.loads((tmp_path / "run" / "imitation.json").read_text())
     assert report["decisions"] > 0 and 0.0 <= report["agreement"] <= 1.0
+
+
+# DAgger's tests: episodes of at most 6 decisions on the small loop.
+SHORT = EnvConfig(scenes=("train_loop",), observation=SMALL, max_decisions=6,
+                  episode=EpisodeConfig(sim=SimConfig(dynamics="grid")))
+
+
+def _policy() -> GvnPolicy:
+    torch.manual_seed(0)
+    return GvnPolicy(observation_space(SMALL), spaces.Discrete(SMALL.max_nodes),
+                     lambda _: 1e-3, hidden=16)
+
+
+def test_dagger_aggregates_labelled_decisions_of_the_learners_own_rollouts():
+    cfg = ImitationConfig(episodes=1, epochs=2, batch_size=16, seed=11, dagger_iterations=2)
+    report = warm_start(_policy(), SHORT, cfg, seed=0)
+    rounds = report["rounds"]
+    assert [r["iteration"] for r in rounds] == [0, 1, 2]
+    assert [r["beta"] for r in rounds] == [1.0, 0.0, 0.0]  # beta0 = 0: the learner alone.
+    assert [r["expert_share"] for r in rounds] == [1.0, 0.0, 0.0]
+    assert all(r["decisions"] > 0 and r["mean_exploration_time_s"] > 0 for r in rounds)
+    assert all(0.0 <= r["agreement_before"] <= 1.0 for r in rounds)
+    aggregate = np.cumsum([r["decisions"] for r in rounds])
+    assert [r["aggregate"] for r in rounds] == aggregate.tolist()
+    assert report["decisions"] == aggregate[-1] > rounds[0]["decisions"]
+    assert report["episodes"] == 3 and 0.0 <= report["agreement"] <= 1.0
+    assert report["observation_mib"] > 0
+
+
+def _last_valid(obs, mask):
+    """A learner that takes the valid action of the highest index (not the expert's way)."""
+    del obs
+    probs = np.zeros(len(mask))
+    probs[np.flatnonzero(mask)[-1]] = 1.0
+    return probs
+
+
+def test_a_contrary_learners_states_get_the_experts_labels():
+    obs, masks, labels, taken, stats = collect_learner_decisions(SHORT, _last_valid, 1, seed=5)
+    n = stats["decisions"]
+    assert n == len(labels) == len(taken) == len(masks) > 2 and stats["expert_share"] == 0.0
+    last = np.array([np.flatnonzero(m)[-1] for m in masks])
+    assert (taken == last).all()  # The learner drove the episode...
+    assert masks[np.arange(n), labels].all()  # ...each state labelled with a valid action...
+    assert (labels != taken).any()  # ...that is not simply the action taken...
+    assert stats["agreement"] == pytest.approx(float((labels == taken).mean()))
+    # ...but the expert's choice on the learner's state: the first state is the expert's own
+    # first state (same layout and start), and the label the oracle's choice there.
+    e_obs, _, e_actions, _ = collect_expert_decisions(SHORT, 1, seed=5)
+    assert all(np.array_equal(obs[k][0], e_obs[k][0]) for k in obs)
+    assert labels[0] == e_actions[0]
+    # The later states are the learner's: not states of the expert's episode.
+    key = "node_features"
+    theirs = {e_obs[key][i].tobytes() for i in range(len(e_actions))}
+    assert any(obs[key][i].tobytes() not in theirs for i in range(1, n))
+    assert obs[key].dtype == np.float32
+
+
+def test_without_dagger_rounds_the_warm_start_is_plain_cloning_bit_for_bit():
+    cfg = ImitationConfig(episodes=1, epochs=2, batch_size=16, seed=7)
+    plain = _policy()
+    obs, masks, actions, stats = collect_expert_decisions(SHORT, cfg.episodes, cfg.seed)
+    fit = clone(plain, obs, masks, actions, cfg, seed=3)
+    started = _policy()
+    assert warm_start(started, SHORT, cfg, seed=3) == {**stats, **fit}
+    mine, theirs = started.state_dict(), plain.state_dict()
+    assert mine.keys() == theirs.keys()
+    assert all(torch.equal(mine[k], theirs[k]) for k in mine)
+    # DAgger's rounds need the env: cloning alone refuses a config that asks for them.
+    with pytest.raises(ValueError, match="warm_start"):
+        clone(plain, obs, masks, actions, ImitationConfig(episodes=1, dagger_iterations=1))
+    with pytest.raises(ValueError):
+        ImitationConfig(dagger_iterations=1)  # No episodes per round.
+    with pytest.raises(ValueError):
+        ImitationConfig(episodes=1, dagger_iterations=1, beta0=1.5)

@@ -1,37 +1,77 @@
-"""A warm start for PPO: the policy imitates the ground-truth oracle (behaviour cloning).
+"""A warm start for PPO: the policy imitates the ground-truth oracle (behaviour cloning, then
+optionally DAgger).
 
 The oracle (:mod:`mjexplore.explorers.oracle`) knows the true map and plans a near-optimal
 coverage tour; :meth:`~mjexplore.explorers.oracle.OracleExplorer.expert_choice` says which
-of the valid TER nodes it would go to next. Episodes of the training env are driven by
-those choices, every decision's observation, mask and expert action is kept, and the
+of the valid TER nodes it would go to next, in any state. Episodes of the training env are
+driven by those choices, every decision's observation, mask and expert action is kept, and the
 policy's actor is fitted to the expert actions by cross-entropy over the valid actions
 (the critic is left to PPO). Learned explorers that beat classic ones start so (ARiADNE's
 successors and most imitation-then-RL recipes): PPO from a uniform policy spends most of a
 small budget finding what a planner already knows.
+
+Cloning on the expert's states alone drifts: the learner's first mistakes take it to states the
+expert never visits, where it was never taught. DAgger (Ross, Gordon and Bagnell, AISTATS 2011)
+fixes that with ``dagger_iterations`` more rounds (:func:`warm_start`): round ``i`` rolls out a
+mixture that lets the expert act at a decision with probability ``beta_i = beta0 ** i`` and the
+learner otherwise (round 0 is the expert alone: plain cloning), labels *every* visited decision
+with the oracle's choice on that state, adds them to all the labelled decisions so far and
+refits the actor on the aggregate (:func:`clone`, continuing from the current weights). The
+learner acts by its most probable valid action (the way the explorers and the model selection
+run it, so the states taught are those the deployed policy meets), or with ``dagger_sample`` by
+a draw from its distribution (more varied states, some the deployed policy never reaches).
+
+Seeds (all layouts generated, grid world or whatever ``env`` says): round ``i``'s episode ``k``
+resets the training env with seed ``imitation.seed + i * episodes + k`` (round 0: ``seed + k``,
+the plain cloning's episodes); the env draws the layout's family, size and generator seed (in
+[0, 2**31 - 1)) from that seed's stream. PPO's envs reset from ``seed + steps done + env index``
+(the run's seed; later resets continue each env's stream), so keep ``imitation.seed`` above the
+run's seed plus its decision budget (the recipes use 10**8) and the two streams never start
+alike. Model selection's validation layouts (``eval.scene_list()``: generator seeds
+``2**31 + [0, eval.layouts)``) and the test layouts after them (``eval.unseen_scenes(n)``:
+``2**31 + [eval.layouts, eval.layouts + n)``, see
+:func:`~mjexplore.envs.exploration.heldout_scenes`) are never drawn by a training stream.
+
+Memory: an observation of the v3 recipe (256 nodes, 10 remembered TERs) is 214 kB of float32
+(209 KiB), so 1,000 decisions hold about 204 MiB; a refit briefly holds the aggregate twice.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
+import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 log = logging.getLogger(__name__)
 
+# A learner in a DAgger round: the observation (one decision's, unbatched) and its (A,) bool
+# mask to (A,) action probabilities (zero at invalid actions).
+Learner = Callable[[dict[str, np.ndarray], np.ndarray], np.ndarray]
+
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class ImitationConfig:
-    """Behaviour cloning before PPO.
+    """Behaviour cloning before PPO, optionally continued by DAgger rounds.
 
     Attributes:
-        episodes: Expert episodes to collect (0: no warm start).
-        epochs: Passes over the collected decisions.
+        episodes: Expert episodes to collect (0: no warm start), and the episodes of each
+            DAgger round.
+        epochs: Passes over the collected decisions (at each DAgger refit: over all the
+            decisions aggregated so far).
         batch_size: Decisions per gradient step.
         learning_rate: Adam's step size for the cloning.
         seed: Seed of the expert episodes' layouts and starts (disjoint from PPO's when it
-            differs from the run's seed).
+            differs from the run's seed; the module docstring gives every round's seeds).
+        dagger_iterations: DAgger rounds after the plain cloning (0: plain cloning only).
+        beta0: Round ``i`` lets the expert act at a decision with probability
+            ``beta0 ** i`` (round 0: always); 0 is Ross et al.'s practical choice, the
+            learner alone from round 1.
+        dagger_sample: The learner samples its action from its distribution over the valid
+            actions instead of taking the most probable one.
     """
 
     episodes: int = 0
@@ -39,12 +79,23 @@ class ImitationConfig:
     batch_size: int = 64
     learning_rate: float = 1e-3
     seed: int = 1_000_003
+    dagger_iterations: int = 0
+    beta0: float = 0.0
+    dagger_sample: bool = False
 
     def __post_init__(self) -> None:
         if self.episodes < 0 or self.epochs < 1 or self.batch_size < 1 or \
                 self.learning_rate <= 0:
             raise ValueError("imitation: episodes must be >= 0, epochs and batch_size >= 1, "
                              "learning_rate > 0")
+        if self.dagger_iterations < 0 or not 0.0 <= self.beta0 <= 1.0:
+            raise ValueError("imitation: dagger_iterations must be >= 0 and beta0 in [0, 1]")
+        if self.dagger_iterations and not self.episodes:
+            raise ValueError("imitation: dagger_iterations needs episodes >= 1 (per round)")
+
+    def beta(self, iteration: int) -> float:
+        """The probability that the expert acts at a decision of round ``iteration``."""
+        return float(self.beta0 ** iteration)  # 0 ** 0 == 1: round 0 is the expert's.
 
 
 def collect_expert_decisions(env_config, episodes: int, seed: int
@@ -87,15 +138,141 @@ def collect_expert_decisions(env_config, episodes: int, seed: int
             np.array(actions, np.int64), stats)
 
 
+def collect_learner_decisions(env_config, learner: Learner, episodes: int, seed: int,
+                              beta: float = 0.0, sample: bool = False
+                              ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray,
+                                         np.ndarray, dict]:
+    """One DAgger round: ``episodes`` training-env episodes (reset seeds ``seed + k``) where
+    at each decision the expert acts with probability ``beta`` and the learner otherwise,
+    every decision labelled with the oracle's choice on its state.
+
+    Args:
+        env_config: The training env's settings.
+        learner: The learner's action probabilities of a decision (see :data:`Learner`).
+        episodes: Episodes of the round.
+        seed: Reset seed of the first episode; episode ``k``'s ``seed + k`` also seeds who
+            acts (and, with ``sample``, the learner's draw).
+        beta: Probability that the expert, not the learner, acts at a decision.
+        sample: The learner draws its action from its probabilities (else the most
+            probable valid one).
+
+    Returns:
+        (observations stacked per key (float32), (n, A) bool masks, (n,) expert actions, (n,)
+        actions taken, stats: decisions, episodes, explored, mean exploration time in
+        simulated seconds, ``agreement`` (the share of decisions where the learner's most
+        probable valid action is the expert's, whoever acted) and ``expert_share`` (the
+        share of decisions the expert acted at)).
+    """
+    from mjexplore.envs import ExplorationEnv
+    from mjexplore.explorers import make_explorer
+
+    env = ExplorationEnv(env_config)
+    oracle = make_explorer("oracle")
+    observations: dict[str, list[np.ndarray]] = {}
+    masks, labels, taken, times, explored, agree, by_expert = [], [], [], [], 0, 0, 0
+    for k in range(episodes):
+        rng = np.random.default_rng(seed + k)
+        obs, _ = env.reset(seed=seed + k)
+        oracle.reset(np.random.default_rng(seed + k))
+        while True:
+            mask = env.action_masks()
+            expert = oracle.expert_choice(env.episode.decision_state(),
+                                          env.decisions.action_positions(), mask)
+            if expert < 0:
+                break
+            probs = np.where(mask, np.asarray(learner(obs, mask), np.float64), 0.0)
+            best = int(np.argmax(probs)) if probs.any() else expert
+            agree += best == expert
+            if rng.random() < beta:
+                action, by_expert = expert, by_expert + 1
+            elif sample and probs.sum() > 0:
+                action = int(rng.choice(len(probs), p=probs / probs.sum()))
+            else:
+                action = best
+            for key, value in obs.items():
+                observations.setdefault(key, []).append(np.array(value, np.float32))
+            masks.append(mask)
+            labels.append(expert)
+            taken.append(action)
+            obs, _, terminated, truncated, info = env.step(action)
+            if terminated or truncated:
+                explored += info["end_reason"] == "explored"
+                times.append(info["sim_time"])
+                break
+    env.close()
+    n = len(labels)
+    stats = {"decisions": n, "episodes": episodes, "explored": explored,
+             "mean_exploration_time_s": float(np.mean(times)) if times else None,
+             "agreement": agree / n if n else None,
+             "expert_share": by_expert / n if n else None}
+    return ({k: np.stack(v) for k, v in observations.items()}, np.array(masks, bool),
+            np.array(labels, np.int64), np.array(taken, np.int64), stats)
+
+
+def policy_learner(policy) -> Learner:
+    """A policy's action probabilities over the valid actions (no gradients), as a
+    :data:`Learner`."""
+    def probabilities(obs: dict[str, np.ndarray], mask: np.ndarray) -> np.ndarray:
+        return _probabilities(policy, {k: np.asarray(v)[None] for k, v in obs.items()},
+                              np.asarray(mask, bool)[None])[0]
+
+    return probabilities
+
+
+def _probabilities(policy, observations: dict[str, np.ndarray], masks: np.ndarray,
+                   batch: int = 64) -> np.ndarray:
+    """(n, A) action probabilities of batched observations under ``masks``, in batches."""
+    import torch
+
+    policy.set_training_mode(False)
+    out = []
+    with torch.no_grad():
+        for start in range(0, len(masks), batch):
+            obs = {k: torch.as_tensor(v[start:start + batch], device=policy.device)
+                   for k, v in observations.items()}
+            dist = policy.get_distribution(obs, action_masks=masks[start:start + batch])
+            out.append(dist.distribution.probs.cpu().numpy())
+    return np.concatenate(out) if out else np.zeros((0, masks.shape[-1]))
+
+
+def agreement(policy, observations: dict[str, np.ndarray], masks: np.ndarray,
+              actions: np.ndarray) -> float | None:
+    """The share of decisions whose most probable valid action under ``policy`` is
+    ``actions``' (None without decisions)."""
+    if not len(actions):
+        return None
+    probs = _probabilities(policy, observations, masks)
+    return float((probs.argmax(-1) == actions).mean())
+
+
 def clone(policy, observations: dict[str, np.ndarray], masks: np.ndarray,
-          actions: np.ndarray, config: ImitationConfig, seed: int = 0) -> dict[str, Any]:
+          actions: np.ndarray, config: ImitationConfig, seed: int = 0, *,
+          dagger: bool = False) -> dict[str, Any]:
     """Fits the policy's actor to the expert actions (masked cross-entropy, Adam).
+
+    Args:
+        policy: The policy whose actor (not its critic) is fitted, from its current weights.
+        observations, masks, actions: The labelled decisions.
+        config: Epochs, batch size and learning rate.
+        seed: Seed of the minibatches' order.
+        dagger: Set by :func:`warm_start` for its refits. A config with
+            ``dagger_iterations`` is refused otherwise: those rounds need the env, so a
+            caller of :func:`collect_expert_decisions` and this function alone would
+            silently clone only; call :func:`warm_start`.
 
     Returns:
         The final epoch's mean loss and the share of decisions whose most likely valid
         action is the expert's.
+
+    Raises:
+        ValueError: ``config.dagger_iterations`` without ``dagger``.
     """
     import torch
+
+    if config.dagger_iterations and not dagger:
+        raise ValueError("imitation.dagger_iterations needs the DAgger rounds: call "
+                         "mjexplore.learning.imitation.warm_start(policy, env_config, "
+                         "imitation, seed), not collect_expert_decisions and clone")
 
     rng = np.random.default_rng(seed)
     params = [p for name, p in policy.named_parameters() if "value_net" not in name and
@@ -109,9 +286,10 @@ def clone(policy, observations: dict[str, np.ndarray], masks: np.ndarray,
         order = rng.permutation(n)
         for start in range(0, n, config.batch_size):
             idx = order[start:start + config.batch_size]
-            obs = {k: torch.as_tensor(v[idx]) for k, v in observations.items()}
+            obs = {k: torch.as_tensor(v[idx], device=policy.device)
+                   for k, v in observations.items()}
             dist = policy.get_distribution(obs, action_masks=masks[idx])
-            target = torch.as_tensor(actions[idx])
+            target = torch.as_tensor(actions[idx], device=policy.device)
             loss = -dist.log_prob(target).mean()
             optimizer.zero_grad()
             loss.backward()
@@ -121,3 +299,67 @@ def clone(policy, observations: dict[str, np.ndarray], masks: np.ndarray,
             agree += float((dist.distribution.probs.argmax(-1) == target).sum())
     policy.set_training_mode(False)
     return {"loss": loss_sum / max(n, 1), "agreement": agree / max(n, 1)}
+
+
+def warm_start(policy, env_config, config: ImitationConfig, seed: int = 0) -> dict[str, Any]:
+    """The warm start of ``config``: plain cloning of the expert's episodes, then
+    ``config.dagger_iterations`` DAgger rounds (see the module docstring), in this process.
+
+    Args:
+        policy: The (fresh) policy, fitted in place.
+        env_config: The training env's settings (layouts, dynamics, observation).
+        config: The imitation settings.
+        seed: Seed of the minibatches' order (round ``i``'s refit: ``seed + i``).
+
+    Returns:
+        Without DAgger rounds, plain cloning's figures (the expert's decisions, episodes,
+        explored, mean exploration time; the fit's loss and agreement), bit for bit those of
+        :func:`collect_expert_decisions` then :func:`clone`. With them: ``decisions`` and
+        ``episodes`` over all rounds, the last refit's ``loss`` and ``agreement`` (on the
+        aggregate), ``observation_mib`` (the aggregate's observations), ``wall_s``, and
+        ``rounds``: per round its ``beta``, new ``decisions``, ``episodes``, ``explored``,
+        ``mean_exploration_time_s`` (its rollouts, simulated seconds; the learner's own from
+        round 1 when ``beta0`` is 0), ``agreement_before`` (the learner's most probable
+        valid action against the expert's label on the round's new states, before the
+        refit: DAgger's signal; round 0: the untrained policy on the expert's states),
+        ``expert_share``, ``aggregate`` decisions, the refit's ``fit_loss`` and
+        ``fit_agreement``, and the wall seconds of its ``rollout_s`` and ``fit_s``.
+    """
+    start = time.perf_counter()
+    observations, masks, actions, stats = collect_expert_decisions(env_config, config.episodes,
+                                                                   config.seed)
+    if not config.dagger_iterations:
+        return {**stats, **clone(policy, observations, masks, actions, config, seed=seed)}
+    before = agreement(policy, observations, masks, actions)
+    rollout_s = time.perf_counter() - start
+    rounds = []
+    for i in range(config.dagger_iterations + 1):
+        if i:
+            tick = time.perf_counter()
+            new_obs, new_masks, new_actions, _, stats = collect_learner_decisions(
+                env_config, policy_learner(policy), config.episodes,
+                config.seed + i * config.episodes, config.beta(i), config.dagger_sample)
+            before = stats.pop("agreement")
+            rollout_s = time.perf_counter() - tick
+            if len(new_actions):  # The aggregate (held once while the refit runs).
+                observations = {k: np.concatenate([v, new_obs[k]])
+                                for k, v in observations.items()}
+                masks = np.concatenate([masks, new_masks])
+                actions = np.concatenate([actions, new_actions])
+            del new_obs, new_masks, new_actions
+        tick = time.perf_counter()
+        fit = clone(policy, observations, masks, actions, config, seed=seed + i, dagger=True)
+        rounds.append({"iteration": i, "beta": config.beta(i), **stats,
+                       "agreement_before": before,
+                       "expert_share": stats.get("expert_share", 1.0),
+                       "aggregate": len(actions), "fit_loss": fit["loss"],
+                       "fit_agreement": fit["agreement"], "rollout_s": round(rollout_s, 1),
+                       "fit_s": round(time.perf_counter() - tick, 1)})
+        log.info("imitation round %d (beta %.3g): %d new decisions, learner agreed on %s "
+                 "before the refit, %d aggregated, fit agreement %.3f", i, config.beta(i),
+                 stats["decisions"], before, len(actions), fit["agreement"])
+    mib = sum(v.nbytes for v in observations.values()) / 2**20
+    return {"decisions": len(actions), "episodes": sum(r["episodes"] for r in rounds),
+            "loss": fit["loss"], "agreement": fit["agreement"],
+            "observation_mib": round(mib, 1), "wall_s": round(time.perf_counter() - start, 1),
+            "rounds": rounds}
