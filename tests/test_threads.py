@@ -9,6 +9,11 @@ from mjexplore.learning.training import TrainConfig, make_vec_env
 
 
 def test_training_workers_run_one_thread_per_library():
+    import os
+
+    from mjexplore.episode.workers import THREAD_VARIABLES
+
+    before = {name: os.environ.get(name) for name in THREAD_VARIABLES}
     config = TrainConfig(n_envs=2, env=EnvConfig(scenes=("train_loop",)))
     venv = make_vec_env(config, seed=0)
     try:
@@ -16,6 +21,8 @@ def test_training_workers_run_one_thread_per_library():
     finally:
         venv.close()
     assert counts == [{"blas_openmp": 1, "torch": 1, "numba": 1}] * 2
+    # The learner keeps its own settings (numba refuses a thread count changed under it).
+    assert {name: os.environ.get(name) for name in THREAD_VARIABLES} == before
 
 
 def test_a_limited_process_caps_pools_that_were_loaded_before():

@@ -178,7 +178,7 @@ def recipe_round(n_envs: int, default_threads: bool = False, device: str = "auto
                 stack.enter_context(mock.patch.object(training, "worker_env",
                                                       training.ExplorationEnv))
                 stack.enter_context(mock.patch.object(training, "single_thread_children",
-                                                      lambda: None))
+                                                      contextlib.nullcontext))
             return training.ppo_round(config, device=device)
     finally:
         for k, v in saved.items():

@@ -25,11 +25,13 @@ benchmark of 12 minibatches that takes 9.6 s instead of 16.3 s with the heap reu
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
 import logging
 import os
 import sys
+from collections.abc import Iterator
 
 log = logging.getLogger(__name__)
 
@@ -70,17 +72,38 @@ THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"
                     "NUMBA_NUM_THREADS", "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
 
 
-def single_thread_children() -> None:
-    """Makes the processes this one starts from now on load their libraries with one
-    thread each (their environment; this process's own loaded libraries keep their
-    pools)."""
+@contextlib.contextmanager
+def single_thread_children() -> Iterator[None]:
+    """Within the block, the processes this one starts (and a forkserver it starts) load
+    their libraries with one thread each; this process's environment is restored after
+    it (numba refuses a thread count that changes once its threads run)."""
+    saved = {name: os.environ.get(name) for name in THREAD_VARIABLES}
     os.environ.update({name: "1" for name in THREAD_VARIABLES})
+    try:
+        yield
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+
+
+def _numba_threads_running() -> bool:
+    """Whether numba's thread pool has started in this process (its size is fixed then)."""
+    if "numba" not in sys.modules:
+        return False
+    from numba.np.ufunc import parallel
+
+    return bool(getattr(parallel, "_is_initialized", False))
 
 
 def limit_threads() -> None:
     """One thread for torch, numba and BLAS/OpenMP in this process, for the libraries
     loaded already (their pools are capped at run time) and those loaded later."""
-    single_thread_children()
+    running = _numba_threads_running()
+    os.environ.update({name: "1" for name in THREAD_VARIABLES
+                       if not (running and name == "NUMBA_NUM_THREADS")})
     if "torch" in sys.modules:
         sys.modules["torch"].set_num_threads(1)
     if "numba" in sys.modules:

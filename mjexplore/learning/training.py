@@ -338,15 +338,14 @@ def make_vec_env(config: TrainConfig, seed: int, ray_address: str | None = None)
     reports = WorkerReports() if ray_address is None and config.n_envs > 1 else None
     makers = [_make_env(config.env, own_process, reports and reports.path(i))
               for i in range(config.n_envs)]
-    if own_process:
-        single_thread_children()  # Before the workers (and a forkserver) start.
     if ray_address is not None:
         from mjexplore.learning.ray_vec_env import RayVecEnv, connect
 
         venv = RayVecEnv(makers, shutdown_ray=connect(ray_address, config.n_envs))
     elif reports is not None:
         try:
-            venv = SubprocVecEnv(makers, start_method="forkserver")
+            with single_thread_children():  # The workers (and a forkserver) start here.
+                venv = SubprocVecEnv(makers, start_method="forkserver")
         except WORKER_DIED:
             try:
                 reports.raise_reported()
@@ -531,17 +530,14 @@ def _fresh_policy(config: TrainConfig):
 
 
 def _warm_start(policy, config: TrainConfig, out: Path) -> None:
-    """Clones the oracle into ``policy`` (a fresh run only); the figures go to
-    ``imitation.json``."""
-    from mjexplore.learning.imitation import clone, collect_expert_decisions
+    """Imitates the oracle into ``policy`` (a fresh run only: cloning, then DAgger rounds if
+    the config asks for them); the figures go to ``imitation.json``."""
+    from mjexplore.learning.imitation import warm_start
 
-    cfg = config.imitation
-    observations, masks, actions, stats = collect_expert_decisions(config.env, cfg.episodes,
-                                                                   cfg.seed)
-    fit = clone(policy, observations, masks, actions, cfg, seed=config.seed)
-    log.info("warm start: %d expert decisions, agreement %.3f", stats["decisions"],
-             fit["agreement"])
-    write_text_atomic(out / "imitation.json", json.dumps({**stats, **fit}, indent=2) + "\n")
+    stats = warm_start(policy, config.env, config.imitation, seed=config.seed)
+    log.info("warm start: %d decisions, agreement %.3f", stats["decisions"],
+             stats["agreement"])
+    write_text_atomic(out / "imitation.json", json.dumps(stats, indent=2) + "\n")
 
 
 def heldout_env(config: TrainConfig, scene: str) -> ExplorationEnv:
