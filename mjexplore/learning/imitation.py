@@ -100,45 +100,20 @@ class ImitationConfig:
 
 def collect_expert_decisions(env_config, episodes: int, seed: int
                              ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, dict]:
-    """Runs ``episodes`` training-env episodes with the oracle choosing every node.
+    """Runs ``episodes`` training-env episodes with the oracle choosing every node (a
+    :func:`collect_learner_decisions` round without a learner).
 
     Returns:
         (observations stacked per key, (n, A) bool action masks, (n,) expert actions,
         stats: decisions, episodes explored, mean exploration time in simulated seconds).
     """
-    from mjexplore.envs import ExplorationEnv
-    from mjexplore.explorers import make_explorer
-
-    env = ExplorationEnv(env_config)
-    oracle = make_explorer("oracle")
-    observations: dict[str, list[np.ndarray]] = {}
-    masks, actions, times, explored = [], [], [], 0
-    for k in range(episodes):
-        obs, _ = env.reset(seed=seed + k)
-        oracle.reset(np.random.default_rng(seed + k))
-        while True:
-            mask = env.action_masks()
-            action = oracle.expert_choice(env.episode.decision_state(),
-                                          env.decisions.action_positions(), mask)
-            if action < 0:
-                break
-            for key, value in obs.items():
-                observations.setdefault(key, []).append(np.asarray(value).copy())
-            masks.append(mask)
-            actions.append(action)
-            obs, _, terminated, truncated, info = env.step(action)
-            if terminated or truncated:
-                explored += info["end_reason"] == "explored"
-                times.append(info["sim_time"])
-                break
-    env.close()
-    stats = {"decisions": len(actions), "episodes": episodes, "explored": explored,
-             "mean_exploration_time_s": float(np.mean(times)) if times else None}
-    return ({k: np.stack(v) for k, v in observations.items()}, np.array(masks, bool),
-            np.array(actions, np.int64), stats)
+    observations, masks, actions, _, stats = collect_learner_decisions(
+        env_config, None, episodes, seed, beta=1.0)
+    keep = ("decisions", "episodes", "explored", "mean_exploration_time_s")
+    return observations, masks, actions, {k: stats[k] for k in keep}
 
 
-def collect_learner_decisions(env_config, learner: Learner, episodes: int, seed: int,
+def collect_learner_decisions(env_config, learner: Learner | None, episodes: int, seed: int,
                               beta: float = 0.0, sample: bool = False
                               ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray,
                                          np.ndarray, dict]:
@@ -148,7 +123,8 @@ def collect_learner_decisions(env_config, learner: Learner, episodes: int, seed:
 
     Args:
         env_config: The training env's settings.
-        learner: The learner's action probabilities of a decision (see :data:`Learner`).
+        learner: The learner's action probabilities of a decision (see :data:`Learner`);
+            None: the expert acts at every decision (``beta`` must be 1).
         episodes: Episodes of the round.
         seed: Reset seed of the first episode; episode ``k``'s ``seed + k`` also seeds who
             acts (and, with ``sample``, the learner's draw).
@@ -180,8 +156,11 @@ def collect_learner_decisions(env_config, learner: Learner, episodes: int, seed:
                                           env.decisions.action_positions(), mask)
             if expert < 0:
                 break
-            probs = np.where(mask, np.asarray(learner(obs, mask), np.float64), 0.0)
-            best = int(np.argmax(probs)) if probs.any() else expert
+            if learner is None:
+                probs, best = np.zeros(len(mask)), expert
+            else:
+                probs = np.where(mask, np.asarray(learner(obs, mask), np.float64), 0.0)
+                best = int(np.argmax(probs)) if probs.any() else expert
             agree += best == expert
             if rng.random() < beta:
                 action, by_expert = expert, by_expert + 1
