@@ -142,7 +142,26 @@ class TeamLidar(Lidar):
                 self._normal[i0:i1][nearer] = normal[nearer]
 
 
-class TeamRobot(Simulator):
+class TeammateBody:
+    """What a robot of a team adds to its world: contacts with teammates count as
+    collisions, and its body's bounding circle for the teammates' costmaps and lidars."""
+
+    _in_contact: bool
+    _teammate_contact: bool
+
+    @property
+    def in_collision(self) -> bool:
+        """Touching a wall or a teammate."""
+        return self._in_contact or self._teammate_contact
+
+    @property
+    def body_centre(self) -> tuple[float, float]:
+        """Centre of the body's bounding circle (radius ``BODY_RADIUS``), ``map`` frame."""
+        x, y, yaw = self.pose
+        return x + BODY_CENTRE_X * math.cos(yaw), y + BODY_CENTRE_X * math.sin(yaw)
+
+
+class TeamRobot(TeammateBody, Simulator):
     """One robot of a :class:`TeamSimulator`: the single robot's interface; the team steps.
 
     Attributes:
@@ -181,17 +200,6 @@ class TeamRobot(Simulator):
     @property
     def _steps(self) -> int:  # type: ignore[override]
         return self._team._steps
-
-    @property
-    def in_collision(self) -> bool:
-        """Touching a wall or a teammate."""
-        return self._in_contact or self._teammate_contact
-
-    @property
-    def body_centre(self) -> tuple[float, float]:
-        """Centre of the body's bounding circle (radius ``BODY_RADIUS``), ``map`` frame."""
-        x, y, yaw = self.pose
-        return x + BODY_CENTRE_X * math.cos(yaw), y + BODY_CENTRE_X * math.sin(yaw)
 
     def reset(self, pose=None) -> LaserScan:  # type: ignore[override]
         raise TypeError("a team's robots are reset together: call TeamSimulator.reset")

@@ -23,9 +23,9 @@ from mjexplore.scenes.scene import SceneFiles, load_scene_files
 from mjexplore.scenes.team import SILHOUETTE_HALF, SILHOUETTE_POS, robot_prefix
 from mjexplore.sim.grid_world import GridLidar, GridWorld
 from mjexplore.sim.lidar import LaserScan
-from mjexplore.sim.motion import BODY_CENTRE_X, BODY_RADIUS
+from mjexplore.sim.motion import BODY_RADIUS
 from mjexplore.sim.simulator import COLLISION_GAP_S, SimConfig
-from mjexplore.sim.team import TeamSimulator, ray_boxes, robot_seed
+from mjexplore.sim.team import TeammateBody, TeamSimulator, ray_boxes, robot_seed
 
 SCAN_HEIGHT = 0.132  # base_scan above the floor, metres (the MJCF's).
 
@@ -77,7 +77,7 @@ class TeamGridLidar(GridLidar):
         return dist
 
 
-class TeamGridRobot(GridWorld):
+class TeamGridRobot(TeammateBody, GridWorld):
     """One robot of a :class:`TeamGridWorld`: the grid world's robot; the team steps."""
 
     def __init__(self, team: TeamGridWorld, index: int, start) -> None:  # noqa: D107
@@ -92,15 +92,6 @@ class TeamGridRobot(GridWorld):
         self._teammate_contact = False
         self._last_teammate = -math.inf
         self._refused_by_teammate = False
-
-    @property
-    def in_collision(self) -> bool:
-        return self._in_contact or self._teammate_contact
-
-    @property
-    def body_centre(self) -> tuple[float, float]:
-        x, y, yaw = self._pose
-        return x + BODY_CENTRE_X * math.cos(yaw), y + BODY_CENTRE_X * math.sin(yaw)
 
     def _move(self, stop: int) -> None:
         before = self._pose, self._wheels
