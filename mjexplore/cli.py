@@ -251,6 +251,18 @@ def _episode_config(args: argparse.Namespace):
                                        odometry_heading=args.odometry_heading))
 
 
+def _team_config(args: argparse.Namespace):
+    """The team settings of ``--unknown-starts`` (None: the defaults)."""
+    from mjexplore.episode.team import TeamConfig
+
+    if not args.unknown_starts:
+        return None
+    if args.robots < 2:
+        raise UserInputError("--unknown-starts merges the maps of a team: add --robots 2 "
+                             "or more.")
+    return TeamConfig(unknown_starts=True)
+
+
 def _explore_team(args: argparse.Namespace) -> int:
     """``explore --robots N``: a team episode (eval/team_run.py)."""
     from mjexplore.eval.team_run import team_explorers, team_starts, write_team_run
@@ -266,11 +278,13 @@ def _explore_team(args: argparse.Namespace) -> int:
         raise UserInputError("a team explores with known start poses: use --localization "
                              "ground_truth with --robots.")
     team_explorers(args.explorer, args.robots)  # Fails early on a bad name.
+    team_config = _team_config(args)
     check_output_folder(args.out)
     scene, config = resolve_scene(args.scene), _episode_config(args)
     starts = team_starts(scene, args.starts, args.robots)
     metrics = write_team_run(args.out, scene, args.explorer, args.robots, args.seed, config,
-                             starts, mcap=not args.no_mcap, progress=not args.no_progress)
+                             starts, mcap=not args.no_mcap, team_config=team_config,
+                             progress=not args.no_progress)
     print(json.dumps(metrics))
     return 0
 
@@ -280,7 +294,7 @@ def cmd_explore(args: argparse.Namespace) -> int:
     from mjexplore.eval.run import write_run
     from mjexplore.scenes.canonical import resolve_scene
 
-    if args.robots > 1 or args.starts is not None:
+    if args.robots > 1 or args.starts is not None or args.unknown_starts:
         return _explore_team(args)
     spec = parse_method(args.explorer)
     if args.policy is not None or args.no_masking:
@@ -439,9 +453,11 @@ def _bench_team(args: argparse.Namespace) -> int:
                              "--mcap.")
     for method in methods:
         team_explorers(method, args.robots)  # Fails early on a bad name.
+    unknown_starts = _team_config(args) is not None
     check_output_folder(args.out)
     run_team_sweep(scenes, methods, args.robots, placements, list(range(args.seeds)),
-                   Path(args.out), _episode_config(args), workers=args.workers)
+                   Path(args.out), _episode_config(args), workers=args.workers,
+                   unknown_starts=unknown_starts)
     print((Path(args.out) / "results.md").read_text())
     return 0
 
@@ -450,7 +466,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from mjexplore.eval.methods import parse_method
     from mjexplore.eval.sweep import run_sweep
 
-    if args.robots > 1:
+    if args.robots > 1 or args.unknown_starts:
         return _bench_team(args)
     specs = [parse_method(e) for e in args.explorers.split(",") if e.strip()]
     explorers = [spec.label for spec in specs]
@@ -735,6 +751,11 @@ def build_parser() -> argparse.ArgumentParser:
                          "(metres, radians, map frame), or Explore-Bench's 'close' or 'far' "
                          "placement on its maps (2 robots) (default: robot 0 at the scene's "
                          "start, the others drawn 1-3 m around it from the seed)")
+    explore.add_argument("--unknown-starts", action="store_true",
+                         help="with --robots: the robots do not know their relative start "
+                         "poses; each maps in its own frame until its map is merged into the "
+                         "team's by matching (the merge error against the truth is in "
+                         "metrics.json) (default: known starts, one shared map)")
     _add_video_args(explore)
     _add_episode_args(explore)
     explore.set_defaults(func=cmd_explore)
@@ -782,6 +803,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="with --robots: comma-separated start placements, 'close' and "
                        "'far' (Explore-Bench's, on its maps) or 'drawn' (robot 0 at the "
                        "scene's start, the others around it) (default: drawn)")
+    bench.add_argument("--unknown-starts", action="store_true",
+                       help="with --robots: unknown relative start poses, maps merged by "
+                       "matching (see explore --unknown-starts) (default: known starts)")
     _add_episode_args(bench)
     bench.set_defaults(func=cmd_bench)
 

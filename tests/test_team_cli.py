@@ -71,6 +71,7 @@ def test_team_starts_from_text_and_placements():
     (["--robots", "2", "--video", "x.mp4"], "--video"),
     (["--robots", "2", "--starts", "1,2"], "one per robot"),
     (["--robots", "2", "--explorer", "nope"], "unknown explorer"),
+    (["--unknown-starts"], "--robots 2"),
 ])
 def test_team_explore_refuses_what_it_cannot_do(tmp_path, capsys, args, message):
     assert main(["explore", "--scene", "train_loop", "--out", str(tmp_path / "r"), *args]) == 2
@@ -93,3 +94,18 @@ def test_bench_with_a_team_puts_the_single_robot_beside(tmp_path):
     assert main(args) == 0  # Finished episodes are kept.
     assert done.stat().st_mtime_ns == stamp
     assert main([*args[:-2], "--starts", "close", "--out", str(tmp_path / "b2")]) == 2
+
+
+def test_explore_with_unknown_starts_reports_its_merges(tmp_path):
+    out = tmp_path / "team"
+    assert main(["explore", "--scene", "train_loop", "--robots", "2", "--unknown-starts",
+                 "--explorer", "assign_greedy", "--max-time", "12", "--seed", "1", "--no-mcap",
+                 "--out", str(out)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["unknown_starts"] and metrics["merge_attempts"] >= 1
+    for key in ("merged", "merge_time_s", "merge_error_m", "merge_error_deg", "merges",
+                "team_map_ratio"):
+        assert key in metrics
+    assert json.loads((out / "config.json").read_text())["team"]["unknown_starts"]
+    assert main(["bench", "--scenes", "train_loop", "--unknown-starts", "--seeds", "1",
+                 "--out", str(tmp_path / "b")]) == 2

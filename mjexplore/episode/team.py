@@ -26,7 +26,27 @@ a robot that finds none stands idle and asks again every ``idle_retry`` seconds,
 every robot is idle they all ask once more before the episode ends); when every robot has
 been retired for lingering (``lingering``: a robot that lingers through ``linger_strikes``
 goals stops, the others go on); when a robot tips over or the physics fails; at the time
-cap. Only ground-truth localisation is supported (the known-pose setting).
+cap. Only ground-truth localisation is supported (each robot knows its pose in its own frame).
+
+Unknown start poses (``TeamConfig.unknown_starts``): the robots do not know where they
+started relative to each other. Each robot maps in a frame of its own (its start pose is the
+frame's origin) and explores alone on its own map, its explorer seeing a team of one, until
+its map overlaps the team's enough to be merged by matching
+(:func:`~mjexplore.mapping.map_merging.merge_maps`: robot ``j``'s own-frame map, grown from
+its scans at its poses relative to its start, placed in the team's map). The team's map is
+robot 0's: its frame is robot 0's start, drawn in the ground truth's grid at robot 0's true
+start pose (a fixed change of coordinates, as an evaluator aligns a robot's map to the
+ground truth; it tells the robots nothing). Likewise, before its merge a robot's own map is
+drawn in the ground truth's grid through its own start pose, so that the mapping and
+planning machinery is the shared map's. A match counts once a second one, ``merge_period``
+seconds later, agrees with it (within ``merge_agreement``); then the robot's scans so far
+are mapped into the team's map at the poses the match gives (its start pose as estimated),
+the robot plans on the team's map from then on, its pose in it being its own-frame pose
+composed with the estimate, and the team's coordination takes it in. The merge's error is
+the estimated start pose against the true one (metres and degrees, in ``merges`` of the
+metrics). The team's exploration ratio is that of the union of the robots' maps until all
+have merged, then that of the team's map. Robots see each other before they merge (their
+lidars do), so their bodies are obstacles in each other's costmaps throughout.
 
 Metrics: the team's exploration ratio and times to 80, 90 and 98.5 %, IoU, the robots'
 summed and longest path, wall collisions, robot-robot collisions (per pair and contact),
@@ -53,6 +73,7 @@ from mjexplore.episode.explorer import ExplorationState, Explorer
 from mjexplore.episode.metrics import KnownCounter, first_time_at
 from mjexplore.episode.nearest import NearestFrontier
 from mjexplore.errors import UserInputError
+from mjexplore.mapping.map_merging import MapMergeConfig, merge_maps
 from mjexplore.mapping.metrics import iou, observable_ground_truth
 from mjexplore.mapping.occupancy import MapperConfig, OccupancyMapper
 from mjexplore.maps import GridMap
@@ -64,6 +85,7 @@ from mjexplore.scenes.team import check_starts, draw_starts
 from mjexplore.sim.kinematics import KinematicsLog
 from mjexplore.sim.lidar import LaserScan
 from mjexplore.sim.motion import BODY_RADIUS
+from mjexplore.sim.odometry import compose_pose, relative_pose, wrap_angle
 from mjexplore.sim.team import TeamRobot
 from mjexplore.sim.team_grid import make_team_world
 from mjexplore.topology.pipeline import TopologyTracker
@@ -88,6 +110,13 @@ class TeamConfig:
         yield_distance: How far a yielding robot moves out of the way (path length).
         yield_after: Two robots blocking each other this long make one yield.
         mask_teammates: Leave returns from teammates out of the map.
+        unknown_starts: The robots do not know their relative start poses: each maps in its
+            own frame until its map is merged into the team's (see the module docstring).
+        merge_period: An unmerged robot's map is matched against the team's this often,
+            seconds of simulated time.
+        merge_agreement: (metres, radians) two successive accepted matches must agree
+            within for the merge to be made.
+        merge: The map matcher's settings.
     """
 
     teammate_margin: float = 0.1
@@ -97,12 +126,18 @@ class TeamConfig:
     yield_distance: float = 2.0
     yield_after: float = 3.0
     mask_teammates: bool = True
+    unknown_starts: bool = False
+    merge_period: float = 5.0
+    merge_agreement: tuple[float, float] = (0.1, math.radians(1.0))
+    merge: MapMergeConfig = dataclasses.field(default_factory=MapMergeConfig)
 
     def __post_init__(self) -> None:
-        if min(self.wait_timeout, self.retry_period, self.idle_retry, self.yield_distance) <= 0 \
-                or self.teammate_margin < 0 or self.yield_after < 0:
-            raise ValueError("wait_timeout, retry_period, idle_retry and yield_distance must "
-                             "be > 0, teammate_margin and yield_after >= 0")
+        if min(self.wait_timeout, self.retry_period, self.idle_retry, self.yield_distance,
+               self.merge_period) <= 0 or self.teammate_margin < 0 or self.yield_after < 0 \
+                or min(self.merge_agreement) < 0:
+            raise ValueError("wait_timeout, retry_period, idle_retry, yield_distance and "
+                             "merge_period must be > 0, teammate_margin, yield_after and "
+                             "merge_agreement >= 0")
 
 
 @dataclasses.dataclass
@@ -169,16 +204,11 @@ class RobotAgent(Episode):
         self.explorer = explorer
         self.observer = None
         self.sim = robot
-        self.mapper = self._seen = team.mapper
         self.localizer = None
         self._positions: list[tuple[float, float, float, float]] = []
-        self.tracker = team.tracker
         self.reference = team.reference
-        self.counter = team.counter
         self.navigator = Navigator(robot.profile, cfg.navigator)
-        radius = BODY_RADIUS + cfg.planner.lethal_radius + team.team_config.teammate_margin
-        self._costmap: TeamCostmap = TeamCostmap(self.mapper.grid, self.tracker.gvd.distance2,
-                                                 cfg.planner, radius)
+        self.use_map(*team.map_of(index))
         self._static_costmap = None
         if getattr(explorer, "plans_on_ground_truth", False):
             raise UserInputError(f"explorer {explorer.name!r} plans on the ground truth and "
@@ -215,6 +245,26 @@ class RobotAgent(Episode):
         self.yields = 0
         self._yield_goal: np.ndarray | None = None
         self._blocked_since: float | None = None
+
+    def use_map(self, mapper: OccupancyMapper, tracker: TopologyTracker,
+                counter: KnownCounter) -> None:
+        """Plans on ``mapper``'s map (with ``tracker``'s GVD and frontiers) from now on."""
+        self.mapper = self._seen = mapper
+        self.tracker = tracker
+        self.counter = counter
+        radius = BODY_RADIUS + self.config.planner.lethal_radius + \
+            self.team.team_config.teammate_margin
+        self._costmap: TeamCostmap = TeamCostmap(mapper.grid, tracker.gvd.distance2,
+                                                 self.config.planner, radius)
+
+    @property
+    def pose(self) -> np.ndarray:
+        """(x, y, yaw) of ``base_link`` in the frame of the map the robot plans on: the true
+        pose, or once merged with unknown starts, its own-frame pose placed by the merge's
+        estimate of its start."""
+        correction = self.team.corrections[self.index]
+        pose = self.sim.pose
+        return pose if correction is None else compose_pose(correction, pose)
 
     # ------------------------------------------------------------------ engine hooks
 
@@ -375,6 +425,7 @@ class TeamEpisode:
                     for _ in range(n)]
         self.own_counters = [KnownCounter(self.reference) for _ in range(n)]
         self.own_curves: list[list[tuple[float, float]]] = [[] for _ in range(n)]
+        self._setup_merging(gt, n)
         self.agents = [RobotAgent(self, i, robot, explorer,
                                   np.random.default_rng([seed, i]) if i else
                                   np.random.default_rng(seed))
@@ -383,6 +434,49 @@ class TeamEpisode:
         self.masked_returns = 0
         for i, robot in enumerate(self.world.robots):
             self._integrate(i, robot.latest_scan)
+
+    def _setup_merging(self, gt: GridMap, n: int) -> None:
+        """With unknown starts: each robot but robot 0 with its own map (its ``own``
+        mapper, a GVD of its own), an own-frame map to match and its scans kept for the
+        merge; the union of the maps for the team's exploration ratio."""
+        unknown = self.team_config.unknown_starts and n > 1
+        # The pose of the team map's frame error of each merged robot (None: its true
+        # pose is its pose in the map it plans on).
+        self.corrections: list[np.ndarray | None] = [None] * n
+        self.merged = [True] + [not unknown] * (n - 1)
+        self.merges: list[dict[str, Any]] = []
+        self.merge_attempts = 0
+        self._trackers: list[TopologyTracker | None] = [None] * n
+        self._frames: list[OccupancyMapper | None] = [None] * n
+        self._history: list[list[LaserScan]] = [[] for _ in range(n)]
+        self._candidates: list[np.ndarray | None] = [None] * n
+        self._next_attempt = [0.0] * n
+        self.union: OccupancyMapper | None = None
+        if not unknown:
+            return
+        self.union = OccupancyMapper.like(gt, MapperConfig(resolution=gt.resolution))
+        self.union_counter = KnownCounter(self.reference)
+        w, h = gt.size_m
+        centre = np.array([gt.origin[0] + w / 2, gt.origin[1] + h / 2, 0.0])
+        half = 0.5 * math.hypot(w, h) + 1.0
+        cells = int(math.ceil(2 * half / gt.resolution))
+        for j in range(1, n):
+            self._trackers[j] = TopologyTracker(gt.shape, self.config.topology, gt)
+            # The own-frame map: a square that holds the building in any orientation (its
+            # size and placement are memory only; nothing of them reaches the matcher).
+            c = relative_pose(self.starts[j], centre)
+            self._frames[j] = OccupancyMapper((cells, cells), (c[0] - half, c[1] - half),
+                                              MapperConfig(resolution=gt.resolution))
+
+    def map_of(self, index: int) -> tuple[OccupancyMapper, TopologyTracker, KnownCounter]:
+        """The map robot ``index`` plans on now: the team's, or before its merge its own."""
+        if self.merged[index]:
+            return self.mapper, self.tracker, self.counter
+        return self.own[index], self._trackers[index], self.own_counters[index]
+
+    @property
+    def all_merged(self) -> bool:
+        return all(self.merged)
 
     # ------------------------------------------------------------------ state
 
@@ -395,11 +489,15 @@ class TeamEpisode:
         return self.curve[-1][1] if self.curve else 0.0
 
     def view(self, index: int) -> TeamView:
-        """The team as robot ``index`` sees it at a decision."""
-        return TeamView(index, self.world.poses(),
-                        [None if a.goal is None else a.goal.copy() for a in self.agents],
-                        [a._costmap for a in self.agents],
-                        np.array([a.active for a in self.agents]))
+        """The team as robot ``index`` sees it at a decision: the robots that share its map
+        (all of them, or before its merge with unknown starts itself alone)."""
+        members = [a for a in self.agents if self.merged[a.index]] \
+            if self.merged[index] else [self.agents[index]]
+        return TeamView([a.index for a in members].index(index),
+                        np.array([a.pose for a in members]),
+                        [None if a.goal is None else a.goal.copy() for a in members],
+                        [a._costmap for a in members],
+                        np.array([a.active for a in members]))
 
     # ------------------------------------------------------------------ mapping
 
@@ -425,25 +523,44 @@ class TeamEpisode:
         masked[hit] = np.nan
         return dataclasses.replace(scan, ranges=masked)
 
+    def _observe(self, mapper: OccupancyMapper, tracker: TopologyTracker,
+                 changed: np.ndarray) -> None:
+        """Updates ``tracker`` and the costmaps of the robots planning on ``mapper``'s map
+        after its ``changed`` cells changed."""
+        grid = mapper.grid
+        tracker.observe(grid, changed)
+        cells = np.concatenate([changed[:, 0] * grid.shape[1] + changed[:, 1],
+                                tracker.gvd.last_changed])
+        for a in self.agents:
+            if a.mapper is mapper:
+                a._costmap.update(cells)
+
     def _integrate(self, index: int, scan: LaserScan) -> None:
         if self.world.physics_fault:
             return
         agent = self.agents[index]
         scan = self._mask(index, agent._deskewed(scan, slice(5, 8)))
-        grid = self.mapper.grid
-        cols = grid.shape[1]
-        changed = self.mapper.integrate(scan)
-        self.tracker.observe(grid, changed)
-        cells = np.concatenate([changed[:, 0] * cols + changed[:, 1],
-                                self.tracker.gvd.last_changed])
-        for a in self.agents:
-            a._costmap.update(cells)
-        ratio = self.counter.update(self.mapper.state, changed, cols)
-        self.curve.append((scan.stamp, ratio))
+        cols = self.mapper.grid.shape[1]
         own = self.own[index]
         own_changed = own.integrate(scan)
-        self.own_curves[index].append(
-            (scan.stamp, self.own_counters[index].update(own.state, own_changed, cols)))
+        own_ratio = self.own_counters[index].update(own.state, own_changed, cols)
+        if self.merged[index]:
+            correction = self.corrections[index]
+            changed = self.mapper.integrate(
+                scan, None if correction is None else compose_pose(correction, scan.pose))
+            self._observe(self.mapper, self.tracker, changed)
+            ratio = self.counter.update(self.mapper.state, changed, cols)
+        else:  # Its own map, its own-frame map, and the scan kept for the merge.
+            self._observe(own, self._trackers[index], own_changed)
+            self._frames[index].integrate(scan, relative_pose(self.starts[index], scan.pose))
+            self._history[index].append(scan)
+        if self.union is not None:
+            union_changed = self.union.integrate(scan)
+            union_ratio = self.union_counter.update(self.union.state, union_changed, cols)
+            if not self.all_merged:
+                ratio = union_ratio
+        self.curve.append((scan.stamp, ratio))
+        self.own_curves[index].append((scan.stamp, own_ratio))
         if self.observer is not None and hasattr(self.observer, "on_scan"):
             self.observer.on_scan(self, index, scan)
 
@@ -582,9 +699,75 @@ class TeamEpisode:
                     self._integrate(i, robot_scans[k])
         for a, pose in zip(self.agents, poses):
             a.record_visit(pose)
+        if not self.all_merged:
+            self._try_merges()
         if self.observer is not None and hasattr(self.observer, "on_step"):
             self.observer.on_step(self)
         return True
+
+    # ------------------------------------------------------------------ map merging
+
+    def _try_merges(self) -> None:
+        """Matches each unmerged robot's own-frame map against the team's map once every
+        ``merge_period``; merges it when two successive accepted matches agree."""
+        t = self.time
+        tc = self.team_config
+        for j in range(len(self.agents)):
+            if self.merged[j] or t < self._next_attempt[j]:
+                continue
+            self._next_attempt[j] = t + tc.merge_period
+            self.merge_attempts += 1
+            match = merge_maps(self.mapper.grid, self._frames[j].grid, tc.merge)
+            previous, self._candidates[j] = self._candidates[j], None
+            if not match.accepted:
+                continue
+            self._candidates[j] = match.pose
+            if previous is not None:
+                d = relative_pose(previous, match.pose)
+                if math.hypot(d[0], d[1]) <= tc.merge_agreement[0] and \
+                        abs(d[2]) <= tc.merge_agreement[1]:
+                    self._merge(j, match)
+
+    def _merge(self, j: int, match: Any) -> None:
+        """Merges robot ``j``'s map into the team's with ``match``'s pose of its start."""
+        estimate = np.asarray(match.pose, float)
+        truth = np.asarray(self.starts[j], float)
+        # The correction takes j's true pose to its pose in the team's map: the estimated
+        # start composed with its pose relative to its true start.
+        correction = compose_pose(estimate, relative_pose(truth, np.zeros(3)))
+        self.corrections[j] = correction
+        self.merged[j] = True
+        changed = [self.mapper.integrate(scan, compose_pose(correction, scan.pose))
+                   for scan in self._history[j]]
+        self._history[j] = []
+        self._frames[j] = None
+        self._trackers[j] = None
+        self._candidates[j] = None
+        cells = np.unique(np.concatenate(changed), axis=0) if changed else \
+            np.zeros((0, 2), np.int64)
+        agent = self.agents[j]
+        agent.use_map(self.mapper, self.tracker, self.counter)
+        self._observe(self.mapper, self.tracker, cells)
+        ratio = self.counter.update(self.mapper.state, cells, self.mapper.grid.shape[1])
+        self._set_teammates()
+        # Its plans were on its own map: it decides anew on the team's.
+        agent.goal = None
+        agent.navigator.status = NavStatus.IDLE
+        agent._decision_due = True
+        agent._end_wait(self.time)
+        if agent.idle_until is not None:
+            agent.idle_until = self.time
+        error = relative_pose(truth, estimate)
+        self.merges.append({
+            "robot": j, "time_s": round(self.time, 3),
+            "error_m": round(float(math.hypot(estimate[0] - truth[0],
+                                              estimate[1] - truth[1])), 4),
+            "error_deg": round(math.degrees(abs(wrap_angle(float(error[2])))), 4),
+            "estimate": [round(float(v), 4) for v in estimate],
+            "inliers": round(match.inliers, 4), "conflict": round(match.conflict, 5),
+            "wall_overlap_m": round(match.wall_overlap, 2)})
+        if self.all_merged:  # From now on the team's ratio is its map's.
+            self.curve.append((self.time, ratio))
 
     def run(self) -> TeamEpisodeResult:
         """Steps to the end; Ctrl-C ends the episode as ``interrupted`` (as
@@ -652,6 +835,19 @@ class TeamEpisode:
             "localization": self.config.localization,
             "per_robot": per_robot,
         }
+        if self.union is not None:
+            errors = [(m["error_m"], m["error_deg"]) for m in self.merges]
+            metrics.update({
+                "unknown_starts": True,
+                "merged": self.all_merged,
+                "merge_time_s": self.merges[-1]["time_s"] if self.all_merged else None,
+                "merge_error_m": max(e[0] for e in errors) if errors else None,
+                "merge_error_deg": max(e[1] for e in errors) if errors else None,
+                "merge_attempts": self.merge_attempts,
+                "merges": self.merges,
+                # The team's map against the ground truth (the union's until all merged).
+                "team_map_ratio": round(self.counter.count / self.counter.total, 5),
+            })
         return TeamEpisodeResult(
             metrics, curve, [np.array(c).reshape(-1, 2) for c in self.own_curves], logs,
             GridMap(grid.data.copy(), grid.resolution, grid.origin),

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from mjexplore.episode import EpisodeConfig
+from mjexplore.episode.team import TeamConfig
 from mjexplore.errors import UserInputError
 from mjexplore.eval.run import write_run
 from mjexplore.eval.sweep import format_mean_std, markdown_table, scene_label
@@ -46,10 +47,16 @@ class TeamJob:
     method: str
     seed: int
     robots: int
+    unknown_starts: bool = False
+
+    @property
+    def label(self) -> str:
+        """The method as the summary names it (``+unknown``: with unknown start poses)."""
+        return self.method + ("+unknown" if self.unknown_starts else "")
 
     def folder(self, out: Path) -> Path:
         where = "single" if self.robots == 1 else self.placement
-        return out / "runs" / scene_label(self.scene) / where / self.method / f"seed{self.seed}"
+        return out / "runs" / scene_label(self.scene) / where / self.label / f"seed{self.seed}"
 
 
 def _finished(folder: Path) -> dict[str, Any] | None:
@@ -73,28 +80,31 @@ def _run(args: tuple[TeamJob, Path, EpisodeConfig]) -> dict[str, Any]:
         starts = None if job.placement == DRAWN else team_starts(scene, job.placement,
                                                                  job.robots)
         return write_team_run(folder, scene, job.method, job.robots, job.seed, config,
-                              starts, mcap=False)
+                              starts, mcap=False,
+                              team_config=TeamConfig(unknown_starts=job.unknown_starts))
     except Exception as exc:  # noqa: BLE001 - one broken episode must not end the sweep
         log.exception("episode %s failed", job)
         return {"end_reason": "error", "error": f"{type(exc).__name__}: {exc}"}
 
 
 def team_jobs(scenes: list[str], methods: list[str], robots: int, placements: list[str],
-              seeds: list[int], single: str | None = "nearest") -> list[TeamJob]:
+              seeds: list[int], single: str | None = "nearest",
+              unknown_starts: bool = False) -> list[TeamJob]:
     """The jobs of a team sweep, the single-robot baseline's first."""
     jobs = []
     if single:
         jobs += [TeamJob(s, DRAWN, single, k, 1) for s in scenes for k in seeds]
-    jobs += [TeamJob(s, p, m, k, robots) for s in scenes for p in placements for m in methods
-             for k in seeds]
+    jobs += [TeamJob(s, p, m, k, robots, unknown_starts) for s in scenes for p in placements
+             for m in methods for k in seeds]
     return jobs
 
 
 def run_team_sweep(scenes: list[str], methods: list[str], robots: int, placements: list[str],
                    seeds: list[int], out: Path, config: EpisodeConfig, workers: int = 1,
-                   single: str | None = "nearest") -> list[dict[str, Any]]:
+                   single: str | None = "nearest",
+                   unknown_starts: bool = False) -> list[dict[str, Any]]:
     """Runs (or resumes) a team sweep and writes its summary; returns every episode's
-    metrics.
+    metrics (``unknown_starts``: the teams merge their maps, as ``TeamConfig`` says).
 
     Raises:
         UserInputError: a placement a scene does not define (checked before anything
@@ -106,7 +116,7 @@ def run_team_sweep(scenes: list[str], methods: list[str], robots: int, placement
         for placement in placements:
             if placement != DRAWN:
                 team_starts(resolve_scene(scene), placement, robots)
-    jobs = team_jobs(scenes, methods, robots, placements, seeds, single)
+    jobs = team_jobs(scenes, methods, robots, placements, seeds, single, unknown_starts)
     out.mkdir(parents=True, exist_ok=True)
     args = [(job, out, config) for job in jobs]
     if workers <= 1:
@@ -116,6 +126,18 @@ def run_team_sweep(scenes: list[str], methods: list[str], robots: int, placement
             results = list(pool.map(_run, args))
     write_team_summary(out, jobs)
     return results
+
+
+def _merge_cells(ms: list[dict[str, Any]]) -> list[str]:
+    """The summary's merge columns: when the teams' maps were merged (mean +- std, with
+    how many merged), and the largest merge error (metres, degrees); '-' for known starts."""
+    if not any(m.get("unknown_starts") for m in ms):
+        return ["-", "-"]
+    errors = [(m["merge_error_m"], m["merge_error_deg"]) for m in ms
+              if m.get("merge_error_m") is not None]
+    worst = (f"{max(e[0] for e in errors):.3f}, {max(e[1] for e in errors):.2f}"
+             if errors else "-")
+    return [format_mean_std([m.get("merge_time_s") for m in ms]), worst]
 
 
 def write_team_summary(out: Path, jobs: list[TeamJob]) -> None:
@@ -129,11 +151,11 @@ def write_team_summary(out: Path, jobs: list[TeamJob]) -> None:
         if job.robots == 1:
             single[(scene_label(job.scene), job.seed)] = metrics
         else:
-            key = (scene_label(job.scene), job.placement, job.method, job.robots)
+            key = (scene_label(job.scene), job.placement, job.label, job.robots)
             groups.setdefault(key, []).append((job.seed, metrics))
     header = ["scene", "placement", "method", "robots", "runs", "explored", "T98.5 (s)",
               "x single", "T90 (s)", "overlap", "path (m)", "longest path (m)",
-              "robot collisions"]
+              "robot collisions", "merged at (s)", "merge error (m, deg)"]
     rows = []
     scenes = sorted({k[0] for k in groups} | {k[0] for k in single})
     for scene in scenes:
@@ -143,7 +165,8 @@ def write_team_summary(out: Path, jobs: list[TeamJob]) -> None:
             rows.append([scene, "-", f"single {ms[0].get('explorer', '')}", 1, len(ms),
                          sum(m["end_reason"] == "explored" for m in ms),
                          format_mean_std([m.get("t985_s") for m in ms]), "1", "-", "-",
-                         format_mean_std([m.get("path_length_m") for m in ms]), "-", "-"])
+                         format_mean_std([m.get("path_length_m") for m in ms]), "-", "-",
+                         "-", "-"])
         for key in sorted(k for k in groups if k[0] == scene):
             runs = groups[key]
             ms = [m for _, m in runs]
@@ -158,14 +181,17 @@ def write_team_summary(out: Path, jobs: list[TeamJob]) -> None:
                          format_mean_std([m.get("overlap_ratio") for m in ms]),
                          format_mean_std([m.get("path_length_m") for m in ms]),
                          format_mean_std([m.get("max_path_length_m") for m in ms]),
-                         format_mean_std([m.get("robot_collisions") for m in ms])])
+                         format_mean_std([m.get("robot_collisions") for m in ms]),
+                         *_merge_cells(ms)])
     buf = io.StringIO()
     csv.writer(buf).writerows([header] + rows)
     write_text_atomic(out / "results.csv", buf.getvalue())
     write_text_atomic(out / "results.md", markdown_table(header, rows) + (
         "\n\nMean +- std over runs; (k/n) where only k of n runs reached the level. "
         "'x single': the team's time to 98.5 % over the single robot's on the same scene "
-        "and seed, averaged over the seeds where both reached it.\n"))
+        "and seed, averaged over the seeds where both reached it. Merge columns (unknown start "
+        "poses): when the last robot's map was merged into the team's, and the largest "
+        "error of an estimated start pose (translation, rotation).\n"))
 
 
 __all__ = ["DRAWN", "TeamJob", "run_team_sweep", "team_jobs", "write_team_summary"]
