@@ -15,6 +15,7 @@ from mjexplore.learning.imitation import (
     clone,
     collect_expert_decisions,
     collect_learner_decisions,
+    policy_learner,
     warm_start,
 )
 from mjexplore.learning.training import load_train_config, train
@@ -145,3 +146,21 @@ def test_without_dagger_rounds_the_warm_start_is_plain_cloning_bit_for_bit():
         ImitationConfig(dagger_iterations=1)  # No episodes per round.
     with pytest.raises(ValueError):
         ImitationConfig(episodes=1, dagger_iterations=1, beta0=1.5)
+
+
+def test_rollouts_in_worker_processes_give_the_same_labelled_decisions():
+    learner = policy_learner(_policy())
+    serial = collect_learner_decisions(SHORT, learner, 2, seed=5, expert="lookahead")
+    pooled = collect_learner_decisions(SHORT, learner, 2, seed=5, expert="lookahead", workers=2)
+    for a, b in zip(serial[1:4], pooled[1:4]):
+        assert np.array_equal(a, b)
+    assert all(np.array_equal(serial[0][k], pooled[0][k]) for k in serial[0])
+    assert serial[4] == pooled[4]
+
+
+def test_the_lookahead_expert_labels_valid_nodes_and_explores():
+    obs, masks, actions, stats = collect_expert_decisions(ENV, 1, seed=5, expert="lookahead")
+    assert stats["explored"] == 1 and len(actions) > 3
+    assert masks[np.arange(len(actions)), actions].all()
+    with pytest.raises(ValueError, match="imitation.expert"):
+        ImitationConfig(expert="tour")

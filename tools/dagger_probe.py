@@ -17,6 +17,9 @@ seeds ``2**31 + i``; never the test layouts after them, ``eval.unseen_scenes``) 
 * ``expert_via``: a variant teacher: the valid node minimising the ground-truth path from the
   robot to the node plus from the node to the first viewpoint of the oracle's tour
   (``expert_choice`` takes the node nearest that viewpoint, however far from the robot);
+* ``expert_tour``: the oracle's one-step lookahead (``expert_lookahead``): the valid node
+  minimising the path to it plus an open tour from it over the plan's viewpoints it leaves
+  needed;
 * a classic explorer's name (``oracle``, ...): that explorer on the same episode.
 
 Prints one JSON line: the warm start's report (rounds, wall and CPU seconds), per mode the mean
@@ -98,7 +101,7 @@ def _job(job: tuple[str, str, str, int, str]) -> dict:
     """One episode: ``expert`` and ``expert_via`` here, every other mode by
     ``tools/probe_policy.py``."""
     config_path, weights, mode, seed, scene = job
-    if mode not in ("expert", "expert_via"):
+    if mode not in ("expert", "expert_via", "expert_tour"):
         return probe_policy._episode(job)
     import numpy as np
     import torch
@@ -110,7 +113,8 @@ def _job(job: tuple[str, str, str, int, str]) -> dict:
     env = heldout_env(probe_policy._config(config_path, weights), scene)
     oracle = make_explorer("oracle")
     oracle.reset(np.random.default_rng(seed))
-    choose = oracle.expert_choice if mode == "expert" else functools.partial(_via, oracle)
+    choose = {"expert": oracle.expert_choice, "expert_tour": oracle.expert_lookahead,
+              "expert_via": functools.partial(_via, oracle)}[mode]
     _, info = env.reset(seed=seed)
     done = info["end_reason"] is not None
     while not done:
@@ -182,6 +186,7 @@ def main() -> None:
                                 for m in modes if m != "policy"}
     if report is not None:
         figures["warm_start"] = {k: v for k, v in report.items() if k != "rounds"}
+    out.mkdir(parents=True, exist_ok=True)
     (out / "probe.json").write_text(json.dumps(figures, indent=2) + "\n")
     print(json.dumps(figures))
 

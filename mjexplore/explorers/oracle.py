@@ -44,7 +44,7 @@ from mjexplore.episode.explorer import ExplorationState
 from mjexplore.mapping.metrics import observable_ground_truth
 from mjexplore.maps import traversal_start
 from mjexplore.navigation.planner import Costmap, PlannerConfig
-from mjexplore.navigation.tour import CoarseGraph, TourConfig, open_tour
+from mjexplore.navigation.tour import CoarseGraph, TourConfig, open_tour, tour_length
 from mjexplore.topology.gvd import DynamicGVD
 
 
@@ -467,3 +467,58 @@ class OracleExplorer:
         if not np.isfinite(d).any():  # Off the path graph: fall back to straight lines.
             d = np.where(valid, np.linalg.norm(candidates - target, axis=1), np.inf)
         return int(np.argmin(d))
+
+    def expert_lookahead(self, state: ExplorationState, candidates: np.ndarray,
+                         valid: np.ndarray | None = None) -> int:
+        """Which candidate goal leaves the shortest ground-truth coverage tour: the valid
+        one minimising the path from the robot to it plus an open tour from it over the
+        viewpoints of the oracle's plan it does not make redundant (one step of lookahead
+        with the oracle's tour as the cost to go).
+
+        A viewpoint counts as made redundant when fewer than ``min_gain`` of its needed
+        cells stay unseen after the candidate's own view (the lattice viewpoint nearest the
+        candidate) and the views along the path to it, as :meth:`_tour_sees` counts them.
+
+        Args:
+            state: The exploration state.
+            candidates: (k, 2) candidate goals in the ``map`` frame, metres.
+            valid: (k,) bool, the candidates that may be chosen (default: all).
+
+        Returns:
+            The index of the chosen candidate, or -1 if none is valid.
+        """
+        candidates = np.asarray(candidates, float).reshape(-1, 2)
+        valid = np.ones(len(candidates), bool) if valid is None else np.asarray(valid, bool)
+        if not valid.any():
+            return -1
+        plan = self.replan(state)
+        if not plan:
+            return self.expert_choice(state, candidates, valid)
+        views = self.views
+        need, _ = self._need(state)
+        k = len(candidates)
+        points = np.vstack([state.pose[:2], candidates, views.points[plan]])
+        distance = self.graph.distance_matrix(points)
+        nodes = self.graph.node_of(points)
+        own_view = cKDTree(views.points).query(candidates)[1]
+        step = max(1, int(round(self.path_sample / (self.graph.block *
+                                                    self.graph.grid.resolution))))
+        config = dataclasses.replace(self.tour_config, time_limit=0.05, guided=False)
+        cost = np.full(k, np.inf)
+        for a in np.flatnonzero(valid & np.isfinite(distance[0, 1:k + 1])):
+            seen = [int(own_view[a])]
+            if nodes[0] >= 0 and nodes[1 + a] >= 0:
+                along = self._node_view[self.graph.path(int(nodes[0]), int(nodes[1 + a]))[::step]]
+                seen.extend(along[along >= 0].tolist())
+            covered = np.zeros(need.size, bool)
+            for v in set(seen):
+                covered[views.idx[views.ptr[v]:views.ptr[v + 1]]] = True
+            left = [j for j, v in enumerate(plan)
+                    if _uncovered(views.ptr, views.idx, need, covered, v) >= self.min_gain]
+            places = np.array([1 + a, *(1 + k + j for j in left)])
+            sub = np.minimum(distance[np.ix_(places, places)], 1e5)
+            order = open_tour(sub, config)
+            cost[a] = distance[0, 1 + a] + tour_length(sub, order)
+        if not np.isfinite(cost).any():
+            return self.expert_choice(state, candidates, valid)
+        return int(np.argmin(cost))

@@ -48,6 +48,10 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
+# The oracle's answers to "which valid node next?" (methods of OracleExplorer) by the name
+# ImitationConfig.expert gives them.
+EXPERTS = {"choice": "expert_choice", "lookahead": "expert_lookahead"}
+
 # A learner in a DAgger round: the observation (one decision's, unbatched) and its (A,) bool
 # mask to (A,) action probabilities (zero at invalid actions).
 Learner = Callable[[dict[str, np.ndarray], np.ndarray], np.ndarray]
@@ -72,6 +76,13 @@ class ImitationConfig:
             learner alone from round 1.
         dagger_sample: The learner samples its action from its distribution over the valid
             actions instead of taking the most probable one.
+        expert: The oracle's answer imitated: ``choice``
+            (:meth:`~mjexplore.explorers.oracle.OracleExplorer.expert_choice`, the node
+            nearest the first viewpoint of its tour) or ``lookahead``
+            (:meth:`~mjexplore.explorers.oracle.OracleExplorer.expert_lookahead`, the node
+            that leaves the shortest path plus tour).
+        workers: Processes the rounds' episodes run in (one thread each; the labelled
+            decisions are the same for any number).
     """
 
     episodes: int = 0
@@ -82,8 +93,15 @@ class ImitationConfig:
     dagger_iterations: int = 0
     beta0: float = 0.0
     dagger_sample: bool = False
+    expert: str = "choice"
+    workers: int = 1
 
     def __post_init__(self) -> None:
+        if self.workers < 1:
+            raise ValueError("imitation.workers must be >= 1")
+        if self.expert not in EXPERTS:
+            raise ValueError(f"imitation.expert must be one of {sorted(EXPERTS)}, "
+                             f"not {self.expert!r}")
         if self.episodes < 0 or self.epochs < 1 or self.batch_size < 1 or \
                 self.learning_rate <= 0:
             raise ValueError("imitation: episodes must be >= 0, epochs and batch_size >= 1, "
@@ -98,7 +116,8 @@ class ImitationConfig:
         return float(self.beta0 ** iteration)  # 0 ** 0 == 1: round 0 is the expert's.
 
 
-def collect_expert_decisions(env_config, episodes: int, seed: int
+def collect_expert_decisions(env_config, episodes: int, seed: int, expert: str = "choice",
+                             workers: int = 1
                              ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, dict]:
     """Runs ``episodes`` training-env episodes with the oracle choosing every node (a
     :func:`collect_learner_decisions` round without a learner).
@@ -108,13 +127,14 @@ def collect_expert_decisions(env_config, episodes: int, seed: int
         stats: decisions, episodes explored, mean exploration time in simulated seconds).
     """
     observations, masks, actions, _, stats = collect_learner_decisions(
-        env_config, None, episodes, seed, beta=1.0)
+        env_config, None, episodes, seed, beta=1.0, expert=expert, workers=workers)
     keep = ("decisions", "episodes", "explored", "mean_exploration_time_s")
     return observations, masks, actions, {k: stats[k] for k in keep}
 
 
 def collect_learner_decisions(env_config, learner: Learner | None, episodes: int, seed: int,
-                              beta: float = 0.0, sample: bool = False
+                              beta: float = 0.0, sample: bool = False, expert: str = "choice",
+                              workers: int = 1
                               ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray,
                                          np.ndarray, dict]:
     """One DAgger round: ``episodes`` training-env episodes (reset seeds ``seed + k``) where
@@ -131,6 +151,9 @@ def collect_learner_decisions(env_config, learner: Learner | None, episodes: int
         beta: Probability that the expert, not the learner, acts at a decision.
         sample: The learner draws its action from its probabilities (else the most
             probable valid one).
+        expert: The oracle's answer that labels the decisions (a key of :data:`EXPERTS`).
+        workers: Processes the episodes run in (one thread each); the result is the same
+            for any number, episode by episode in order.
 
     Returns:
         (observations stacked per key (float32), (n, A) bool masks, (n,) expert actions, (n,)
@@ -139,63 +162,96 @@ def collect_learner_decisions(env_config, learner: Learner | None, episodes: int
         probable valid action is the expert's, whoever acted) and ``expert_share`` (the
         share of decisions the expert acted at)).
     """
+    jobs = [(env_config, learner, seed + k, beta, sample, expert) for k in range(episodes)]
+    if workers > 1 and episodes > 1:
+        import multiprocessing as mp
+
+        from mjexplore.episode.workers import init_episode_worker, single_thread_children
+
+        with single_thread_children(), mp.get_context("spawn").Pool(
+                min(workers, episodes), initializer=init_episode_worker) as pool:
+            runs = pool.map(_labelled_episode, jobs, chunksize=1)
+    else:
+        runs = [_labelled_episode(job) for job in jobs]
+    observations = {k: [o for run in runs for o in run["observations"][k]]
+                    for k in (runs[0]["observations"] if runs else {})}
+    labels = [a for run in runs for a in run["labels"]]
+    n = len(labels)
+    times = [run["time"] for run in runs if run["time"] is not None]
+    agree = sum(run["agree"] for run in runs)
+    stats = {"decisions": n, "episodes": episodes,
+             "explored": sum(run["explored"] for run in runs),
+             "mean_exploration_time_s": float(np.mean(times)) if times else None,
+             "agreement": agree / n if n else None,
+             "expert_share": sum(run["by_expert"] for run in runs) / n if n else None}
+    return ({k: np.stack(v) for k, v in observations.items()},
+            np.array([m for run in runs for m in run["masks"]], bool),
+            np.array(labels, np.int64),
+            np.array([a for run in runs for a in run["taken"]], np.int64), stats)
+
+
+def _labelled_episode(job) -> dict[str, Any]:
+    """One episode of a DAgger round (see :func:`collect_learner_decisions`): its
+    decisions' observations, masks, expert labels and actions taken, and its outcome."""
     from mjexplore.envs import ExplorationEnv
     from mjexplore.explorers import make_explorer
 
+    env_config, learner, seed, beta, sample, expert = job
     env = ExplorationEnv(env_config)
     oracle = make_explorer("oracle")
-    observations: dict[str, list[np.ndarray]] = {}
-    masks, labels, taken, times, explored, agree, by_expert = [], [], [], [], 0, 0, 0
-    for k in range(episodes):
-        rng = np.random.default_rng(seed + k)
-        obs, _ = env.reset(seed=seed + k)
-        oracle.reset(np.random.default_rng(seed + k))
-        while True:
-            mask = env.action_masks()
-            expert = oracle.expert_choice(env.episode.decision_state(),
-                                          env.decisions.action_positions(), mask)
-            if expert < 0:
-                break
-            if learner is None:
-                probs, best = np.zeros(len(mask)), expert
-            else:
-                probs = np.where(mask, np.asarray(learner(obs, mask), np.float64), 0.0)
-                best = int(np.argmax(probs)) if probs.any() else expert
-            agree += best == expert
-            if rng.random() < beta:
-                action, by_expert = expert, by_expert + 1
-            elif sample and probs.sum() > 0:
-                action = int(rng.choice(len(probs), p=probs / probs.sum()))
-            else:
-                action = best
-            for key, value in obs.items():
-                observations.setdefault(key, []).append(np.array(value, np.float32))
-            masks.append(mask)
-            labels.append(expert)
-            taken.append(action)
-            obs, _, terminated, truncated, info = env.step(action)
-            if terminated or truncated:
-                explored += info["end_reason"] == "explored"
-                times.append(info["sim_time"])
-                break
+    choose = getattr(oracle, EXPERTS[expert])
+    out: dict[str, Any] = {"observations": {}, "masks": [], "labels": [], "taken": [],
+                           "time": None, "explored": False, "agree": 0, "by_expert": 0}
+    rng = np.random.default_rng(seed)
+    obs, _ = env.reset(seed=seed)
+    oracle.reset(np.random.default_rng(seed))
+    while True:
+        mask = env.action_masks()
+        label = choose(env.episode.decision_state(), env.decisions.action_positions(), mask)
+        if label < 0:
+            break
+        if learner is None:
+            probs, best = np.zeros(len(mask)), label
+        else:
+            probs = np.where(mask, np.asarray(learner(obs, mask), np.float64), 0.0)
+            best = int(np.argmax(probs)) if probs.any() else label
+        out["agree"] += best == label
+        if rng.random() < beta:
+            action = label
+            out["by_expert"] += 1
+        elif sample and probs.sum() > 0:
+            action = int(rng.choice(len(probs), p=probs / probs.sum()))
+        else:
+            action = best
+        for key, value in obs.items():
+            out["observations"].setdefault(key, []).append(np.array(value, np.float32))
+        out["masks"].append(mask)
+        out["labels"].append(label)
+        out["taken"].append(action)
+        obs, _, terminated, truncated, info = env.step(action)
+        if terminated or truncated:
+            out["explored"] = info["end_reason"] == "explored"
+            out["time"] = info["sim_time"]
+            break
     env.close()
-    n = len(labels)
-    stats = {"decisions": n, "episodes": episodes, "explored": explored,
-             "mean_exploration_time_s": float(np.mean(times)) if times else None,
-             "agreement": agree / n if n else None,
-             "expert_share": by_expert / n if n else None}
-    return ({k: np.stack(v) for k, v in observations.items()}, np.array(masks, bool),
-            np.array(labels, np.int64), np.array(taken, np.int64), stats)
+    return out
+
+
+class PolicyLearner:
+    """A policy's action probabilities over the valid actions (no gradients), as a
+    :data:`Learner`; picklable, so that DAgger's rollouts can run in worker processes."""
+
+    def __init__(self, policy) -> None:
+        self.policy = policy
+
+    def __call__(self, obs: dict[str, np.ndarray], mask: np.ndarray) -> np.ndarray:
+        return _probabilities(self.policy, {k: np.asarray(v)[None] for k, v in obs.items()},
+                              np.asarray(mask, bool)[None])[0]
 
 
 def policy_learner(policy) -> Learner:
-    """A policy's action probabilities over the valid actions (no gradients), as a
-    :data:`Learner`."""
-    def probabilities(obs: dict[str, np.ndarray], mask: np.ndarray) -> np.ndarray:
-        return _probabilities(policy, {k: np.asarray(v)[None] for k, v in obs.items()},
-                              np.asarray(mask, bool)[None])[0]
-
-    return probabilities
+    """A policy's action probabilities over the valid actions, as a :data:`Learner`."""
+    return PolicyLearner(policy)
 
 
 def _probabilities(policy, observations: dict[str, np.ndarray], masks: np.ndarray,
@@ -305,8 +361,8 @@ def warm_start(policy, env_config, config: ImitationConfig, seed: int = 0) -> di
         ``fit_agreement``, and the wall seconds of its ``rollout_s`` and ``fit_s``.
     """
     start = time.perf_counter()
-    observations, masks, actions, stats = collect_expert_decisions(env_config, config.episodes,
-                                                                   config.seed)
+    observations, masks, actions, stats = collect_expert_decisions(
+        env_config, config.episodes, config.seed, config.expert, config.workers)
     if not config.dagger_iterations:
         return {**stats, **clone(policy, observations, masks, actions, config, seed=seed)}
     before = agreement(policy, observations, masks, actions)
@@ -317,7 +373,8 @@ def warm_start(policy, env_config, config: ImitationConfig, seed: int = 0) -> di
             tick = time.perf_counter()
             new_obs, new_masks, new_actions, _, stats = collect_learner_decisions(
                 env_config, policy_learner(policy), config.episodes,
-                config.seed + i * config.episodes, config.beta(i), config.dagger_sample)
+                config.seed + i * config.episodes, config.beta(i), config.dagger_sample,
+                config.expert, config.workers)
             before = stats.pop("agreement")
             rollout_s = time.perf_counter() - tick
             if len(new_actions):  # The aggregate (held once while the refit runs).
