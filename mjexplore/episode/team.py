@@ -88,6 +88,7 @@ from mjexplore.sim.motion import BODY_RADIUS
 from mjexplore.sim.odometry import compose_pose, relative_pose, wrap_angle
 from mjexplore.sim.team import TeamRobot
 from mjexplore.sim.team_grid import make_team_world
+from mjexplore.topology.gvd import DynamicGVD
 from mjexplore.topology.pipeline import TopologyTracker
 
 TEAM_END_REASONS = ("explored", "no_frontiers", "lingering", "tipped_over", "time_limit",
@@ -210,9 +211,6 @@ class RobotAgent(Episode):
         self.navigator = Navigator(robot.profile, cfg.navigator)
         self.use_map(*team.map_of(index))
         self._static_costmap = None
-        if getattr(explorer, "plans_on_ground_truth", False):
-            raise UserInputError(f"explorer {explorer.name!r} plans on the ground truth and "
-                                 "does not run in a team: choose another.")
         explorer.reset(rng)
         self.goal: np.ndarray | None = None
         self._goal_window = None
@@ -254,8 +252,14 @@ class RobotAgent(Episode):
         self.counter = counter
         radius = BODY_RADIUS + self.config.planner.lethal_radius + \
             self.team.team_config.teammate_margin
-        self._costmap: TeamCostmap = TeamCostmap(mapper.grid, tracker.gvd.distance2,
-                                                 self.config.planner, radius)
+        if getattr(self.explorer, "plans_on_ground_truth", False):
+            # An explorer that knows the ground truth (the team oracle) also navigates on it.
+            self._costmap: TeamCostmap = TeamCostmap(
+                self.scene.ground_truth, self.team.ground_truth_distance2(),
+                self.config.planner, radius)
+        else:
+            self._costmap = TeamCostmap(mapper.grid, tracker.gvd.distance2,
+                                        self.config.planner, radius)
 
     @property
     def pose(self) -> np.ndarray:
@@ -425,7 +429,12 @@ class TeamEpisode:
                     for _ in range(n)]
         self.own_counters = [KnownCounter(self.reference) for _ in range(n)]
         self.own_curves: list[list[tuple[float, float]]] = [[] for _ in range(n)]
+        self._gt_distance2: np.ndarray | None = None
         self._setup_merging(gt, n)
+        if self.team_config.unknown_starts and any(
+                getattr(e, "plans_on_ground_truth", False) for e in explorers):
+            raise UserInputError("an explorer that plans on the ground truth knows where the "
+                                 "robots are: drop --unknown-starts or choose another.")
         self.agents = [RobotAgent(self, i, robot, explorer,
                                   np.random.default_rng([seed, i]) if i else
                                   np.random.default_rng(seed))
@@ -467,6 +476,16 @@ class TeamEpisode:
             c = relative_pose(self.starts[j], centre)
             self._frames[j] = OccupancyMapper((cells, cells), (c[0] - half, c[1] - half),
                                               MapperConfig(resolution=gt.resolution))
+
+    def ground_truth_distance2(self) -> np.ndarray:
+        """Squared distances to the ground truth's walls and unknown cells (its GVD's), for
+        the costmaps of explorers that plan on the ground truth; found once."""
+        if self._gt_distance2 is None:
+            gt = self.scene.ground_truth
+            gvd = DynamicGVD(gt.shape)
+            gvd.update(gt.occupied | (gt.data < 0))
+            self._gt_distance2 = gvd.distance2
+        return self._gt_distance2
 
     def map_of(self, index: int) -> tuple[OccupancyMapper, TopologyTracker, KnownCounter]:
         """The map robot ``index`` plans on now: the team's, or before its merge its own."""

@@ -21,7 +21,10 @@ robot's pose, goal and costmap) and may share a coordinator. The baselines:
 * **MMPF's multi-robot potential field** (``mmpf``): the single-robot field
   (:class:`~mjexplore.explorers.potential.PotentialField`) plus the robot-robot repulsion of
   Yu et al.'s MMPF (ICRA 2021; as Explore-Bench's ``mmpf_node`` has it): each teammate
-  within ``interfere_radius`` (Manhattan distance) raises the potential by its nearness.
+  within ``interfere_radius`` (Manhattan distance) raises the potential by its nearness;
+* the **team oracle** (``oracle``, the bound): the ground-truth oracle's viewpoints split
+  among the robots into routes that keep the longest short
+  (:mod:`mjexplore.explorers.team_oracle`).
 """
 
 from __future__ import annotations
@@ -35,11 +38,13 @@ from mjexplore.episode.explorer import ExplorationState, Explorer
 from mjexplore.episode.nearest import NearestFrontier
 from mjexplore.errors import UserInputError
 from mjexplore.explorers.potential import PotentialField
+from mjexplore.explorers.team_oracle import TeamOracle
 
 TEAM_METHODS: dict[str, str] = {
     "assign_greedy": "frontier regions assigned greedily by path cost (cheapest pair first)",
     "assign_optimal": "frontier regions assigned by least total path cost (Hungarian method)",
     "mmpf": "MMPF's multi-robot potential field with robot-robot repulsion",
+    "oracle": "the ground-truth oracle's viewpoints split into min-max routes (the bound)",
 }
 # Path costs of regions a robot cannot reach, metres: above any real one.
 UNREACHABLE = 1e6
@@ -213,6 +218,8 @@ def make_team_explorers(method: str, n: int, **kwargs) -> list[Explorer]:
         return FrontierAssignment(n, method.split("_")[1], **kwargs).members
     if method == "mmpf":
         return [TeamPotentialField(**kwargs) for _ in range(n)]
+    if method == "oracle":
+        return TeamOracle(n, **kwargs).members
     raise UserInputError(f"unknown team method {method!r}: use one of "
                          f"{', '.join(TEAM_METHODS)}, or a single-robot method for the naive "
                          "team.")
