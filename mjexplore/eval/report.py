@@ -23,6 +23,7 @@ from mjexplore.eval.plots import METHOD_LABELS, kinematics_figure, ratio_figure
 from mjexplore.eval.stats import compare_paired
 from mjexplore.eval.summaries import KINEMATIC_FIELDS, KINEMATICS_DT, ratio_curve, read_summary
 from mjexplore.eval.sweep import MEAN_STD_NOTE, format_mean_std, markdown_table, summary_table
+from mjexplore.eval.team_report import team_section
 from mjexplore.io.atomic import write_text_atomic
 
 METHOD_ORDER = ("nearest", "pocket_nearest", "explore_lite", "frontier_tsp", "rrt", "potential",
@@ -41,6 +42,8 @@ ABLATION_NAMES |= {f"gvn_{recipe}{k[3:]}": v for k, v in ABLATION_NAMES.items()
                    for recipe in ("v2", "v3")}
 # Experiment -> its IAM method.
 ABLATIONS = {"ablation": "gvn", "ablation_v2": "gvn_v2", "ablation_v3": "gvn_v3"}
+# The team experiments (bench --robots sweeps; their own section, eval/team_report.py).
+TEAM_EXPERIMENTS = ("teams", "teams_explore_bench")
 # The learned explorer held to issue 17's Table 1 target (the v3 recipe's policy).
 TARGET_METHOD = "gvn_v3"
 
@@ -199,6 +202,36 @@ EXPERIMENTS = (
                 "gvn", "gvn_v2", "gvn_v3", "oracle"),
                f"mjexplore bench --scenes {EXPLORE_BENCH} --explorers {{explorers}} --seeds 2 "
                "--lidar-range 7 --workers 2 --out runs/explore_bench"),
+    Experiment("teams", "Several robots: the office",
+               "Teams of 2 and 3 robots on the office (full physics, the CLI's defaults: 6 m "
+               "lidar with 0.01 m noise, target 98.5 %), 5 seeds, robot 0 where the single "
+               "robot of the same seed starts and the others drawn 1-3 m around it; each "
+               "seed's single robot (nearest) beside. assign_greedy: frontier regions "
+               "assigned greedily by path cost; naive_nearest: every robot runs nearest on "
+               "the shared map; oracle: the ground-truth oracle's viewpoints split into "
+               "min-max routes (the bound); +unknown: unknown start poses, each robot mapping "
+               "in its own frame until its map is merged into the team's by matching "
+               "(docs/guide/teams.md).",
+               ("nearest x1 single", "assign_greedy x2 drawn", "assign_greedy+unknown x2 drawn",
+                "nearest x2 drawn", "oracle x2 drawn", "assign_greedy x3 drawn",
+                "oracle x3 drawn"),
+               "mjexplore bench --scenes office --robots 2 --explorers "
+               "assign_greedy,nearest,oracle --seeds 5 --workers 1 --out runs/office2; "
+               "mjexplore bench --scenes office --robots 2 --unknown-starts --explorers "
+               "assign_greedy --seeds 5 --workers 1 --out runs/office2; mjexplore bench "
+               "--scenes office --robots 3 --explorers assign_greedy,oracle --seeds 5 "
+               "--workers 1 --out runs/office3; then mjexplore collect runs/office2 "
+               "--experiment teams, and runs/office3 with --merge"),
+    Experiment("teams_explore_bench", "Several robots: the Explore-Bench maps",
+               "Two robots on the six Explore-Bench maps (7 m lidar, full physics, seed 0) "
+               "from the benchmark's close and far placements, the naive team (nearest) "
+               "against greedy frontier assignment, and the single robot (nearest, from the "
+               "map's own start) beside.",
+               ("nearest x1 single", "nearest x2 close", "nearest x2 far",
+                "assign_greedy x2 close", "assign_greedy x2 far"),
+               f"mjexplore bench --scenes {EXPLORE_BENCH} --lidar-range 7 --robots 2 --starts "
+               "close,far --explorers nearest,assign_greedy --seeds 1 --workers 1 "
+               "--out runs/eb2; mjexplore collect runs/eb2 --experiment teams_explore_bench"),
     Experiment("ariadne", "Generalisation: the ARiADNE test maps",
                "ARiADNE's 100 test maps at 0.1 m per pixel (64 x 48 m) with an 8 m lidar, which "
                "no policy was trained on. Path lengths are set beside the greedy planner's, "
@@ -673,6 +706,8 @@ def _paired_lines(groups) -> list[str]:
 
 
 def _section(name: str, summary, groups, figures: Path, rel: str) -> list[str]:
+    if name in TEAM_EXPERIMENTS:
+        return team_section(name, summary)
     if name == "ariadne":
         note = _unfinished_note(summary)
         return [relative_table(groups), "", *_paired_lines(groups), reference_table(summary),

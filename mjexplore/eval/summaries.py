@@ -58,7 +58,22 @@ def _policy_record(path: Path) -> dict[str, Any] | None:
 
 
 def _run_folders(sweep: Path) -> list[Path]:
-    return sorted(p.parent for p in sweep.glob("runs/*/*/seed*/metrics.json"))
+    """The finished runs: ``runs/SCENE/METHOD/seedN``, or a team sweep's
+    ``runs/SCENE/PLACEMENT/METHOD/seedN`` (``bench --robots``)."""
+    return sorted(p.parent for pattern in ("runs/*/*/seed*/metrics.json",
+                                           "runs/*/*/*/seed*/metrics.json")
+                  for p in sweep.glob(pattern))
+
+
+def _team_run(folder: Path, config: dict[str, Any]) -> dict[str, Any]:
+    """A team sweep's run keys: scene, its placement ('single' for the single robot beside),
+    robots, revision, and as its method the folder's with both (``assign_greedy x2 far``),
+    so that runs of one method with other teams or starts stay apart."""
+    robots = int(config.get("robots", 1))
+    placement = folder.parent.parent.name
+    return {"scene": folder.parent.parent.parent.name, "placement": placement,
+            "robots": robots, "method": f"{folder.parent.name} x{robots} {placement}",
+            "revision": config.get("git_revision")}
 
 
 def _unfinished(sweep: Path, info: dict[str, Any]) -> dict[str, list[dict[str, Any]]]:
@@ -152,13 +167,17 @@ def collect_sweep(sweep: str | os.PathLike, experiment: str, command: str | None
                                  "episode: a summary mixes no settings; sweep it into its own "
                                  "--out folder.")
         metrics = json.loads((folder / "metrics.json").read_text())
-        runs.append({"scene": folder.parent.parent.name, "method": folder.parent.name,
-                     "seed": int(config["seed"]),
+        team = len(folder.relative_to(sweep / "runs").parts) == 4
+        keys = _team_run(folder, config) if team else \
+            {"scene": folder.parent.parent.name, "method": folder.parent.name}
+        runs.append({**keys, "seed": int(config["seed"]),
                      "resolution": config.get("scene_metadata", {}).get("resolution"),
                      "metrics": {k: v for k, v in metrics.items()
                                  if k not in ("scene", "explorer", "seed")},
                      "ratio": _ratio(folder),
-                     "kinematics": _kinematics(folder, kinematics_series)})
+                     # A team's robots each have their own log (robot_i/kinematics.csv).
+                     "kinematics": {} if team and keys["robots"] > 1 else
+                     _kinematics(folder, kinematics_series)})
     methods = sorted({r["method"] for r in runs})
     summary = {"format": FORMAT, "version": VERSION, "experiment": experiment,
                "command": command or info.get("command"),

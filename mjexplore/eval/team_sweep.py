@@ -140,19 +140,19 @@ def _merge_cells(ms: list[dict[str, Any]]) -> list[str]:
     return [format_mean_std([m.get("merge_time_s") for m in ms]), worst]
 
 
-def write_team_summary(out: Path, jobs: list[TeamJob]) -> None:
-    """``results.md`` and ``results.csv`` of the finished runs among ``jobs``."""
-    single: dict[tuple[str, int], dict[str, Any]] = {}
-    groups: dict[tuple[str, str, str, int], list[tuple[int, dict[str, Any]]]] = {}
-    for job in jobs:
-        metrics = _finished(job.folder(out))
-        if metrics is None:
-            continue
-        if job.robots == 1:
-            single[(scene_label(job.scene), job.seed)] = metrics
-        else:
-            key = (scene_label(job.scene), job.placement, job.label, job.robots)
-            groups.setdefault(key, []).append((job.seed, metrics))
+def team_table(single: dict[tuple[str, int], dict[str, Any]],
+               groups: dict[tuple[str, str, str, int], list[tuple[int, dict[str, Any]]]]
+               ) -> tuple[list[str], list[list[Any]]]:
+    """The team sweep's table: per scene the single robot's row, then one per (placement,
+    method, robots) group.
+
+    Args:
+        single: (scene, seed) -> the single robot's metrics.
+        groups: (scene, placement, method, robots) -> (seed, metrics) of each run.
+
+    Returns:
+        The header and the rows.
+    """
     header = ["scene", "placement", "method", "robots", "runs", "explored", "T98.5 (s)",
               "x single", "T90 (s)", "overlap", "path (m)", "longest path (m)",
               "robot collisions", "merged at (s)", "merge error (m, deg)"]
@@ -170,28 +170,58 @@ def write_team_summary(out: Path, jobs: list[TeamJob]) -> None:
         for key in sorted(k for k in groups if k[0] == scene):
             runs = groups[key]
             ms = [m for _, m in runs]
-            ratios = [m["t985_s"] / single[(scene, s)]["t985_s"] for s, m in runs
-                      if m.get("t985_s") and (scene, s) in single and
-                      single[(scene, s)].get("t985_s")]
             rows.append([scene, key[1], key[2], key[3], len(ms),
                          sum(m["end_reason"] == "explored" for m in ms),
                          format_mean_std([m.get("t985_s") for m in ms]),
-                         f"{np.mean(ratios):.3f}" if ratios else "-",
+                         _cell(single_ratios(single, scene, runs)),
                          format_mean_std([m.get("t90_s") for m in ms]),
                          format_mean_std([m.get("overlap_ratio") for m in ms]),
                          format_mean_std([m.get("path_length_m") for m in ms]),
                          format_mean_std([m.get("max_path_length_m") for m in ms]),
                          format_mean_std([m.get("robot_collisions") for m in ms]),
                          *_merge_cells(ms)])
+    return header, rows
+
+
+def single_ratios(single: dict[tuple[str, int], dict[str, Any]], scene: str,
+                  runs: list[tuple[int, dict[str, Any]]]) -> list[float]:
+    """Each run's time to 98.5 % over the single robot's on the same scene and seed (where
+    both reached it)."""
+    return [m["t985_s"] / single[(scene, s)]["t985_s"] for s, m in runs
+            if m.get("t985_s") and (scene, s) in single and single[(scene, s)].get("t985_s")]
+
+
+def _cell(ratios: list[float]) -> str:
+    return f"{np.mean(ratios):.3f}" if ratios else "-"
+
+
+TABLE_NOTE = ("Mean +- std over runs; (k/n) where only k of n runs reached the level. "
+              "'x single': the team's time to 98.5 % over the single robot's on the same "
+              "scene and seed, averaged over the seeds where both reached it. Merge columns "
+              "(unknown start poses): when the last robot's map was merged into the team's, "
+              "and the largest error of an estimated start pose (translation, rotation).")
+
+
+def write_team_summary(out: Path, jobs: list[TeamJob]) -> None:
+    """``results.md`` and ``results.csv`` of the finished runs among ``jobs``."""
+    single: dict[tuple[str, int], dict[str, Any]] = {}
+    groups: dict[tuple[str, str, str, int], list[tuple[int, dict[str, Any]]]] = {}
+    for job in jobs:
+        metrics = _finished(job.folder(out))
+        if metrics is None:
+            continue
+        if job.robots == 1:
+            single[(scene_label(job.scene), job.seed)] = metrics
+        else:
+            key = (scene_label(job.scene), job.placement, job.label, job.robots)
+            groups.setdefault(key, []).append((job.seed, metrics))
+    header, rows = team_table(single, groups)
     buf = io.StringIO()
     csv.writer(buf).writerows([header] + rows)
     write_text_atomic(out / "results.csv", buf.getvalue())
-    write_text_atomic(out / "results.md", markdown_table(header, rows) + (
-        "\n\nMean +- std over runs; (k/n) where only k of n runs reached the level. "
-        "'x single': the team's time to 98.5 % over the single robot's on the same scene "
-        "and seed, averaged over the seeds where both reached it. Merge columns (unknown start "
-        "poses): when the last robot's map was merged into the team's, and the largest "
-        "error of an estimated start pose (translation, rotation).\n"))
+    write_text_atomic(out / "results.md", markdown_table(header, rows) + "\n\n" +
+                      TABLE_NOTE + "\n")
 
 
-__all__ = ["DRAWN", "TeamJob", "run_team_sweep", "team_jobs", "write_team_summary"]
+__all__ = ["DRAWN", "TABLE_NOTE", "TeamJob", "run_team_sweep", "single_ratios", "team_jobs",
+           "team_table", "write_team_summary"]
