@@ -45,6 +45,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import functools
 import json
 import multiprocessing as mp
 import time
@@ -175,8 +176,11 @@ def recipe_round(n_envs: int, default_threads: bool = False, device: str = "auto
     try:
         with contextlib.ExitStack() as stack:
             if default_threads:
-                stack.enter_context(mock.patch.object(training, "worker_env",
-                                                      training.ExplorationEnv))
+                # Envs built as before there were workers of their own (no thread limits).
+                stack.enter_context(mock.patch.object(
+                    training, "_make_env",
+                    lambda env, own_process, report=None: functools.partial(
+                        training.ExplorationEnv, env)))
                 stack.enter_context(mock.patch.object(training, "single_thread_children",
                                                       contextlib.nullcontext))
             return training.ppo_round(config, device=device)
