@@ -347,7 +347,7 @@ def test_batched_attention_equals_each_sample_attended_alone():
 
 
 def test_v2_uses_edge_lengths_and_global_attention():
-    from mjexplore.policies.gvn import LengthConv
+    from mjexplore.policies.gvn import LENGTH_BASIS, EdgeMessages, LengthConv
 
     policy = _policy(SMALL_V2)
     gvn = policy.features_extractor.gvn
@@ -369,10 +369,69 @@ def test_v2_uses_edge_lengths_and_global_attention():
     h = torch.randn(3, 4)
     target = torch.tensor([[2, 0], [1, 0], [0, 0]])  # 1-based rows: 0-1 joined, 2 alone
     lengths = torch.tensor([[0.5, 0.0], [0.5, 0.0], [0.0, 0.0]])  # metres
-    with torch.no_grad():
-        near, far = layer(h, target, lengths), layer(h, target, lengths * 12)
-    assert not torch.allclose(near[:2], far[:2]) and torch.equal(near[2], far[2])
-    torch.testing.assert_close(near[2], layer.self_weight(h[2]).detach())
+    basis = [torch.tensor(b) for b in LENGTH_BASIS]
+    for sparse in (False, True):
+        with torch.no_grad():
+            near = layer(h, EdgeMessages(target, lengths, *basis, sparse=sparse))
+            far = layer(h, EdgeMessages(target, lengths * 12, *basis, sparse=sparse))
+        assert not torch.allclose(near[:2], far[:2]) and torch.equal(near[2], far[2])
+        torch.testing.assert_close(near[2], layer.self_weight(h[2]).detach())
+
+
+def test_sparse_messages_give_the_gathered_forms_loss_and_gradients(monkeypatch):
+    """The v2 encoder's training form of its messages (a sparse product) against the
+    gathered form (what ONNX exports, and the only form before): one batch's values,
+    log-probabilities, entropy and every parameter's gradient."""
+    import mjexplore.policies.gvn as gvn_module
+
+    config = dataclasses.replace(SMALL_V2, max_nodes=40, max_neighbours=4)
+    obs, masks = _random_obs(config, 16, np.random.default_rng(5), valid=True)
+    # Repeated TERs (as in a minibatch of consecutive decisions), and a sample without nodes.
+    obs = {k: torch.cat([v, v[:4]]) for k, v in obs.items()}
+    masks = torch.cat([masks, masks[:4]])
+    obs["node_mask"][3] = 0.0
+    actions = torch.multinomial(masks.float(), 1).squeeze(1)
+    sparse_forms = []
+    built = gvn_module.EdgeMessages.__init__
+
+    def build(self, *args, sparse):
+        sparse_forms.append(sparse)
+        built(self, *args, sparse=sparse and form == "sparse")
+
+    monkeypatch.setattr(gvn_module.EdgeMessages, "__init__", build)
+    results = {}
+    for form in ("gathered", "sparse"):
+        policy = _policy(config, share_features_extractor=False)
+        values, log_prob, entropy = policy.evaluate_actions(obs, actions, masks)
+        (values.sum() + log_prob.sum() + entropy.sum()).backward()
+        results[form] = [values, log_prob, entropy] + [p.grad for p in policy.parameters()]
+    assert all(sparse_forms)  # Training takes the sparse form.
+    # Float32 sums in another order: differences of the order of the largest gradient's
+    # rounding (a gradient that is zero in exact arithmetic is that noise).
+    scale = max(float(t.detach().abs().max()) for t in results["gathered"])
+    for gathered, sparse in zip(results["gathered"], results["sparse"], strict=True):
+        torch.testing.assert_close(sparse, gathered, atol=1e-5 * scale, rtol=1e-4)
+
+
+def test_update_logits_run_the_actor_on_the_nodes_with_features_only():
+    """GvnHeads.node_logits where gradients are taken (the actor's MLP on the rows of z
+    that are not all zero) against the MLP on every row: logits and gradients."""
+    heads = _policy(SMALL_V2).mlp_extractor
+    z = torch.randn(6, SMALL_V2.max_nodes, 16, generator=torch.Generator().manual_seed(4))
+    z[:, 7:] = 0.0  # Padding slots...
+    z[2] = 0.0  # ...a TER without nodes...
+    z[3, 1] = 0.0  # ...and a node whose features are all zero.
+    results = []
+    for logits in (lambda z: heads.actor(z).squeeze(-1), heads.node_logits):
+        heads.zero_grad()
+        leaf = z.clone().requires_grad_()
+        out = logits(leaf)
+        (out * torch.arange(out.numel()).view(out.shape).sin()).sum().backward()
+        results.append([out, leaf.grad] + [p.grad.clone() for p in heads.actor.parameters()])
+    for dense, live in zip(*results, strict=True):
+        torch.testing.assert_close(live, dense, atol=1e-6, rtol=1e-5)
+    with torch.no_grad():  # Inference: every row, as before.
+        assert torch.equal(heads.node_logits(z), heads.actor(z).squeeze(-1))
 
 
 @pytest.mark.parametrize("config", [ObservationConfig(max_nodes=40, max_neighbours=4,

@@ -164,17 +164,19 @@ def test_masked_nodes_get_zero_probability_and_gradient(masking):
     _, log_prob, _ = policy.evaluate_actions(obs, actions, valid)
     policy.zero_grad()
     logits_eval = None
+    node_logits = policy.mlp_extractor.node_logits
 
-    def hook(module, inputs, output):
+    def kept(z):
         nonlocal logits_eval
-        logits_eval = output
-        output.retain_grad()
+        logits_eval = node_logits(z)
+        logits_eval.retain_grad()
+        return logits_eval
 
-    handle = policy.mlp_extractor.actor.register_forward_hook(hook)
+    policy.mlp_extractor.node_logits = kept
     _, log_prob, _ = policy.evaluate_actions(obs, actions, valid)
-    handle.remove()
+    del policy.mlp_extractor.node_logits
     log_prob.sum().backward()
-    grad = logits_eval.grad.squeeze(-1)
+    grad = logits_eval.grad
     invalid_real = obs["node_mask"].bool() & ~valid
     assert grad[valid].abs().max() > 1e-3
     if masking == "iam":

@@ -149,8 +149,9 @@ def distinct_graphs(features: torch.Tensor, neighbours: torch.Tensor,
                     node_mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """The distinct graphs of a batch of padded graphs (graphs with equal arrays are one).
 
-    Graphs with the same node count and first nodes' features are candidates, compared in
-    full with the first of them; those that differ go through the same again.
+    Graphs with the same node count and first nodes' features (summed into one number)
+    are candidates, compared in full with the first of them; those that differ go through
+    the same again.
 
     Args:
         features: (M, N, F) node features.
@@ -164,8 +165,11 @@ def distinct_graphs(features: torch.Tensor, neighbours: torch.Tensor,
     m = len(node_mask)
     index = torch.arange(m, device=node_mask.device)
     key = torch.cat([node_mask.sum(-1, keepdim=True),
-                     features[:, :KEY_NODES].flatten(1)], 1)
-    kind = torch.unique(key, dim=0, return_inverse=True)[1]
+                     features[:, :KEY_NODES].flatten(1)], 1).double()
+    # The key as one number (a fixed weighted sum; unique over rows is far slower): equal
+    # keys give equal numbers, and unequal graphs that share one are told apart below.
+    weights = torch.arange(1, key.shape[1] + 1, dtype=key.dtype, device=key.device).sqrt()
+    kind = torch.unique((key * weights).sum(1), return_inverse=True)[1]
     copy_of = index.clone()
     unsettled = index
     while len(unsettled):
@@ -277,33 +281,105 @@ class SpatialEncoder(nn.Module):
         return h.new_zeros(m * n, h.shape[-1]).index_copy(0, real_rows, h).view(m, n, -1)
 
 
+class _SparseProduct(torch.autograd.Function):
+    """A h for a constant sparse A whose transpose is given (the gradient A^T g)."""
+
+    @staticmethod
+    def forward(ctx, matrix: torch.Tensor, transposed: torch.Tensor,
+                h: torch.Tensor) -> torch.Tensor:
+        ctx.transposed = transposed
+        return torch.sparse.mm(matrix, h)
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor) -> tuple[None, None, torch.Tensor]:
+        return None, None, torch.sparse.mm(ctx.transposed, grad)
+
+
+class EdgeMessages:
+    """The neighbour messages of one pass of the v2 encoder over R node rows: for rows g
+    (R, in), m_ib = mean over i's neighbours j of phi_b(l_ij) g_j, with l_ij the edge
+    length and phi_b Gaussians of it (:data:`LENGTH_BASIS`). Built once from the edges
+    and applied by every layer of the pass.
+
+    Two forms of the same sums: a sparse (R B, R) matrix of the weights phi_b(l_ij) /
+    degree(i) times the rows (one product, no (R, K, in) copy of the neighbours' rows; the
+    training form, cheaper to differentiate), and the rows gathered per edge and weighted
+    (gathers only: inference and ONNX export). They differ by float rounding only.
+
+    Args:
+        target: (R, K) 1-based neighbour rows, 0 for no neighbour.
+        lengths: (R, K) edge lengths, metres.
+        centres: (B,) Gaussian centres, metres.
+        widths: (B,) Gaussian widths, metres.
+        sparse: Use the sparse form (else the gathered one).
+    """
+
+    def __init__(self, target: torch.Tensor, lengths: torch.Tensor, centres: torch.Tensor,
+                 widths: torch.Tensor, sparse: bool) -> None:
+        self.target = target
+        edge = (target > 0).to(lengths.dtype)
+        basis = torch.exp(-((lengths[..., None] - centres) / widths).square())
+        self.weights = basis * (edge / edge.sum(1, keepdim=True).clamp(min=1.0))[..., None]
+        self.matrix = self.transposed = None
+        if sparse:
+            self.matrix, self.transposed = self._matrices()
+
+    def _matrices(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The sparse (R B, R) CSR matrix, row i B + b holding phi_b(l_ij) / degree(i) at
+        column j for each neighbour j of i (columns ascending), and its (R, R B) transpose
+        (the gradient's product, made once for every layer)."""
+        r, k = self.target.shape
+        b = self.weights.shape[-1]
+        real = self.target > 0
+        column = torch.where(real, self.target - 1, r)
+        order = column.argsort(1)  # Empty slots (column r) last.
+        column, real = column.gather(1, order), real.gather(1, order)
+        weights = self.weights.gather(1, order[..., None].expand_as(self.weights))
+        per_row = real.sum(1).repeat_interleave(b)
+        crow = torch.cat([per_row.new_zeros(1), per_row.cumsum(0)])
+        entries = real[:, None, :].expand(r, b, k)
+        column = column[:, None, :].expand(r, b, k)[entries]
+        values = weights.transpose(1, 2)[entries]
+        # The transpose: the same entries ordered by column, rows ascending within each.
+        by_column = column.argsort(stable=True)
+        row = torch.repeat_interleave(torch.arange(r * b, device=crow.device), per_row)
+        per_column = torch.bincount(column, minlength=r)
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", "Sparse CSR tensor support is in beta")
+            return (torch.sparse_csr_tensor(crow, column, values, (r * b, r),
+                                            check_invariants=False),
+                    torch.sparse_csr_tensor(
+                        torch.cat([per_column.new_zeros(1), per_column.cumsum(0)]),
+                        row[by_column], values[by_column], (r, r * b),
+                        check_invariants=False))
+
+    def __call__(self, h: torch.Tensor) -> torch.Tensor:
+        """(R, in) node rows -> (R, B in) messages, m_ib at column b in + i."""
+        r = len(self.target)
+        if self.matrix is not None:
+            return _SparseProduct.apply(self.matrix, self.transposed, h).view(r, -1)
+        # index_select rather than indexing: its backward (index_add) is the cheaper one.
+        neighbours = torch.cat([h.new_zeros(1, h.shape[-1]), h]).index_select(
+            0, self.target.reshape(-1)).view(r, self.target.shape[1], -1)  # (R, K, in)
+        return torch.einsum("rkb,rki->rbi", self.weights, neighbours).reshape(r, -1)
+
+
 class LengthConv(nn.Module):
     """One v2 message-passing layer before its activation: W_s g_i + sum_b W_b m_ib, with
     m_ib = mean over i's neighbours j of phi_b(l_ij) g_j, l_ij the edge length and phi_b
-    Gaussians of it (:data:`LENGTH_BASIS`): a continuous filter of the edge length, so
-    that each output channel has its own learned response to short and long edges."""
+    Gaussians of it (:data:`LENGTH_BASIS`, :class:`EdgeMessages`): a continuous filter of
+    the edge length, so that each output channel has its own learned response to short
+    and long edges."""
 
     def __init__(self, in_features: int, out_features: int) -> None:
         super().__init__()
         self.self_weight = nn.Linear(in_features, out_features)
         self.neighbour_weight = nn.Linear(len(LENGTH_BASIS[0]) * in_features, out_features,
                                           bias=False)
-        self.register_buffer("centres", torch.tensor(LENGTH_BASIS[0]), persistent=False)
-        self.register_buffer("widths", torch.tensor(LENGTH_BASIS[1]), persistent=False)
 
-    def forward(self, h: torch.Tensor, target: torch.Tensor,
-                lengths: torch.Tensor) -> torch.Tensor:
-        """(R, in) node rows, (R, K) 1-based neighbour rows (0: no neighbour), (R, K) edge
-        lengths in metres -> (R, out)."""
-        r = len(target)
-        edge = (target > 0).to(h.dtype)
-        # index_select rather than indexing: its backward (index_add) is the cheaper one.
-        neighbours = torch.cat([h.new_zeros(1, h.shape[-1]), h]).index_select(
-            0, target.reshape(-1)).view(r, target.shape[1], -1)  # (R, K, in)
-        basis = torch.exp(-((lengths[..., None] - self.centres) / self.widths).square())
-        basis = basis * (edge / edge.sum(1, keepdim=True).clamp(min=1.0))[..., None]
-        messages = torch.einsum("rkb,rki->rbi", basis, neighbours).reshape(r, -1)
-        return self.self_weight(h) + self.neighbour_weight(messages)
+    def forward(self, h: torch.Tensor, messages: EdgeMessages) -> torch.Tensor:
+        """(R, in) node rows and their pass's messages -> (R, out)."""
+        return self.self_weight(h) + self.neighbour_weight(messages(h))
 
 
 class EdgeSpatialEncoder(SpatialEncoder):
@@ -319,6 +395,8 @@ class EdgeSpatialEncoder(SpatialEncoder):
         d = config.hidden
         self.register_buffer("scale", torch.tensor(FEATURE_SCALE_V2[:num_features]),
                              persistent=False)
+        self.register_buffer("centres", torch.tensor(LENGTH_BASIS[0]), persistent=False)
+        self.register_buffer("widths", torch.tensor(LENGTH_BASIS[1]), persistent=False)
         self.layers = nn.ModuleList(LengthConv(num_features if i == 0 else d, d)
                                     for i in range(config.gcn_layers))
         self.input_skip = nn.Linear(num_features, d, bias=False)
@@ -340,10 +418,14 @@ class EdgeSpatialEncoder(SpatialEncoder):
         xy = raw[:, :2]
         lengths = torch.linalg.vector_norm(
             xy[:, None] - torch.cat([xy.new_zeros(1, 2), xy])[target], dim=-1)
+        # The sparse form where gradients are taken (PPO's update); inference keeps the
+        # gathered one, so that a policy acts on the very numbers it always did.
+        messages = EdgeMessages(target, lengths, self.centres, self.widths,
+                                sparse=torch.is_grad_enabled() and not tracing())
         h = raw * self.scale
         for i, layer in enumerate(self.layers):
             skip = self.input_skip(h) if i == 0 else h
-            h = F.relu(layer(h, target, lengths)) + skip
+            h = F.relu(layer(h, messages)) + skip
         return h, real_rows
 
 
@@ -471,7 +553,9 @@ class EncodedTers:
         return rows, (node_mask.reshape(-1) > 0).nonzero().squeeze(1)
 
 
-def _tracing() -> bool:
+def tracing() -> bool:
+    """Whether torch is tracing or compiling the code (an ONNX export): code paths with
+    data-dependent shapes or sparse tensors are left for plain ones then."""
     return (torch.jit.is_tracing() or torch.compiler.is_compiling()
             or torch.onnx.is_in_onnx_export())
 
@@ -559,7 +643,7 @@ class GVN(nn.Module):
             for key in ("node_features", "neighbours", "node_mask"))
         keep, inverse = distinct_graphs(features, neighbours, node_mask)
         node_mask = node_mask[keep]
-        if torch.is_grad_enabled() or _tracing():
+        if torch.is_grad_enabled() or tracing():
             rows, real_rows = self.spatial.rows(features[keep], neighbours[keep], node_mask)
         else:
             rows, real_rows = self.encoded.rows(self.spatial, features[keep], neighbours[keep],

@@ -38,7 +38,7 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
 from mjexplore.envs.observation import POCKET
-from mjexplore.policies.gvn import GVN, GvnConfig, path_prior
+from mjexplore.policies.gvn import GVN, GvnConfig, path_prior, tracing
 
 MASKING_MODES = ("iam", "naive", "none")
 
@@ -131,9 +131,26 @@ class GvnHeads(nn.Module):
         prior = features[:, n * d + 2 * d:n * d + 2 * d + n] if self.prior else None
         return z, pooled, prior
 
+    def node_logits(self, z: torch.Tensor) -> torch.Tensor:
+        """The actor's logit of each node (B, N) from node features z (B, N, d).
+
+        Where gradients are taken (PPO's update), every row of z that is all zero (each
+        padding slot, about half a batch's slots, and any node whose features are all
+        zero) has the same logit, computed once, and the actor's MLP runs on the other
+        rows only. Inference runs it on every row, as it always did.
+        """
+        if tracing() or not torch.is_grad_enabled():
+            return self.actor(z).squeeze(-1)
+        b, n, d = z.shape
+        flat = z.reshape(b * n, d)
+        live = flat.ne(0).any(-1).nonzero().squeeze(1)
+        zero = self.actor(flat.new_zeros(1, d))
+        return zero.expand(b * n, 1).index_copy(
+            0, live, self.actor(flat.index_select(0, live))).view(b, n)
+
     def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
         z, _, prior = self._split(features)
-        logits = self.actor(z).squeeze(-1)
+        logits = self.node_logits(z)
         return logits if prior is None else logits + prior
 
     def forward_critic(self, features: torch.Tensor) -> torch.Tensor:
