@@ -353,9 +353,13 @@ def test_env_is_deterministic_and_reports_reward_terms():
     config = EnvConfig(scenes=("train_loop",), episode=FAST, max_decisions=6,
                        reward=RewardConfig(kind="paper"))
 
+    from mjexplore.mapping.metrics import accuracy
+
     def rollout():
         env = ExplorationEnv(config)
         obs, _ = env.reset(seed=3)
+        ep = env.episode
+        start, cell_area = accuracy(ep.mapper.grid, ep.reference), ep.mapper.grid.resolution ** 2
         out = [obs["node_features"].copy()]
         rewards, infos = [], []
         for _ in range(6):
@@ -364,6 +368,9 @@ def test_env_is_deterministic_and_reports_reward_terms():
             obs, r, term, trunc, info = env.step(int(np.flatnonzero(mask)[-1]))
             rewards.append(r)
             infos.append(info)
+            # r_Acc: Eq. 18's accuracy (mapping.metrics.accuracy) gained over the steps.
+            assert sum(i["accuracy_m2"] for i in infos) == pytest.approx(
+                (accuracy(ep.mapper.grid, ep.reference) - start) * cell_area)
             if term or trunc:
                 break
         return out, rewards, infos

@@ -15,7 +15,7 @@ from mjexplore.envs.observation import ObservationConfig, privileged_features
 from mjexplore.episode import Episode, EpisodeConfig
 from mjexplore.episode.explorer import ExplorationState
 from mjexplore.errors import UserInputError
-from mjexplore.mapping.metrics import accuracy
+from mjexplore.mapping.metrics import trinary
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.scenes.scene import SceneFiles, load_scene_files
 
@@ -311,6 +311,7 @@ class ExplorationEnv(gym.Env):
         self.action_space = self.decisions.action_space
         self.goals = NodeGoals()
         self.episode: Episode | None = None
+        self._reference_labels: np.ndarray | None = None  # trinary(episode.reference)
         self._scene_cache: dict[str, SceneFiles] = {}
         self._decisions = 0
 
@@ -364,7 +365,10 @@ class ExplorationEnv(gym.Env):
         """(observable cells known, accuracy in cells, kinematics rows, simulated time in
         seconds) now."""
         ep = self.episode
-        return (ep.counter.count, accuracy(ep.mapper.grid, ep.reference),
+        # Eq. 18's accuracy (mapping.metrics.accuracy) against the episode's labels of the
+        # ground truth, made once.
+        same = int((trinary(ep.mapper.grid) == self._reference_labels).sum())
+        return (ep.counter.count, same,
                 len(ep.sim.kinematics_rows), float(ep.sim.time))
 
     def _info(self) -> dict[str, Any]:
@@ -382,6 +386,7 @@ class ExplorationEnv(gym.Env):
         self.goals = NodeGoals()
         self.episode = Episode(scene, self.goals, int(rng.integers(2**31 - 1)),
                                self._episode_config)
+        self._reference_labels = trinary(self.episode.reference)
         self.decisions.reset()
         self._decisions = 0
         self._end_paid = False
