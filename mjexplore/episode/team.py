@@ -76,6 +76,7 @@ from mjexplore.errors import UserInputError
 from mjexplore.mapping.map_merging import MapMergeConfig, merge_maps
 from mjexplore.mapping.metrics import iou, observable_ground_truth
 from mjexplore.mapping.occupancy import MapperConfig, OccupancyMapper
+from mjexplore.mapping.scan_matching import ScanMatcherConfig, match_scan, scan_points
 from mjexplore.maps import GridMap
 from mjexplore.navigation.blacklist import GoalBlacklist
 from mjexplore.navigation.navigator import Navigator, NavStatus
@@ -118,6 +119,16 @@ class TeamConfig:
         merge_agreement: (metres, radians) two successive accepted matches must agree
             within for the merge to be made.
         merge: The map matcher's settings.
+        merge_refine_scans: At the merge, the estimated start is refined by matching up to
+            this many of the robot's scans so far (evenly spread) against the team's map,
+            each giving the start anew; the median of the accepted ones is taken (0: the
+            map match's estimate as it is).
+        merge_refine: The scan matcher's settings for that refinement.
+        merge_align: After its merge, each of a robot's scans is matched against the team's
+            map near where the estimate puts it (these scan matcher settings) and mapped at
+            the match when it is accepted: the estimate's residual error (a fraction of a
+            degree) would otherwise draw every wall a second time, a cell off, and leave
+            phantom frontiers in the walls. None: map at the estimate.
     """
 
     teammate_margin: float = 0.1
@@ -131,6 +142,13 @@ class TeamConfig:
     merge_period: float = 5.0
     merge_agreement: tuple[float, float] = (0.1, math.radians(1.0))
     merge: MapMergeConfig = dataclasses.field(default_factory=MapMergeConfig)
+    merge_refine_scans: int = 60
+    merge_refine: ScanMatcherConfig = dataclasses.field(default_factory=lambda: ScanMatcherConfig(
+        linear_window=0.15, angular_window=math.radians(2.0), prior_weight=0.0, min_score=0.5))
+    merge_align: ScanMatcherConfig | None = dataclasses.field(
+        default_factory=lambda: ScanMatcherConfig(linear_window=0.05,
+                                                  angular_window=math.radians(0.5),
+                                                  min_score=0.5))
 
     def __post_init__(self) -> None:
         if min(self.wait_timeout, self.retry_period, self.idle_retry, self.yield_distance,
@@ -455,6 +473,7 @@ class TeamEpisode:
         self.merged = [True] + [not unknown] * (n - 1)
         self.merges: list[dict[str, Any]] = []
         self.merge_attempts = 0
+        self.aligned_scans = 0
         self._trackers: list[TopologyTracker | None] = [None] * n
         self._frames: list[OccupancyMapper | None] = [None] * n
         self._history: list[list[LaserScan]] = [[] for _ in range(n)]
@@ -542,6 +561,21 @@ class TeamEpisode:
         masked[hit] = np.nan
         return dataclasses.replace(scan, ranges=masked)
 
+    def _merged_pose(self, index: int, scan: LaserScan) -> np.ndarray | None:
+        """Where a merged robot's scan goes into the team's map: None (its pose) for a
+        robot whose start is known, else where the merge's estimate puts it, aligned to
+        the map by a scan match (``merge_align``) when one is accepted."""
+        correction = self.corrections[index]
+        if correction is None:
+            return None
+        prior = compose_pose(correction, scan.pose)
+        cfg = self.team_config.merge_align
+        if cfg is None:
+            return prior
+        match = match_scan(scan_points(scan), self.mapper.grid, prior, cfg)
+        self.aligned_scans += match.accepted
+        return match.pose if match.accepted else prior
+
     def _observe(self, mapper: OccupancyMapper, tracker: TopologyTracker,
                  changed: np.ndarray) -> None:
         """Updates ``tracker`` and the costmaps of the robots planning on ``mapper``'s map
@@ -564,9 +598,7 @@ class TeamEpisode:
         own_changed = own.integrate(scan)
         own_ratio = self.own_counters[index].update(own.state, own_changed, cols)
         if self.merged[index]:
-            correction = self.corrections[index]
-            changed = self.mapper.integrate(
-                scan, None if correction is None else compose_pose(correction, scan.pose))
+            changed = self.mapper.integrate(scan, self._merged_pose(index, scan))
             self._observe(self.mapper, self.tracker, changed)
             ratio = self.counter.update(self.mapper.state, changed, cols)
         else:  # Its own map, its own-frame map, and the scan kept for the merge.
@@ -747,9 +779,37 @@ class TeamEpisode:
                         abs(d[2]) <= tc.merge_agreement[1]:
                     self._merge(j, match)
 
+    def _refine_start(self, j: int, estimate: np.ndarray) -> tuple[np.ndarray, int]:
+        """Robot ``j``'s estimated start refined by matching its scans so far against the
+        team's map (before they join it): each accepted, non-degenerate match of a scan
+        near where the estimate puts it gives the start anew (the match composed with the
+        scan's pose in the robot's own frame, inverted); the median of those is returned,
+        with their number (the estimate itself when none is accepted)."""
+        tc = self.team_config
+        scans = self._history[j]
+        if tc.merge_refine_scans <= 0 or not scans:
+            return estimate, 0
+        picks = np.unique(np.linspace(0, len(scans) - 1, tc.merge_refine_scans).astype(int))
+        grid = self.mapper.grid
+        starts = []
+        for k in picks:
+            scan = scans[k]
+            own = relative_pose(self.starts[j], scan.pose)  # In the robot's own frame.
+            m = match_scan(scan_points(scan), grid, compose_pose(estimate, own),
+                           tc.merge_refine)
+            if m.accepted and not m.degenerate:
+                starts.append(compose_pose(m.pose, relative_pose(own, np.zeros(3))))
+        if not starts:
+            return estimate, 0
+        found = np.array(starts)
+        yaw = estimate[2] + np.median([wrap_angle(a - estimate[2]) for a in found[:, 2]])
+        return np.array([*np.median(found[:, :2], axis=0), wrap_angle(yaw)]), len(starts)
+
     def _merge(self, j: int, match: Any) -> None:
-        """Merges robot ``j``'s map into the team's with ``match``'s pose of its start."""
-        estimate = np.asarray(match.pose, float)
+        """Merges robot ``j``'s map into the team's with ``match``'s pose of its start
+        (refined by its scans, :meth:`_refine_start`)."""
+        matched = np.asarray(match.pose, float)
+        estimate, refined = self._refine_start(j, matched)
         truth = np.asarray(self.starts[j], float)
         # The correction takes j's true pose to its pose in the team's map: the estimated
         # start composed with its pose relative to its true start.
@@ -783,6 +843,12 @@ class TeamEpisode:
                                               estimate[1] - truth[1])), 4),
             "error_deg": round(math.degrees(abs(wrap_angle(float(error[2])))), 4),
             "estimate": [round(float(v), 4) for v in estimate],
+            # The map match's own error, before the refinement by scans.
+            "map_match_error_m": round(float(math.hypot(matched[0] - truth[0],
+                                                        matched[1] - truth[1])), 4),
+            "map_match_error_deg": round(math.degrees(abs(wrap_angle(matched[2] - truth[2]))),
+                                         4),
+            "refining_scans": refined,
             "inliers": round(match.inliers, 4), "conflict": round(match.conflict, 5),
             "wall_overlap_m": round(match.wall_overlap, 2)})
         if self.all_merged:  # From now on the team's ratio is its map's.
@@ -863,6 +929,7 @@ class TeamEpisode:
                 "merge_error_m": max(e[0] for e in errors) if errors else None,
                 "merge_error_deg": max(e[1] for e in errors) if errors else None,
                 "merge_attempts": self.merge_attempts,
+                "aligned_scans": self.aligned_scans,
                 "merges": self.merges,
                 # The team's map against the ground truth (the union's until all merged).
                 "team_map_ratio": round(self.counter.count / self.counter.total, 5),
