@@ -164,3 +164,15 @@ def test_the_lookahead_expert_labels_valid_nodes_and_explores():
     assert masks[np.arange(len(actions)), actions].all()
     with pytest.raises(ValueError, match="imitation.expert"):
         ImitationConfig(expert="tour")
+
+
+def test_keeping_the_prior_labels_its_choice_unless_the_lookahead_saves_more():
+    obs, masks, labels, _ = collect_expert_decisions(SHORT, 1, seed=5, expert="lookahead",
+                                                     keep_prior=(1e9, 0.0))
+    from mjexplore.learning.imitation import _prior_choice
+
+    # Nothing saves a billion metres: every label is the nearest node's, as the prior picks.
+    assert all(labels[i] == _prior_choice({k: v[i] for k, v in obs.items()}, masks[i], 0.0)
+               for i in range(len(labels)))
+    with pytest.raises(ValueError, match="keep_prior_m needs expert: lookahead"):
+        ImitationConfig(keep_prior_m=5.0)

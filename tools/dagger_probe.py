@@ -83,6 +83,13 @@ def _warm_start(config_path: str, out: Path) -> tuple[Path, Path, dict]:
     return fresh, warm, report
 
 
+def _safe(oracle, rule, gain_m, state, candidates, mask, obs) -> int:
+    """``expert_safeM``'s choice: the prior's node unless the lookahead's best is ``gain_m``
+    metres shorter (path plus tour)."""
+    baseline = int(rule.predict(obs, action_masks=mask)[0])
+    return oracle.expert_lookahead(state, candidates, mask, baseline=baseline, gain_m=gain_m)
+
+
 def _via(oracle, state, candidates, mask) -> int:
     """``expert_via``'s choice (see the module docstring)."""
     import numpy as np
@@ -101,28 +108,38 @@ def _job(job: tuple[str, str, str, int, str]) -> dict:
     """One episode: ``expert`` and ``expert_via`` here, every other mode by
     ``tools/probe_policy.py``."""
     config_path, weights, mode, seed, scene = job
-    if mode not in ("expert", "expert_via", "expert_tour"):
+    if not mode.startswith("expert"):
         return probe_policy._episode(job)
     import numpy as np
     import torch
 
     from mjexplore.explorers import make_explorer
-    from mjexplore.learning.training import heldout_env
+    from mjexplore.explorers.oracle import lookahead_expert
+    from mjexplore.learning.training import NearestNodeRule, heldout_env
 
     torch.set_num_threads(1)
-    env = heldout_env(probe_policy._config(config_path, weights), scene)
-    oracle = make_explorer("oracle")
+    config = probe_policy._config(config_path, weights)
+    env = heldout_env(config, scene)
+    oracle = lookahead_expert() if mode == "expert_tour" else make_explorer("oracle")
     oracle.reset(np.random.default_rng(seed))
-    choose = {"expert": oracle.expert_choice, "expert_tour": oracle.expert_lookahead,
-              "expert_via": functools.partial(_via, oracle)}[mode]
-    _, info = env.reset(seed=seed)
+    if mode.startswith("expert_safe"):  # expert_safeM: the prior unless M metres shorter.
+        choose = functools.partial(_safe, oracle, NearestNodeRule(config.policy.prior_pocket_m),
+                                   float(mode.removeprefix("expert_safe")))
+    else:
+        answer = {"expert": oracle.expert_choice, "expert_tour": oracle.expert_lookahead,
+                  "expert_via": functools.partial(_via, oracle)}[mode]
+
+        def choose(state, candidates, mask, obs):
+            del obs
+            return answer(state, candidates, mask)
+    obs, info = env.reset(seed=seed)
     done = info["end_reason"] is not None
     while not done:
         action = choose(env.episode.decision_state(), env.decisions.action_positions(),
-                        env.action_masks())
+                        env.action_masks(), obs=obs)
         if action < 0:
             break
-        _, _, terminated, truncated, info = env.step(action)
+        obs, _, terminated, truncated, info = env.step(action)
         done = terminated or truncated
     return probe_policy._row(mode, seed, scene, None, env.episode.result().metrics)
 
