@@ -109,3 +109,8 @@ def test_a_merged_robots_scans_are_aligned_to_the_team_map(tmp_path):
     aligned = episode._merged_pose(1, scan)
     assert np.hypot(*(aligned[:2] - scan.pose[:2])) < 0.02
     assert episode.aligned_scans > 0
+    # Nor does a scan mapped from a wrong pose turn the team's walls free.
+    episode.corrections[1] = np.array([0.1, -0.05, 0.02])
+    walls = episode.mapper.grid.occupied.copy()
+    episode._integrate_merged(1, scan)
+    assert episode.mapper.grid.occupied[walls].all()

@@ -40,11 +40,16 @@ ground truth; it tells the robots nothing). Likewise, before its merge a robot's
 drawn in the ground truth's grid through its own start pose, so that the mapping and
 planning machinery is the shared map's. A match counts once a second one, ``merge_period``
 seconds later, agrees with it (within ``merge_agreement``); then the robot's scans so far
-are mapped into the team's map at the poses the match gives (its start pose as estimated),
-the robot plans on the team's map from then on, its pose in it being its own-frame pose
-composed with the estimate, and the team's coordination takes it in. The merge's error is
-the estimated start pose against the true one (metres and degrees, in ``merges`` of the
-metrics). The team's exploration ratio is that of the union of the robots' maps until all
+are mapped into the team's map at the poses the estimate of its start gives, the robot
+plans on the team's map from then on, its pose in it being its own-frame pose composed
+with the estimate, and the team's coordination takes it in. Each later scan of the robot
+is aligned to the team's map by a scan match before it is mapped (``merge_align``), and
+may not turn the team's wall cells free (``merge_keep_walls``): the estimate's residual
+error, a few hundredths of a degree, would otherwise draw the walls a second time a cell
+off and punch holes into them, phantom frontiers (on the office, enough to double the
+team's time). The merge's error is the estimated start pose against the true one (metres
+and degrees, in ``merges`` of the metrics). The team's exploration ratio is that of the
+union of the robots' maps until all
 have merged, then that of the team's map. Robots see each other before they merge (their
 lidars do), so their bodies are obstacles in each other's costmaps throughout.
 
@@ -77,7 +82,7 @@ from mjexplore.mapping.map_merging import MapMergeConfig, merge_maps
 from mjexplore.mapping.metrics import iou, observable_ground_truth
 from mjexplore.mapping.occupancy import MapperConfig, OccupancyMapper
 from mjexplore.mapping.scan_matching import ScanMatcherConfig, match_scan, scan_points
-from mjexplore.maps import GridMap
+from mjexplore.maps import OCCUPIED, GridMap
 from mjexplore.navigation.blacklist import GoalBlacklist
 from mjexplore.navigation.navigator import Navigator, NavStatus
 from mjexplore.navigation.teammates import TeamCostmap
@@ -119,11 +124,8 @@ class TeamConfig:
         merge_agreement: (metres, radians) two successive accepted matches must agree
             within for the merge to be made.
         merge: The map matcher's settings.
-        merge_refine_scans: At the merge, the estimated start is refined by matching up to
-            this many of the robot's scans so far (evenly spread) against the team's map,
-            each giving the start anew; the median of the accepted ones is taken (0: the
-            map match's estimate as it is).
-        merge_refine: The scan matcher's settings for that refinement.
+        merge_keep_walls: A robot placed by a merge's estimate may not turn the team's wall
+            cells free (its residual error would punch holes into them).
         merge_align: After its merge, each of a robot's scans is matched against the team's
             map near where the estimate puts it (these scan matcher settings) and mapped at
             the match when it is accepted: the estimate's residual error (a fraction of a
@@ -142,9 +144,7 @@ class TeamConfig:
     merge_period: float = 5.0
     merge_agreement: tuple[float, float] = (0.1, math.radians(1.0))
     merge: MapMergeConfig = dataclasses.field(default_factory=MapMergeConfig)
-    merge_refine_scans: int = 60
-    merge_refine: ScanMatcherConfig = dataclasses.field(default_factory=lambda: ScanMatcherConfig(
-        linear_window=0.15, angular_window=math.radians(2.0), prior_weight=0.0, min_score=0.5))
+    merge_keep_walls: bool = True
     merge_align: ScanMatcherConfig | None = dataclasses.field(
         default_factory=lambda: ScanMatcherConfig(linear_window=0.05,
                                                   angular_window=math.radians(0.5),
@@ -467,13 +467,14 @@ class TeamEpisode:
         mapper, a GVD of its own), an own-frame map to match and its scans kept for the
         merge; the union of the maps for the team's exploration ratio."""
         unknown = self.team_config.unknown_starts and n > 1
-        # The pose of the team map's frame error of each merged robot (None: its true
-        # pose is its pose in the map it plans on).
+        # Each merged robot's correction: the transform from its true pose to its pose in the
+        # team's map (None: they are the same, robot 0 and every robot with known starts).
         self.corrections: list[np.ndarray | None] = [None] * n
         self.merged = [True] + [not unknown] * (n - 1)
         self.merges: list[dict[str, Any]] = []
         self.merge_attempts = 0
         self.aligned_scans = 0
+        self.kept_walls = 0
         self._trackers: list[TopologyTracker | None] = [None] * n
         self._frames: list[OccupancyMapper | None] = [None] * n
         self._history: list[list[LaserScan]] = [[] for _ in range(n)]
@@ -576,6 +577,27 @@ class TeamEpisode:
         self.aligned_scans += match.accepted
         return match.pose if match.accepted else prior
 
+    def _integrate_merged(self, index: int, scan: LaserScan) -> np.ndarray:
+        """Maps a merged robot's scan into the team's map; returns the changed cells. A
+        robot placed by a merge estimate (``merge_keep_walls``) may not turn the team's
+        wall cells free: its residual error would punch holes into them."""
+        pose = self._merged_pose(index, scan)
+        if pose is None or not self.team_config.merge_keep_walls:
+            return self.mapper.integrate(scan, pose)
+        state = self.mapper.state.reshape(-1)
+        logodds = self.mapper.logodds.reshape(-1)
+        walls = np.flatnonzero(state == OCCUPIED)
+        saved = logodds[walls]
+        changed = self.mapper.integrate(scan, pose)
+        lost = state[walls] != OCCUPIED
+        if not lost.any():
+            return changed
+        logodds[walls[lost]] = saved[lost]
+        state[walls[lost]] = OCCUPIED
+        self.kept_walls += int(lost.sum())
+        cols = self.mapper.state.shape[1]
+        return changed[~np.isin(changed[:, 0] * cols + changed[:, 1], walls[lost])]
+
     def _observe(self, mapper: OccupancyMapper, tracker: TopologyTracker,
                  changed: np.ndarray) -> None:
         """Updates ``tracker`` and the costmaps of the robots planning on ``mapper``'s map
@@ -598,7 +620,7 @@ class TeamEpisode:
         own_changed = own.integrate(scan)
         own_ratio = self.own_counters[index].update(own.state, own_changed, cols)
         if self.merged[index]:
-            changed = self.mapper.integrate(scan, self._merged_pose(index, scan))
+            changed = self._integrate_merged(index, scan)
             self._observe(self.mapper, self.tracker, changed)
             ratio = self.counter.update(self.mapper.state, changed, cols)
         else:  # Its own map, its own-frame map, and the scan kept for the merge.
@@ -779,37 +801,9 @@ class TeamEpisode:
                         abs(d[2]) <= tc.merge_agreement[1]:
                     self._merge(j, match)
 
-    def _refine_start(self, j: int, estimate: np.ndarray) -> tuple[np.ndarray, int]:
-        """Robot ``j``'s estimated start refined by matching its scans so far against the
-        team's map (before they join it): each accepted, non-degenerate match of a scan
-        near where the estimate puts it gives the start anew (the match composed with the
-        scan's pose in the robot's own frame, inverted); the median of those is returned,
-        with their number (the estimate itself when none is accepted)."""
-        tc = self.team_config
-        scans = self._history[j]
-        if tc.merge_refine_scans <= 0 or not scans:
-            return estimate, 0
-        picks = np.unique(np.linspace(0, len(scans) - 1, tc.merge_refine_scans).astype(int))
-        grid = self.mapper.grid
-        starts = []
-        for k in picks:
-            scan = scans[k]
-            own = relative_pose(self.starts[j], scan.pose)  # In the robot's own frame.
-            m = match_scan(scan_points(scan), grid, compose_pose(estimate, own),
-                           tc.merge_refine)
-            if m.accepted and not m.degenerate:
-                starts.append(compose_pose(m.pose, relative_pose(own, np.zeros(3))))
-        if not starts:
-            return estimate, 0
-        found = np.array(starts)
-        yaw = estimate[2] + np.median([wrap_angle(a - estimate[2]) for a in found[:, 2]])
-        return np.array([*np.median(found[:, :2], axis=0), wrap_angle(yaw)]), len(starts)
-
     def _merge(self, j: int, match: Any) -> None:
-        """Merges robot ``j``'s map into the team's with ``match``'s pose of its start
-        (refined by its scans, :meth:`_refine_start`)."""
-        matched = np.asarray(match.pose, float)
-        estimate, refined = self._refine_start(j, matched)
+        """Merges robot ``j``'s map into the team's with ``match``'s pose of its start."""
+        estimate = np.asarray(match.pose, float)
         truth = np.asarray(self.starts[j], float)
         # The correction takes j's true pose to its pose in the team's map: the estimated
         # start composed with its pose relative to its true start.
@@ -843,12 +837,6 @@ class TeamEpisode:
                                               estimate[1] - truth[1])), 4),
             "error_deg": round(math.degrees(abs(wrap_angle(float(error[2])))), 4),
             "estimate": [round(float(v), 4) for v in estimate],
-            # The map match's own error, before the refinement by scans.
-            "map_match_error_m": round(float(math.hypot(matched[0] - truth[0],
-                                                        matched[1] - truth[1])), 4),
-            "map_match_error_deg": round(math.degrees(abs(wrap_angle(matched[2] - truth[2]))),
-                                         4),
-            "refining_scans": refined,
             "inliers": round(match.inliers, 4), "conflict": round(match.conflict, 5),
             "wall_overlap_m": round(match.wall_overlap, 2)})
         if self.all_merged:  # From now on the team's ratio is its map's.
@@ -930,6 +918,7 @@ class TeamEpisode:
                 "merge_error_deg": max(e[1] for e in errors) if errors else None,
                 "merge_attempts": self.merge_attempts,
                 "aligned_scans": self.aligned_scans,
+                "kept_walls": self.kept_walls,
                 "merges": self.merges,
                 # The team's map against the ground truth (the union's until all merged).
                 "team_map_ratio": round(self.counter.count / self.counter.total, 5),
