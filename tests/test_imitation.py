@@ -149,7 +149,10 @@ def test_without_dagger_rounds_the_warm_start_is_plain_cloning_bit_for_bit():
 
 
 def test_rollouts_in_worker_processes_give_the_same_labelled_decisions():
-    learner = policy_learner(_policy())
+    policy = _policy()  # Fitted once: a fitted policy crosses to the workers too.
+    obs, masks, actions, _ = collect_expert_decisions(SHORT, 1, seed=3)
+    clone(policy, obs, masks, actions, ImitationConfig(episodes=1, epochs=1, batch_size=4))
+    learner = policy_learner(policy)
     serial = collect_learner_decisions(SHORT, learner, 2, seed=5, expert="lookahead")
     pooled = collect_learner_decisions(SHORT, learner, 2, seed=5, expert="lookahead", workers=2)
     for a, b in zip(serial[1:4], pooled[1:4]):

@@ -277,6 +277,19 @@ class PolicyLearner:
     def __init__(self, policy) -> None:
         self.policy = policy
 
+    def __getstate__(self) -> dict[str, Any]:
+        # The policy as SB3 saves one (constructor arguments and weights): a fitted policy
+        # can hold tensors of its last forward pass, which autograd keeps from crossing
+        # process boundaries.
+        return {"cls": type(self.policy), "data": self.policy._get_constructor_parameters(),
+                "state_dict": {k: v.detach().cpu() for k, v in
+                               self.policy.state_dict().items()}}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.policy = state["cls"](**state["data"])
+        self.policy.load_state_dict(state["state_dict"])
+        self.policy.set_training_mode(False)
+
     def __call__(self, obs: dict[str, np.ndarray], mask: np.ndarray) -> np.ndarray:
         return _probabilities(self.policy, {k: np.asarray(v)[None] for k, v in obs.items()},
                               np.asarray(mask, bool)[None])[0]
