@@ -26,7 +26,7 @@ def test_a_team_sweep_is_collected_and_reported(tmp_path):
     assert "| train_loop | - | single nearest | 1 | 1 |" in section
     assert "| train_loop | drawn | assign_greedy | 2 | 1 |" in section
     assert "| train_loop | drawn | naive_nearest | 2 | 1 |" in section
-    assert "Revision of every run" in section
+    assert "Every run was made at revision" in section
 
 
 def _m(t985, overlap=0.3, **kw):

@@ -223,14 +223,14 @@ EXPERIMENTS = (
                "--workers 1 --out runs/office3; then mjexplore collect runs/office2 "
                "--experiment teams, and runs/office3 with --merge"),
     Experiment("teams_explore_bench", "Several robots: the Explore-Bench maps",
-               "Two robots on the six Explore-Bench maps (7 m lidar, full physics, seed 0) "
+               "Two robots on the six Explore-Bench maps (7 m lidar, full physics, 3 seeds) "
                "from the benchmark's close and far placements, the naive team (nearest) "
                "against greedy frontier assignment, and the single robot (nearest, from the "
                "map's own start) beside.",
                ("nearest x1 single", "nearest x2 close", "nearest x2 far",
                 "assign_greedy x2 close", "assign_greedy x2 far"),
                f"mjexplore bench --scenes {EXPLORE_BENCH} --lidar-range 7 --robots 2 --starts "
-               "close,far --explorers nearest,assign_greedy --seeds 1 --workers 1 "
+               "close,far --explorers nearest,assign_greedy --seeds 3 --workers 1 "
                "--out runs/eb2; mjexplore collect runs/eb2 --experiment teams_explore_bench"),
     Experiment("ariadne", "Generalisation: the ARiADNE test maps",
                "ARiADNE's 100 test maps at 0.1 m per pixel (64 x 48 m) with an 8 m lidar, which "

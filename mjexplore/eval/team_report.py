@@ -145,8 +145,14 @@ def team_section(name: str, summary: dict[str, Any]) -> list[str]:
     verdict = office_verdict(single, groups) if name == "teams" else pair_verdict(groups)
     if verdict:
         lines += ["Issue 37's bars on these runs:", "", *verdict, ""]
-    rev_rows = [[*key, ", ".join(f"`{r[:7]}`" + ("-dirty" if r.endswith("dirty") else "")
-                                 for r in sorted(set(revs)))]
+    def named(revs) -> str:
+        return ", ".join(f"`{r[:7]}`" + ("-dirty" if r.endswith("dirty") else "")
+                         for r in sorted(set(revs)))
+
+    every = {r for revs in revisions.values() for r in revs}
+    if len(every) == 1:
+        return lines + [f"Every run was made at revision {named(every)}.", ""]
+    rev_rows = [[*key, named(revs)]
                 for key, revs in sorted(revisions.items(), key=lambda kv: str(kv[0]))]
     lines += ["Revision of every run, by group:", "",
               markdown_table(["scene", "placement", "method", "robots", "revision"], rev_rows),
