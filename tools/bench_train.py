@@ -30,7 +30,9 @@ training/gvn_v3.yaml): one round as ``mjexplore train`` runs it, end to end (rol
 update), with 2 envs (``recipe_decisions_per_s``) and with 1, 2 and 4
 (``recipe_decisions_per_s_by_envs``), the env's CPU time per decision
 (``env_ms_per_decision``: the rollout's wall time over its decisions, times the envs, at
-one env per core) and the update's wall time per decision (``update_ms_per_decision``).
+one env per core) and the update's wall time per decision (``update_ms_per_decision``;
+``update_cpu_ms_per_decision`` its CPU time, all threads, which other work on the machine
+disturbs far less), with the 1-minute load average at the end (``load_average``).
 The baseline in the same run is the same round with the workers' thread pools left at
 their defaults (``recipe_decisions_per_s_default_threads``: what training ran before its
 workers were held to one thread each). ``--recipe-only`` measures just that, and
@@ -225,7 +227,9 @@ def recipe_figures(n_envs: list[int], device: str,
             "threads_speedup": round(_rate(r) / _rate(base), 2),
             "env_ms_per_decision": round(env_ms, 2),
             "update_ms_per_decision": round(r["update_s"] / r["decisions"] * 1e3, 2),
-            "recipe_decisions_per_s_by_envs": by_envs, "cores": cores}
+            "update_cpu_ms_per_decision": round(r["update_cpu_s"] / r["decisions"] * 1e3, 2),
+            "recipe_decisions_per_s_by_envs": by_envs, "cores": cores,
+            "load_average": round(os.getloadavg()[0], 2)}
 
 
 def main() -> None:

@@ -403,7 +403,8 @@ def set_phase_threads(config: TrainConfig, updating: bool) -> None:
 def ppo_round(config: TrainConfig, seed: int | None = None, model_setup=None,
               device: str = "auto") -> dict[str, float]:
     """One rollout and one PPO update of ``config``, as :func:`train` runs them (torch
-    threads included), timed: wall seconds of each and the decisions collected.
+    threads included), timed: wall seconds of each, the update's CPU seconds (all its
+    threads: what it costs on a machine others share) and the decisions collected.
 
     Args:
         config: The recipe.
@@ -424,6 +425,7 @@ def ppo_round(config: TrainConfig, seed: int | None = None, model_setup=None,
         def _on_rollout_end(self) -> None:
             set_phase_threads(config, updating=True)
             marks["collected"] = time.perf_counter()
+            marks["collected_cpu"] = time.process_time()
 
         def _on_step(self) -> bool:
             return True
@@ -436,12 +438,13 @@ def ppo_round(config: TrainConfig, seed: int | None = None, model_setup=None,
             model_setup(model)
         decisions = config.ppo.n_steps * config.n_envs
         model.learn(decisions, callback=Clock())  # One rollout, then one update.
-        end = time.perf_counter()
+        end, end_cpu = time.perf_counter(), time.process_time()
     finally:
         set_phase_threads(config, updating=False)
         venv.close()
     return {"decisions": decisions, "rollout_s": marks["collected"] - marks["start"],
-            "update_s": end - marks["collected"]}
+            "update_s": end - marks["collected"],
+            "update_cpu_s": end_cpu - marks["collected_cpu"]}
 
 
 def _seed_everything(seed: int) -> None:
