@@ -22,7 +22,7 @@ def test_a_team_sweep_is_collected_and_reported(tmp_path):
     report = tmp_path / "results.md"
     assert main(["report", "--data", str(data), "--out", str(report)]) == 0
     text = report.read_text()
-    section = text[text.index("## Several robots: the office"):]
+    section = text[text.index("## Several robots: the evaluation scenes"):]
     assert "| train_loop | - | single nearest | 1 | 1 |" in section
     assert "| train_loop | drawn | assign_greedy | 2 | 1 |" in section
     assert "| train_loop | drawn | naive_nearest | 2 | 1 |" in section

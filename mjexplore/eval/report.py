@@ -202,9 +202,10 @@ EXPERIMENTS = (
                 "gvn", "gvn_v2", "gvn_v3", "oracle"),
                f"mjexplore bench --scenes {EXPLORE_BENCH} --explorers {{explorers}} --seeds 2 "
                "--lidar-range 7 --workers 2 --out runs/explore_bench"),
-    Experiment("teams", "Several robots: the office",
+    Experiment("teams", "Several robots: the evaluation scenes",
                "Teams of 2 and 3 robots on the office (full physics, the CLI's defaults: 6 m "
-               "lidar with 0.01 m noise, target 98.5 %), 5 seeds, robot 0 where the single "
+               "lidar with 0.01 m noise, target 98.5 %), 5 seeds, and of 2 robots on "
+               "loop_with_corridor and the maze, 3 seeds; robot 0 where the single "
                "robot of the same seed starts and the others drawn 1-3 m around it; each "
                "seed's single robot (nearest) beside. assign_greedy: frontier regions "
                "assigned greedily by path cost; naive_nearest: every robot runs nearest on "
@@ -220,8 +221,10 @@ EXPERIMENTS = (
                "mjexplore bench --scenes office --robots 2 --unknown-starts --explorers "
                "assign_greedy --seeds 5 --workers 1 --out runs/office2; mjexplore bench "
                "--scenes office --robots 3 --explorers assign_greedy,oracle --seeds 5 "
-               "--workers 1 --out runs/office3; then mjexplore collect runs/office2 "
-               "--experiment teams, and runs/office3 with --merge"),
+               "--workers 1 --out runs/office3; mjexplore bench --scenes "
+               "loop_with_corridor,maze --robots 2 --explorers assign_greedy,nearest --seeds 3 "
+               "--workers 1 --out runs/office2; then mjexplore collect runs/office3 "
+               "--experiment teams, and runs/office2 with --merge"),
     Experiment("teams_explore_bench", "Several robots: the Explore-Bench maps",
                "Two robots on the six Explore-Bench maps (7 m lidar, full physics, 3 seeds) "
                "from the benchmark's close and far placements, the naive team (nearest) "
