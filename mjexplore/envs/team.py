@@ -71,20 +71,26 @@ SCALE = 20.0  # Metres per unit of the distance features.
 
 class ChosenGoal:
     """A robot's explorer in the env: the goal its agent chose (consumed once), else the
-    nearest frontier."""
+    nearest frontier. ``pending_waypoint`` marks a chosen goal that is a waypoint (a TER
+    node that is not a frontier: driven to until reached, see
+    :mod:`mjexplore.envs.team_gvn`)."""
 
     name = "agent"
 
     def __init__(self, replan_period: float | None) -> None:
         self.pending: np.ndarray | None = None
+        self.pending_waypoint = False
+        self.waypoint = False  # Read by the engine for the goal just selected.
         self.replan_period = replan_period
         self._nearest = NearestFrontier()
 
     def reset(self, rng: np.random.Generator) -> None:
         self.pending = None
+        self.pending_waypoint = self.waypoint = False
 
     def select_goal(self, state: ExplorationState) -> np.ndarray | None:
         goal, self.pending = self.pending, None
+        self.waypoint, self.pending_waypoint = goal is not None and self.pending_waypoint, False
         return goal if goal is not None else self._nearest.select_goal(state)
 
 
@@ -162,10 +168,7 @@ class TeamExplorationEnv(ParallelEnv):
         for a in ep.agents:
             name = self.possible_agents[a.index]
             if name in actions and a.active and a._decision_due:
-                cands = self._candidates[a.index]
-                act = int(actions[name])
-                if len(cands):
-                    self.explorers[a.index].pending = cands[act if act < len(cands) else 0]
+                self._choose(a.index, int(actions[name]))
         if not ep._check_end():
             ep.step()  # The decisions, with the chosen goals, and one control period.
         deciding = self._advance()
@@ -188,6 +191,13 @@ class TeamExplorationEnv(ParallelEnv):
         if terminated or truncated:
             self.agents = []
         return obs, rewards, terms, truncs, infos
+
+    def _choose(self, index: int, action: int) -> None:
+        """Hands robot ``index``'s chosen candidate to its explorer (an invalid index: its
+        nearest candidate)."""
+        cands = self._candidates[index]
+        if len(cands):
+            self.explorers[index].pending = cands[action if 0 <= action < len(cands) else 0]
 
     # ------------------------------------------------------------------ views
 
