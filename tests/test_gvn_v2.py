@@ -15,7 +15,12 @@ from conftest import random_tree
 from gymnasium import spaces
 
 from mjexplore.envs import EnvConfig, ExplorationEnv, ObservationConfig, RewardConfig, TerMemory
-from mjexplore.envs.exploration import HELDOUT_SEED_BASE, ProceduralScenes, heldout_scenes
+from mjexplore.envs.exploration import (
+    HELDOUT_SEED_BASE,
+    TEST_SEED_BASE,
+    ProceduralScenes,
+    heldout_scenes,
+)
 from mjexplore.envs.observation import (
     BLACKLISTED,
     PATH,
@@ -571,6 +576,10 @@ def test_model_selection_uses_held_out_layouts(tmp_path, caplog):
     assert unseen == (first[1], heldout_scenes(proc, 3, seed=0)[2])  # After the selection.
     with pytest.raises(ValueError, match="eval.procedural"):
         EvalConfig(scenes=("train_loop",)).unseen_scenes(2)
+    test = EvalConfig(procedural=proc, layouts=1).test_scenes(2)
+    assert EvalConfig(procedural=proc, layouts=2).test_scenes(2) == test  # Fixed, whatever
+    test_seeds = [int(Path(s).name.rsplit("_s", 1)[1]) for s in test]  # the selection's size.
+    assert all(s >= TEST_SEED_BASE for s in test_seeds) and not set(test) & set(first + unseen)
     with caplog.at_level(logging.WARNING, logger="mjexplore.learning.training"):
         EvalConfig(scenes=("office",))
     assert "office" in caplog.text and "eval.procedural" in caplog.text

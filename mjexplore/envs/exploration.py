@@ -167,6 +167,11 @@ class EnvConfig:
 # below 2**31 - 1 (see :func:`procedural_scene`), so the two never share a layout.
 HELDOUT_SEED_BASE = 2**31
 
+# Generator seeds of test layouts (final figures) start here, 2**24 past the held-out ones:
+# model selection and every tuning draw from HELDOUT_SEED_BASE up (at most a few hundred
+# layouts), so no choice has looked at these.
+TEST_SEED_BASE = HELDOUT_SEED_BASE + 2**24
+
 
 def procedural_scene(proc: ProceduralScenes, rng: np.random.Generator,
                      seed: int | None = None) -> Path:
@@ -200,12 +205,14 @@ def procedural_scene(proc: ProceduralScenes, rng: np.random.Generator,
                          "'width'/'height'.")
 
 
-def heldout_scenes(proc: ProceduralScenes, count: int, seed: int = 0) -> tuple[str, ...]:
+def heldout_scenes(proc: ProceduralScenes, count: int, seed: int = 0,
+                   base: int = HELDOUT_SEED_BASE) -> tuple[str, ...]:
     """Scene folders of ``count`` generated layouts of ``proc``'s families and sizes that
-    training never draws (generator seeds from :data:`HELDOUT_SEED_BASE`): a fixed
-    validation set for model selection, the same for every call with these arguments."""
-    rng = np.random.default_rng(seed)
-    return tuple(str(procedural_scene(proc, rng, HELDOUT_SEED_BASE + i)) for i in range(count))
+    training never draws (generator seeds from ``base``): a fixed validation set for model
+    selection (:data:`HELDOUT_SEED_BASE`) or test set (:data:`TEST_SEED_BASE`, its own
+    draw of families and sizes), the same for every call with these arguments."""
+    rng = np.random.default_rng(seed if base == HELDOUT_SEED_BASE else [seed, base])
+    return tuple(str(procedural_scene(proc, rng, base + i)) for i in range(count))
 
 
 class NodeGoals:

@@ -34,7 +34,13 @@ import torch
 import yaml
 
 from mjexplore.config import from_dict, load_yaml_config, to_dict
-from mjexplore.envs.exploration import EnvConfig, ExplorationEnv, ProceduralScenes, heldout_scenes
+from mjexplore.envs.exploration import (
+    TEST_SEED_BASE,
+    EnvConfig,
+    ExplorationEnv,
+    ProceduralScenes,
+    heldout_scenes,
+)
 from mjexplore.envs.observation import POSED
 from mjexplore.episode import EpisodeConfig
 from mjexplore.episode.workers import (
@@ -180,6 +186,18 @@ class EvalConfig:
         if self.procedural is None:
             raise ValueError("unseen layouts need eval.procedural")
         return heldout_scenes(self.procedural, self.layouts + count, self.seed)[self.layouts:]
+
+    def test_scenes(self, count: int) -> tuple[str, ...]:
+        """``count`` generated layouts for final figures, with generator seeds from
+        :data:`~mjexplore.envs.exploration.TEST_SEED_BASE`: neither training, model selection
+        nor any tuning on :meth:`scene_list` or :meth:`unseen_scenes` draws them.
+
+        Raises:
+            ValueError: No ``procedural`` layouts to draw them from.
+        """
+        if self.procedural is None:
+            raise ValueError("test layouts need eval.procedural")
+        return heldout_scenes(self.procedural, count, self.seed, base=TEST_SEED_BASE)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
