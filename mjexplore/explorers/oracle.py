@@ -218,6 +218,13 @@ class _Views:
     observable: np.ndarray  # (cells,) bool: the reference's known cells.
 
 
+def _candidates(candidates, valid) -> tuple[np.ndarray, np.ndarray]:
+    """(k, 2) float candidate goals and their (k,) bool validity (all valid by default)."""
+    candidates = np.asarray(candidates, float).reshape(-1, 2)
+    return candidates, (np.ones(len(candidates), bool) if valid is None
+                        else np.asarray(valid, bool))
+
+
 LOOKAHEAD_MARGIN = 0.012
 """The oracle's planned coverage above the target when it answers by lookahead."""
 
@@ -460,8 +467,7 @@ class OracleExplorer:
         Returns:
             The index of the chosen candidate, or -1 if none is valid.
         """
-        candidates = np.asarray(candidates, float).reshape(-1, 2)
-        valid = np.ones(len(candidates), bool) if valid is None else np.asarray(valid, bool)
+        candidates, valid = _candidates(candidates, valid)
         if not valid.any():
             return -1
         plan = self.replan(state)
@@ -501,8 +507,7 @@ class OracleExplorer:
         Returns:
             The index of the chosen candidate, or -1 if none is valid.
         """
-        candidates = np.asarray(candidates, float).reshape(-1, 2)
-        valid = np.ones(len(candidates), bool) if valid is None else np.asarray(valid, bool)
+        candidates, valid = _candidates(candidates, valid)
         if not valid.any():
             return -1
         plan = self.replan(state)
