@@ -179,3 +179,21 @@ def test_keeping_the_prior_labels_its_choice_unless_the_lookahead_saves_more():
                for i in range(len(labels)))
     with pytest.raises(ValueError, match="keep_prior_m needs expert: lookahead"):
         ImitationConfig(keep_prior_m=5.0)
+
+
+def test_the_margin_loss_is_zero_where_the_label_leads_and_pushes_it_ahead_elsewhere():
+    from mjexplore.learning.imitation import margin_loss
+
+    logits = torch.tensor([[3.0, 1.0, 0.0], [0.0, 2.0, 5.0], [1.0, 9.0, 0.0]],
+                          requires_grad=True)
+    masks = np.array([[True, True, False], [True, True, False], [True, False, False]])
+    target = torch.tensor([0, 0, 0])
+    loss = margin_loss(logits, masks, target, margin=1.0)
+    # Row 0 leads by 2 (no loss); row 1 trails the valid rival by 2 (the invalid 5 does not
+    # count): 3; row 2 has no valid rival: 0.
+    assert float(loss.detach()) == pytest.approx(3.0 / 3)
+    loss.backward()
+    assert logits.grad[1, 0] < 0 < logits.grad[1, 1] and not logits.grad[0].any()
+    assert not logits.grad[1, 2] and not logits.grad[2].any()
+    with pytest.raises(ValueError, match="imitation.loss"):
+        ImitationConfig(loss="hinge")

@@ -88,6 +88,11 @@ class ImitationConfig:
             (per-layout ratio 1.015, 0.85-1.26: faster on 10, far slower on some); keeping
             the prior unless 5 m are saved, 246.1 s (0.898, 0.84-0.96, faster on 13 of 16,
             slower on 2); unless 15 m, 279.0 s (the prior, nearly).
+        loss: ``cross_entropy`` (the label's log-probability) or ``margin`` (a hinge on the
+            label's logit against the best other valid one, :func:`margin_loss`: zero where
+            the policy's greedy choice is the label by ``margin`` nats, so a residual on a
+            prior the label mostly agrees with is fitted only where they differ).
+        margin: The hinge's margin, nats.
         workers: Processes the rounds' episodes run in (one thread each; the labelled
             decisions are the same for any number).
     """
@@ -102,11 +107,15 @@ class ImitationConfig:
     dagger_sample: bool = False
     expert: str = "choice"
     keep_prior_m: float = 0.0
+    loss: str = "cross_entropy"
+    margin: float = 1.0
     workers: int = 1
 
     def __post_init__(self) -> None:
         if self.workers < 1 or self.keep_prior_m < 0:
             raise ValueError("imitation.workers must be >= 1 and keep_prior_m >= 0")
+        if self.loss not in ("cross_entropy", "margin") or self.margin <= 0:
+            raise ValueError("imitation.loss must be cross_entropy or margin, and margin > 0")
         if self.keep_prior_m and self.expert != "lookahead":
             raise ValueError("imitation.keep_prior_m needs expert: lookahead")
         if self.expert not in EXPERTS:
@@ -371,7 +380,8 @@ def clone(policy, observations: dict[str, np.ndarray], masks: np.ndarray,
                    for k, v in observations.items()}
             dist = policy.get_distribution(obs, action_masks=masks[idx])
             target = torch.as_tensor(actions[idx], device=policy.device)
-            loss = -dist.log_prob(target).mean()
+            loss = (-dist.log_prob(target).mean() if config.loss == "cross_entropy" else
+                    margin_loss(dist.distribution.logits, masks[idx], target, config.margin))
             optimizer.zero_grad()
             loss.backward()
             torch.nn.utils.clip_grad_norm_(params, 0.5)
@@ -380,6 +390,29 @@ def clone(policy, observations: dict[str, np.ndarray], masks: np.ndarray,
             agree += float((dist.distribution.probs.argmax(-1) == target).sum())
     policy.set_training_mode(False)
     return {"loss": loss_sum / max(n, 1), "agreement": agree / max(n, 1)}
+
+
+def margin_loss(logits, masks: np.ndarray, target, margin: float):
+    """Mean hinge ``max(0, margin - (logit of the label - best other valid logit))``.
+
+    Args:
+        logits: (n, A) action logits (torch).
+        masks: (n, A) bool, the valid actions.
+        target: (n,) the labels (torch, int64).
+        margin: Nats by which the label should lead.
+
+    Returns:
+        The scalar loss (torch); zero where every label leads by ``margin``.
+    """
+    import torch
+
+    valid = torch.as_tensor(masks, device=logits.device)
+    label = logits.gather(1, target[:, None])[:, 0]
+    others = valid.clone()
+    others[torch.arange(len(target)), target] = False
+    rival = torch.where(others, logits, torch.finfo(logits.dtype).min).max(1).values
+    gap = torch.where(others.any(1), label - rival, torch.full_like(label, margin))
+    return torch.relu(margin - gap).mean()
 
 
 def warm_start(policy, env_config, config: ImitationConfig, seed: int = 0) -> dict[str, Any]:
