@@ -163,7 +163,6 @@ def recipe_round(n_envs: int, default_threads: bool = False, device: str = "auto
     """One round of the shipped recipe with ``n_envs`` envs (``n_steps`` decisions each,
     default the recipe's); with ``default_threads`` the workers keep their libraries'
     default thread pools."""
-    import os
     from unittest import mock
 
     from mjexplore.episode import workers
@@ -174,24 +173,17 @@ def recipe_round(n_envs: int, default_threads: bool = False, device: str = "auto
     config = load_train_config(TRAINING / f"{DEFAULT_MODEL['gvn']}.yaml")
     config = dataclasses.replace(config, n_envs=n_envs, ppo=dataclasses.replace(
         config.ppo, n_steps=n_steps or config.ppo.n_steps))
-    saved = {k: os.environ.pop(k, None) for k in workers.THREAD_VARIABLES}
-    try:
-        with contextlib.ExitStack() as stack:
-            if default_threads:
-                # Envs built as before there were workers of their own (no thread limits).
-                stack.enter_context(mock.patch.object(
-                    training, "_make_env",
-                    lambda env, own_process, report=None: functools.partial(
-                        training.ExplorationEnv, env)))
-                stack.enter_context(mock.patch.object(training, "single_thread_children",
-                                                      contextlib.nullcontext))
-            return training.ppo_round(config, device=device)
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+    with contextlib.ExitStack() as stack:
+        stack.enter_context(workers.thread_environment(None))
+        if default_threads:
+            # Envs built as before there were workers of their own (no thread limits).
+            stack.enter_context(mock.patch.object(
+                training, "_make_env",
+                lambda env, own_process, report=None: functools.partial(
+                    training.ExplorationEnv, env)))
+            stack.enter_context(mock.patch.object(training, "single_thread_children",
+                                                  contextlib.nullcontext))
+        return training.ppo_round(config, device=device)
 
 
 def _fresh(*args) -> dict[str, float]:

@@ -73,20 +73,27 @@ THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"
 
 
 @contextlib.contextmanager
-def single_thread_children() -> Iterator[None]:
-    """Within the block, the processes this one starts (and a forkserver it starts) load
-    their libraries with one thread each; this process's environment is restored after
-    it (numba refuses a thread count that changes once its threads run)."""
-    saved = {name: os.environ.get(name) for name in THREAD_VARIABLES}
-    os.environ.update({name: "1" for name in THREAD_VARIABLES})
+def thread_environment(value: str | None) -> Iterator[None]:
+    """Within the block every variable of :data:`THREAD_VARIABLES` is ``value`` (None:
+    unset, the libraries' defaults); this process's environment is restored after it."""
+    saved = {name: os.environ.pop(name, None) for name in THREAD_VARIABLES}
+    if value is not None:
+        os.environ.update(dict.fromkeys(THREAD_VARIABLES, value))
     try:
         yield
     finally:
-        for name, value in saved.items():
-            if value is None:
+        for name, old in saved.items():
+            if old is None:
                 os.environ.pop(name, None)
             else:
-                os.environ[name] = value
+                os.environ[name] = old
+
+
+def single_thread_children() -> contextlib.AbstractContextManager[None]:
+    """Within the block, the processes this one starts (and a forkserver it starts) load
+    their libraries with one thread each; this process's environment is restored after
+    it (numba refuses a thread count that changes once its threads run)."""
+    return thread_environment("1")
 
 
 def _numba_threads_running() -> bool:

@@ -316,9 +316,10 @@ class OracleExplorer:
         self._listed = int(observable.sum())  # Unknown cells when the lists were last cut.
         # The viewpoint standing for each node of the path graph (the nearest within one
         # lattice step; -1 if none): what the robot sees while it drives through the node.
+        self._view_tree = cKDTree(self.views.points) if len(cand) else None
         if len(cand):
-            near, which = cKDTree(self.views.points).query(self.graph.centres,
-                                                            distance_upper_bound=self.spacing)
+            near, which = self._view_tree.query(self.graph.centres,
+                                                distance_upper_bound=self.spacing)
             self._node_view = np.where(np.isfinite(near), which, -1)
         else:
             self._node_view = np.full(len(self.graph.centres), -1)
@@ -519,21 +520,22 @@ class OracleExplorer:
         points = np.vstack([state.pose[:2], candidates, views.points[plan]])
         distance = self.graph.distance_matrix(points)
         nodes = self.graph.node_of(points)
-        own_view = cKDTree(views.points).query(candidates)[1]
+        own_view = self._view_tree.query(candidates)[1]
         step = max(1, int(round(self.path_sample / (self.graph.block *
                                                     self.graph.grid.resolution))))
         config = dataclasses.replace(self.tour_config, time_limit=0.05, guided=False)
         cost = np.full(k, np.inf)
+        covered = np.zeros(need.size, bool)  # Cleared after each candidate.
         for a in np.flatnonzero(valid & np.isfinite(distance[0, 1:k + 1])):
             seen = [int(own_view[a])]
             if nodes[0] >= 0 and nodes[1 + a] >= 0:
                 along = self._node_view[self.graph.path(int(nodes[0]), int(nodes[1 + a]))[::step]]
                 seen.extend(along[along >= 0].tolist())
-            covered = np.zeros(need.size, bool)
-            for v in set(seen):
-                covered[views.idx[views.ptr[v]:views.ptr[v + 1]]] = True
+            cells = np.concatenate([views.idx[views.ptr[v]:views.ptr[v + 1]] for v in set(seen)])
+            covered[cells] = True
             left = [j for j, v in enumerate(plan)
                     if _uncovered(views.ptr, views.idx, need, covered, v) >= self.min_gain]
+            covered[cells] = False
             places = np.array([1 + a, *(1 + k + j for j in left)])
             sub = np.minimum(distance[np.ix_(places, places)], 1e5)
             order = open_tour(sub, config)
