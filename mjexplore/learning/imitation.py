@@ -197,8 +197,10 @@ def collect_learner_decisions(env_config, learner: Learner | None, episodes: int
             runs = pool.map(_labelled_episode, jobs, chunksize=1)
     else:
         runs = [_labelled_episode(job) for job in jobs]
-    observations = {k: [o for run in runs for o in run["observations"][k]]
-                    for k in (runs[0]["observations"] if runs else {})}
+    # Keys from every episode: one that ends before its first decision has none.
+    keys = dict.fromkeys(k for run in runs for k in run["observations"])
+    observations = {k: [o for run in runs for o in run["observations"].get(k, [])]
+                    for k in keys}
     labels = [a for run in runs for a in run["labels"]]
     n = len(labels)
     times = [run["time"] for run in runs if run["time"] is not None]
