@@ -117,6 +117,41 @@ def test_same_commands_same_trajectory(box_room):
     assert np.array_equal(runs[0][1], runs[1][1])
 
 
+
+def test_sleeping_keeps_the_robot_awake_and_its_trajectory(box_room, monkeypatch):
+    """MuJoCo's sleeping (on since the walls are static) never puts the robot to sleep,
+    even after standing still, and leaves its trajectory, wall pushes included, the same
+    bit for bit as with sleeping off."""
+    import mujoco
+
+    from mjexplore.sim import simulator as simulator_module
+
+    folder, interior = box_room
+
+    def run():
+        sim = Simulator(folder, SimConfig(seed=4))
+        sim.reset((interior[2] - 1.0, 2.2, 0.0))  # Facing the east wall, 1 m away.
+        sim.step(3.0)  # At rest long enough for an automatic policy to sleep it.
+        awake = int(sim.data.ntree_awake)
+        sim.command(0.3, 0.0)
+        sim.step(6.0)  # Into the wall and pushing against it.
+        rng = np.random.default_rng(1)
+        for _ in range(40):
+            sim.command(rng.uniform(-0.5, 0.5), rng.uniform(-1.8, 1.8))
+            sim.step(0.1)
+        return sim, awake, sim.kinematics().as_table(), sim.latest_scan.ranges
+
+    sim, awake, table, ranges = run()
+    assert sim.model.opt.enableflags & mujoco.mjtEnableBit.mjENBL_SLEEP
+    assert awake == sim.model.ntree == 1
+    assert sim.collisions >= 1  # The wall was pushed against.
+    monkeypatch.setattr(simulator_module, "keep_awake", lambda model, body: None)
+    plain, _, plain_table, plain_ranges = run()
+    assert not plain.model.opt.enableflags & mujoco.mjtEnableBit.mjENBL_SLEEP
+    assert np.array_equal(table, plain_table)
+    assert np.array_equal(ranges, plain_ranges)
+
+
 def test_scans_arrive_at_the_lidar_rate_in_simulated_time(box_room):
     folder, _ = box_room
     sim = Simulator(folder)
