@@ -84,3 +84,50 @@ def test_tiled_ray_scene_equals_full_scene_in_office():
         in_range = (full >= 0) & (full < 6.0)
         assert np.array_equal(in_range, (tiled >= 0) & (tiled < 6.0))
         assert np.abs(tiled[in_range] - full[in_range]).max() < 1e-9
+
+
+def _tile_geoms_one_by_one(scene, key):
+    """(type, pos, size) of the geoms a tile keeps, each geom tested on its own (the
+    per-geom loop the vectorised tile build replaced)."""
+    lo = np.array(key, dtype=float) * scene.tile_size - scene.reach
+    hi = lo + scene.tile_size + 2 * scene.reach
+    kept = []
+    for i in range(len(scene.geom_ids)):
+        pos, size = scene._pos[i], scene._size[i]
+        if scene._aligned[i]:
+            b0 = np.maximum(pos[:2] - size[:2], lo)
+            b1 = np.minimum(pos[:2] + size[:2], hi)
+            if not np.any(b1 <= b0):
+                kept.append((6, [*((b0 + b1) / 2), pos[2]], [*((b1 - b0) / 2), size[2]]))
+        elif np.linalg.norm(np.clip(pos[:2], lo, hi) - pos[:2]) <= scene._rbound[i]:
+            kept.append((int(scene._type[i]), list(pos), list(size)))
+    return kept
+
+
+def test_tile_build_keeps_the_geoms_a_per_geom_test_keeps():
+    import mujoco
+
+    from mjexplore.sim.lidar import StaticRayScene
+
+    spec = mujoco.MjSpec()
+    rng = np.random.default_rng(3)
+    for _ in range(120):  # Aligned wall boxes over a 40 m square, some long.
+        spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX,
+                                pos=[*rng.uniform(0, 40, 2), 0.5],
+                                size=[*rng.uniform(0.05, 6.0, 2), 0.5])
+    for _ in range(20):  # Rotated boxes and cylinders: kept by their bounding spheres.
+        spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, pos=[*rng.uniform(0, 40, 2), 0.5],
+                                size=[0.3, 0.1, 0.5], euler=[0, 0, rng.uniform(0.1, 1.4)])
+        spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+                                pos=[*rng.uniform(0, 40, 2), 0.5], size=[0.2, 0.5, 0])
+    scene = StaticRayScene(spec.compile(), reach=3.7, tile_size=2.0)
+    for key in [(0, 0), (3, 7), (10, 10), (19, 2), (-2, -2), (25, 25)]:
+        tile, _ = scene.tile_model(key)
+        expected = _tile_geoms_one_by_one(scene, key)
+        if not expected:
+            assert tile.ngeom == 1 and tile.geom_pos[0, 2] < -100  # The far-away dummy.
+            continue
+        assert tile.ngeom == len(expected)
+        assert np.array_equal(tile.geom_type, [t for t, _, _ in expected])
+        assert np.array_equal(tile.geom_pos, np.array([p for _, p, _ in expected]))
+        assert np.array_equal(tile.geom_size, np.array([s for _, _, s in expected]))

@@ -211,16 +211,17 @@ class StaticRayScene:
         hi = lo + self.tile_size + 2 * self.reach
         spec = mujoco.MjSpec()
         spec.modelname = f"lidar_tile_{key[0]}_{key[1]}"
-        for i in range(len(self.geom_ids)):
+        # The aligned boxes clipped to the tile's neighbourhood, all at once: a tile keeps
+        # few of a large map's walls, and only those are visited below.
+        b0 = np.maximum(self._pos[:, :2] - self._size[:, :2], lo)
+        b1 = np.minimum(self._pos[:, :2] + self._size[:, :2], hi)
+        keep = ~self._aligned | (b1 > b0).all(axis=1)
+        for i in np.flatnonzero(keep):
             pos, size = self._pos[i], self._size[i]
             if self._aligned[i]:
-                b0 = np.maximum(pos[:2] - size[:2], lo)
-                b1 = np.minimum(pos[:2] + size[:2], hi)
-                if np.any(b1 <= b0):
-                    continue
                 spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX,
-                                        pos=[*((b0 + b1) / 2), pos[2]],
-                                        size=[*((b1 - b0) / 2), size[2]])
+                                        pos=[*((b0[i] + b1[i]) / 2), pos[2]],
+                                        size=[*((b1[i] - b0[i]) / 2), size[2]])
                 continue
             nearest = np.clip(pos[:2], lo, hi)
             if np.linalg.norm(nearest - pos[:2]) > self._rbound[i]:
