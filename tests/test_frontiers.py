@@ -131,6 +131,55 @@ def test_frontiers_of_the_free_box_are_the_whole_maps(seed, edge, monkeypatch):
         assert np.array_equal(a.centre, b.centre) and np.array_equal(a.goal, b.goal)
 
 
+
+def _assert_same_frontiers(got, expected):
+    assert len(got) == len(expected)
+    for a, b in zip(got, expected):
+        assert np.array_equal(a.cells, b.cells) and a.goal_cell == b.goal_cell
+        assert np.array_equal(a.centre, b.centre) and np.array_equal(a.goal, b.goal)
+
+
+@pytest.mark.parametrize("seed,edge", [(0, False), (1, True), (2, False), (3, True)])
+def test_frontiers_within_a_box_of_the_free_cells_are_the_whole_maps(seed, edge):
+    grid = _random_partial_map(seed, edge)
+    rows, cols = np.nonzero(grid.free)
+    whole = find_frontiers(grid)
+    assert len(whole) > 3
+    for margin in (0, 1, 7):  # The free cells' own box and larger ones.
+        within = np.s_[max(rows.min() - margin, 0):rows.max() + 1 + margin,
+                       max(cols.min() - margin, 0):cols.max() + 1 + margin]
+        _assert_same_frontiers(find_frontiers(grid, within=within), whole)
+        _assert_same_frontiers(find_frontiers(grid, free=grid.free, within=within), whole)
+
+
+def test_tracker_frontiers_of_an_episode_are_the_whole_maps():
+    """Along a real episode (office, physics, nearest frontier), every decision's
+    frontiers read from the tracker's box of known cells are those of the whole map."""
+    from mjexplore.episode import Episode, EpisodeConfig
+    from mjexplore.explorers import make_explorer
+    from mjexplore.scenes.canonical import resolve_scene
+    from mjexplore.topology.pipeline import TopologyTracker
+
+    episode = Episode(resolve_scene("office"), make_explorer("nearest"), 0,
+                      EpisodeConfig(max_time=90.0))
+    tracker = episode.tracker
+    checked = []
+
+    def frontiers(grid, free=None):
+        got = TopologyTracker.frontiers(tracker, grid, free)
+        cfg = tracker.config
+        _assert_same_frontiers(got, find_frontiers(grid, cfg.frontier_min_size,
+                                                   cfg.frontier_max_length))
+        box = tracker._known_box[1]
+        checked.append((len(got), (box[1] - box[0] + 1) * (box[3] - box[2] + 1)))
+        return got
+
+    tracker.frontiers = frontiers
+    episode.run()
+    assert len(checked) >= 10 and sum(n for n, _ in checked) > 50
+    assert min(area for _, area in checked) < episode.mapper.state.size / 4  # Not the map.
+
+
 def test_frontier_distances_read_at_the_windows_equal_the_whole_maps():
     from mjexplore.episode.explorer import ExplorationState
     from mjexplore.navigation.planner import Costmap, PlannerConfig

@@ -25,7 +25,7 @@ import dataclasses
 import cv2
 import numpy as np
 
-from mjexplore.maps import GridMap, window_counts
+from mjexplore.maps import GridMap, is_free, window_counts
 
 FOUR_NEIGHBOURS = np.array([[0, 1, 0], [1, 0, 1], [0, 1, 0]], np.uint8)
 EIGHT_NEIGHBOURS = np.ones((3, 3), np.uint8)
@@ -74,7 +74,8 @@ def _split(cells: np.ndarray, max_cells: float) -> list[np.ndarray]:
 
 
 def find_frontiers(grid: GridMap, min_size: int = 3, max_length: float = 2.0,
-                   free: np.ndarray | None = None) -> list[Frontier]:
+                   free: np.ndarray | None = None,
+                   within: tuple[slice, slice] | None = None) -> list[Frontier]:
     """Frontier clusters of a map, in a deterministic order (OpenCV's label order).
 
     Args:
@@ -82,17 +83,27 @@ def find_frontiers(grid: GridMap, min_size: int = 3, max_length: float = 2.0,
         min_size: Clusters with fewer cells are noise and dropped.
         max_length: Clusters longer than this (metres) are cut into pieces.
         free: ``grid.free`` if already computed.
+        within: (rows, cols) slices (steps of 1) of a part of the map outside which no cell
+            is free, e.g. the bounding box of the cells ever known (what
+            :class:`~mjexplore.topology.pipeline.TopologyTracker` keeps): only that part,
+            grown by one cell, is read, and the frontiers are the same as without it.
     """
-    free = grid.free if free is None else free
+    if within is None:
+        window = (slice(0, grid.shape[0]), slice(0, grid.shape[1]))
+    else:  # Frontier cells lie next to free ones: one cell round the window.
+        window = tuple(slice(max(s.start - 1, 0), min(s.stop + 1, n))
+                       for s, n in zip(within, grid.shape))
+    data = grid.data[window]
+    free = is_free(data) if free is None else free[window]
+    offset = np.array([window[0].start, window[1].start])
     # Frontier cells neighbour free ones: only the box round the free cells can hold them,
     # and labelling the box gives the whole map's labels in the same (raster) order.
     box = _free_box(free)
     if box is None:
         return []
-    r0, c0 = box[0].start, box[1].start
     near_free = cv2.dilate(free[box].astype(np.uint8), FOUR_NEIGHBOURS,
                            borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
-    mask = (grid.data[box] < 0) & near_free
+    mask = (data[box] < 0) & near_free
     flat = np.flatnonzero(mask.reshape(-1))  # Much faster than 2D nonzero on bool.
     if len(flat) == 0:
         return []
@@ -100,7 +111,8 @@ def find_frontiers(grid: GridMap, min_size: int = 3, max_length: float = 2.0,
     lab = labels.reshape(-1)[flat]
     order = np.argsort(lab, kind="stable")
     lab = lab[order]
-    cells = np.column_stack(np.divmod(flat[order], mask.shape[1])) + (r0, c0)
+    cells = np.column_stack(np.divmod(flat[order], mask.shape[1])) + (
+        box[0].start + offset[0], box[1].start + offset[1])
     starts = np.flatnonzero(np.r_[True, lab[1:] != lab[:-1]])
     sizes = np.diff(np.r_[starts, len(lab)])
     extent = np.maximum(np.maximum.reduceat(cells, starts) - np.minimum.reduceat(cells, starts),
@@ -123,7 +135,8 @@ def find_frontiers(grid: GridMap, min_size: int = 3, max_length: float = 2.0,
     d2 = ((allc - means[gid]) ** 2).sum(axis=1)
     first = np.lexsort((d2, gid))
     nearest = allc[first[np.r_[0, np.flatnonzero(np.diff(gid[first])) + 1]]]
-    goal_cells = _free_neighbours(free, nearest)
+    # Every free cell is in the window, so its edge hides none of them.
+    goal_cells = _free_neighbours(free, nearest - offset) + offset
     centres = grid.cell_to_world(means)
     goals = grid.cell_to_world(goal_cells)
     return [Frontier(group, centres[i], (int(goal_cells[i, 0]), int(goal_cells[i, 1])),

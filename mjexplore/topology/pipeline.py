@@ -75,6 +75,9 @@ class TopologyTracker:
         self.gvd = DynamicGVD(shape)
         # (map cell array, its frontiers) as last observed.
         self._frontiers: tuple[np.ndarray, list[Frontier]] | None = None
+        # (map cell array, [first row, last row, first col, last col]) of the cells known
+        # in that array so far, or ever reported changed (a box that only grows).
+        self._known_box: tuple[np.ndarray, list[int] | None] | None = None
 
     def observe(self, grid: GridMap, changed: np.ndarray | None = None) -> int:
         """Updates the GVD after the map changed.
@@ -88,22 +91,51 @@ class TopologyTracker:
             Number of cells whose distance field changed.
         """
         self._frontiers = None
+        self._grow_known_box(grid, changed)
         if changed is None:
             return self.gvd.update(grid.occupied, grid.known)
         cells = changed[:, 0].astype(np.int64) * grid.shape[1] + changed[:, 1]
         values = grid.data.reshape(-1)[cells]
         return self.gvd.update_cells(cells, is_occupied(values), is_known(values))
 
+    def _grow_known_box(self, grid: GridMap, changed: np.ndarray | None) -> None:
+        """Grows the box of known cells by ``changed`` (the whole map's known cells for a
+        map not seen before or when ``changed`` is None)."""
+        if changed is None or self._known_box is None or self._known_box[0] is not grid.data:
+            known = grid.known
+            rows = np.flatnonzero(known.any(axis=1))
+            cols = np.flatnonzero(known.any(axis=0))
+            box = [rows[0], rows[-1], cols[0], cols[-1]] if len(rows) else None
+            self._known_box = grid.data, box
+            return
+        if len(changed) == 0:
+            return
+        lo, hi = changed.min(axis=0), changed.max(axis=0)
+        box = self._known_box[1]
+        self._known_box = grid.data, [int(lo[0]), int(hi[0]), int(lo[1]), int(hi[1])] \
+            if box is None else [min(box[0], int(lo[0])), max(box[1], int(hi[0])),
+                                 min(box[2], int(lo[1])), max(box[3], int(hi[1]))]
+
     def frontiers(self, grid: GridMap, free: np.ndarray | None = None) -> list[Frontier]:
         """The map's frontiers (:func:`find_frontiers` with the configured sizes).
 
         Found once per map state: kept until the next :meth:`observe` (or a call with
-        another map), so the explorer's view and the TER of one decision share them.
+        another map), so the explorer's view and the TER of one decision share them. On
+        the map observed last, only the box of its known cells is read (no free cell lies
+        outside it), so the cost grows with the explored part, not with the map.
         """
         if self._frontiers is None or self._frontiers[0] is not grid.data:
             cfg = self.config
+            within = None
+            if free is None and self._known_box is not None and \
+                    self._known_box[0] is grid.data:
+                box = self._known_box[1]
+                if box is None:  # Nothing known: nothing free, no frontier.
+                    self._frontiers = grid.data, []
+                    return []
+                within = np.s_[box[0]:box[1] + 1, box[2]:box[3] + 1]
             self._frontiers = grid.data, find_frontiers(grid, cfg.frontier_min_size,
-                                                        cfg.frontier_max_length, free)
+                                                        cfg.frontier_max_length, free, within)
         return self._frontiers[1]
 
     def graph(self, grid: GridMap, free: np.ndarray | None = None) -> GvdGraph:
