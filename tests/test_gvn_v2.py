@@ -740,6 +740,29 @@ def test_residual_policy_starts_as_the_nearest_node_rule_and_round_trips(tmp_pat
         torch.testing.assert_close(actor_logits(loaded, obs), actor_logits(policy, obs))
 
 
+def test_residual_scale_multiplies_the_networks_logits_and_round_trips(tmp_path):
+    from mjexplore.policies.weights import actor_logits, load_policy, save_policy_weights
+
+    obs, _ = _random_obs(SMALL_V2, 4, np.random.default_rng(6), valid=True)
+    kwargs = {"masking": "iam", "share_features_extractor": False, "prior_temperature": 0.5}
+    plain = _policy(SMALL_V2, **kwargs)
+    scaled = _policy(SMALL_V2, **kwargs, residual_scale=20.0)
+    scaled.load_state_dict(plain.state_dict())
+    prior = plain.pi_features_extractor.prior_logits(obs)
+    with torch.no_grad():
+        near = prior > -100.0  # Excluded nodes' logits (-4e4) keep ~4e-3 of a residual.
+        residual = (actor_logits(plain, obs) - prior)[near]
+        assert near.sum() > 4 and residual.abs().max() > 1e-4  # A residual to scale.
+        torch.testing.assert_close((actor_logits(scaled, obs) - prior)[near], 20.0 * residual,
+                                   rtol=1e-4, atol=1e-4)
+    path = tmp_path / "scaled.safetensors"
+    save_policy_weights(path, scaled, "gvn", {**kwargs, "hidden": 16, "residual_scale": 20.0},
+                        {**dataclasses.asdict(SMALL_V2)})
+    loaded, _ = load_policy(path, "gvn")
+    with torch.no_grad():
+        torch.testing.assert_close(actor_logits(loaded, obs), actor_logits(scaled, obs))
+
+
 def test_prior_needs_the_v2_path_feature():
     from mjexplore.learning.training import load_train_config
 

@@ -104,7 +104,9 @@ class PolicyConfig:
     ``prior_temperature`` (metres per nat, GVN with v2 or v3 observations) adds the
     nearest-node rule's logits to the actor's: the network learns a residual on
     nearest-frontier. ``prior_pocket_m`` (v3) makes that rule count each node this many
-    metres farther per unit of its pocket probability (the predictor's)."""
+    metres farther per unit of its pocket probability (the predictor's). ``residual_scale``
+    multiplies the network's logits before the prior's are added (nats per unit of its
+    output)."""
 
     masking: str = "iam"
     share_features_extractor: bool = True
@@ -115,6 +117,7 @@ class PolicyConfig:
     tcn_dilations: tuple[int, ...] = (1, 2, 4)
     prior_temperature: float | None = None
     prior_pocket_m: float = 0.0
+    residual_scale: float = 1.0
 
     def __post_init__(self) -> None:
         from mjexplore.policies.sb3 import MASKING_MODES
@@ -127,6 +130,9 @@ class PolicyConfig:
             raise ValueError("policy.prior_temperature must be > 0 (metres per nat) or null")
         if self.prior_pocket_m < 0 or (self.prior_pocket_m and self.prior_temperature is None):
             raise ValueError("policy.prior_pocket_m must be >= 0 and needs prior_temperature")
+        if not self.residual_scale > 0:
+            raise ValueError("policy.residual_scale must be > 0 (nats per unit of the "
+                             "network's output)")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -538,6 +544,8 @@ def _policy_kwargs(config: TrainConfig) -> dict[str, Any]:
         kwargs["prior_temperature"] = p.prior_temperature
     if p.prior_pocket_m:
         kwargs["prior_pocket_m"] = p.prior_pocket_m
+    if p.residual_scale != 1.0:
+        kwargs["residual_scale"] = p.residual_scale
     return kwargs
 
 

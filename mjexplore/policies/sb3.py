@@ -112,9 +112,10 @@ class GvnHeads(nn.Module):
     trunks over :class:`GvnExtractor` features. The actor never reads the ground truth."""
 
     def __init__(self, num_nodes: int, hidden: int, prior: bool = False,
-                 privileged: int = 0) -> None:
+                 privileged: int = 0, residual_scale: float = 1.0) -> None:
         super().__init__()
         self.num_nodes, self.hidden, self.prior = num_nodes, hidden, prior
+        self.residual_scale = residual_scale
         self.privileged = privileged
         self.latent_dim_pi = num_nodes
         self.latent_dim_vf = hidden
@@ -151,6 +152,8 @@ class GvnHeads(nn.Module):
     def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
         z, _, prior = self._split(features)
         logits = self.node_logits(z)
+        if self.residual_scale != 1.0:
+            logits = self.residual_scale * logits
         return logits if prior is None else logits + prior
 
     def forward_critic(self, features: torch.Tensor) -> torch.Tensor:
@@ -179,6 +182,10 @@ class GvnPolicy(MaskableActorCriticPolicy):
             logits (v2 or v3 observations; None: no prior). See the module docstring.
         prior_pocket_m: v3: metres the prior adds per unit of a node's pocket probability
             (:func:`~mjexplore.policies.gvn.path_prior`; 0: none).
+        residual_scale: Nats per unit of the network's output added to the prior's logits.
+            Departures from the v3 prior that the oracle asks for are mostly a pocket's
+            weight (median 31 m at 1 m per nat); the head grows to tens of units only over
+            many steps, so a residual policy can start on the same scale as its prior.
         Other arguments as ``MaskableActorCriticPolicy``.
     """
 
@@ -187,7 +194,8 @@ class GvnPolicy(MaskableActorCriticPolicy):
                  tcn_kernel: int = 3, tcn_dilations: tuple[int, ...] = (1, 2, 4),
                  attention_layers: int = 1, attention_heads: int = 4,
                  actor_gain: float = 0.01, prior_temperature: float | None = None,
-                 prior_pocket_m: float = 0.0, **kwargs: Any) -> None:
+                 prior_pocket_m: float = 0.0, residual_scale: float = 1.0,
+                 **kwargs: Any) -> None:
         if masking not in MASKING_MODES:
             raise ValueError(f"masking must be one of {MASKING_MODES}, not {masking!r}")
         self.masking = masking
@@ -206,6 +214,9 @@ class GvnPolicy(MaskableActorCriticPolicy):
                                 attention_heads=attention_heads, actor_gain=actor_gain,
                                 prior_temperature=prior_temperature,
                                 prior_pocket_m=prior_pocket_m)
+        if residual_scale != 1.0:  # Stored with the weights only when it differs.
+            self._gvn_kwargs["residual_scale"] = residual_scale
+        self.residual_scale = residual_scale
         super().__init__(observation_space, action_space, lr_schedule, **kwargs)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
@@ -216,7 +227,8 @@ class GvnPolicy(MaskableActorCriticPolicy):
     def _build_mlp_extractor(self) -> None:
         self.mlp_extractor = GvnHeads(int(self.action_space.n), self.hidden,
                                       prior=self.prior_temperature is not None,
-                                      privileged=privileged_size(self.observation_space))
+                                      privileged=privileged_size(self.observation_space),
+                                      residual_scale=self.residual_scale)
 
     def _build(self, lr_schedule) -> None:
         super()._build(lr_schedule)
