@@ -152,6 +152,36 @@ def test_frontiers_within_a_box_of_the_free_cells_are_the_whole_maps(seed, edge)
         _assert_same_frontiers(find_frontiers(grid, free=grid.free, within=within), whole)
 
 
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_frontier_mask_kept_cell_by_cell_gives_the_whole_maps_frontiers(seed):
+    """Rooms appear, walls appear and vanish, free cells turn back: after every change the
+    mask equals frontier_mask and its frontiers (clusters, order, goals) find_frontiers'."""
+    from mjexplore.topology.frontiers import FrontierMask
+
+    rng = np.random.default_rng(seed)
+    data = np.full((90, 130), UNKNOWN, np.int8)
+    grid = GridMap(data, 0.05)
+    kept = FrontierMask(grid.shape)
+    kept.reset(grid)
+    for step in range(25):
+        before = data.copy()
+        r, c = rng.integers(0, 85), rng.integers(0, 125)
+        data[r:r + rng.integers(2, 25), c:c + rng.integers(2, 35)] = \
+            (FREE, OCCUPIED, UNKNOWN)[rng.choice(3, p=[0.7, 0.2, 0.1])]
+        data[rng.random(data.shape) < 0.002] = OCCUPIED
+        if step == 0:
+            data[0:4, 20:60] = FREE  # Free space on the map's edge.
+        changed = np.flatnonzero(data != before)
+        kept.update(grid, changed)
+        assert np.array_equal(kept.mask.astype(bool), frontier_mask(grid))
+        assert np.array_equal(np.sort(kept._listed[:kept._n]), np.flatnonzero(kept.mask))
+        rows, cols = np.nonzero(grid.known)
+        within = np.s_[rows.min():rows.max() + 1, cols.min():cols.max() + 1]
+        _assert_same_frontiers(kept.frontiers(grid, 3, 0.5, within),
+                               find_frontiers(grid, 3, 0.5))
+
+
 def test_tracker_frontiers_of_an_episode_are_the_whole_maps():
     """Along a real episode (office, physics, nearest frontier), every decision's
     frontiers read from the tracker's box of known cells are those of the whole map."""
@@ -205,3 +235,4 @@ def test_frontier_distances_read_at_the_windows_equal_the_whole_maps():
                      for f in fronts]
         got = state.frontier_distances(nearest_only=bool(stop))
         assert np.array_equal(got, reference) and np.isfinite(got).any()
+        assert not costmap._windows.any()  # Cleared for the next call.

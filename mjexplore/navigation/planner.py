@@ -236,6 +236,17 @@ def _window_min(dist, stamp, search_id, rows, cols, cells, half, resolution, out
                         out[i] = v
 
 
+@numba.njit(cache=True)
+def _fill_windows(mask, rows, cols, cells, half, value):
+    """Sets the flat ``mask`` to ``value`` on the square of half-side ``half`` around each
+    (row, col) of ``cells``, clipped to the grid."""
+    for i in range(len(cells)):
+        r, c = cells[i, 0], cells[i, 1]
+        for rr in range(max(r - half, 0), min(r + half + 1, rows)):
+            for cc in range(max(c - half, 0), min(c + half + 1, cols)):
+                mask[rr * cols + cc] = value
+
+
 class Costmap:
     """Step costs over a map, kept up to date cell by cell.
 
@@ -269,6 +280,7 @@ class Costmap:
         self._bucket_heads = np.full(
             int(math.ceil(math.sqrt(2) * (1.0 + self.config.wall_penalty))) + 2, -1, np.int64)
         self._no_targets = np.zeros(1, np.bool_)
+        self._windows: np.ndarray | None = None  # distances_to_windows' targets, all False.
         self._hypot_table = np.zeros(0)  # Built by the first A* search.
         self.version = 0  # Counts the updates: costs are unchanged while it stays.
         self.update(None)
@@ -388,12 +400,13 @@ class Costmap:
         if start < 0 or len(cells) == 0:
             return out
         cells = np.ascontiguousarray(cells, np.int64).reshape(-1, 2)
-        mask = np.zeros(self.grid.shape, bool)
         rows, cols = self.grid.shape
-        for r, c in cells:
-            mask[max(r - half, 0):min(r + half + 1, rows),
-                 max(c - half, 0):min(c + half + 1, cols)] = True
-        self._run(start, -1, mask.reshape(-1), stop_after)
+        if self._windows is None:
+            self._windows = np.zeros(rows * cols, np.bool_)
+        # One mask for every call, its squares set and cleared again: no pass over the map.
+        _fill_windows(self._windows, rows, cols, cells, half, True)
+        self._run(start, -1, self._windows, stop_after)
+        _fill_windows(self._windows, rows, cols, cells, half, False)
         _window_min(self._dist, self._stamp, self._search_id, rows, cols, cells, half,
                     self.grid.resolution, out)
         return out

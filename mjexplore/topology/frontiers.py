@@ -23,12 +23,16 @@ from __future__ import annotations
 import dataclasses
 
 import cv2
+import numba
 import numpy as np
 
 from mjexplore.maps import GridMap, is_free, window_counts
 
 FOUR_NEIGHBOURS = np.array([[0, 1, 0], [1, 0, 1], [0, 1, 0]], np.uint8)
 EIGHT_NEIGHBOURS = np.ones((3, 3), np.uint8)
+# A cell and its 4-neighbours (row, col steps).
+_DR4 = np.array([0, 0, 1, 0, -1], np.int64)
+_DC4 = np.array([0, 1, 0, -1, 0], np.int64)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,18 +88,12 @@ def find_frontiers(grid: GridMap, min_size: int = 3, max_length: float = 2.0,
         max_length: Clusters longer than this (metres) are cut into pieces.
         free: ``grid.free`` if already computed.
         within: (rows, cols) slices (steps of 1) of a part of the map outside which no cell
-            is free, e.g. the bounding box of the cells ever known (what
-            :class:`~mjexplore.topology.pipeline.TopologyTracker` keeps): only that part,
-            grown by one cell, is read, and the frontiers are the same as without it.
+            is free, e.g. the bounding box of the cells ever known: only that part, grown
+            by one cell, is read, and the frontiers are the same as without it.
     """
-    if within is None:
-        window = (slice(0, grid.shape[0]), slice(0, grid.shape[1]))
-    else:  # Frontier cells lie next to free ones: one cell round the window.
-        window = tuple(slice(max(s.start - 1, 0), min(s.stop + 1, n))
-                       for s, n in zip(within, grid.shape))
+    window = _grown(within, grid.shape)
     data = grid.data[window]
     free = is_free(data) if free is None else free[window]
-    offset = np.array([window[0].start, window[1].start])
     # Frontier cells neighbour free ones: only the box round the free cells can hold them,
     # and labelling the box gives the whole map's labels in the same (raster) order.
     box = _free_box(free)
@@ -108,11 +106,25 @@ def find_frontiers(grid: GridMap, min_size: int = 3, max_length: float = 2.0,
     if len(flat) == 0:
         return []
     _, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
-    lab = labels.reshape(-1)[flat]
+    cells = np.column_stack(np.divmod(flat, mask.shape[1])) + (
+        window[0].start + box[0].start, window[1].start + box[1].start)
+    return _clusters(grid, cells, labels.reshape(-1)[flat], min_size, max_length)
+
+
+def _grown(within: tuple[slice, slice] | None, shape: tuple[int, int]) -> tuple[slice, slice]:
+    """``within`` grown by one cell and clipped to a map of ``shape``; None: the map."""
+    if within is None:
+        return slice(0, shape[0]), slice(0, shape[1])
+    return tuple(slice(max(s.start - 1, 0), min(s.stop + 1, n)) for s, n in zip(within, shape))
+
+
+def _clusters(grid: GridMap, cells: np.ndarray, lab: np.ndarray, min_size: int,
+              max_length: float) -> list[Frontier]:
+    """The frontiers of frontier cells ``cells`` ((k, 2) (row, col) in raster order) and
+    their cluster labels ``lab`` (numbered in order of each cluster's first cell)."""
     order = np.argsort(lab, kind="stable")
     lab = lab[order]
-    cells = np.column_stack(np.divmod(flat[order], mask.shape[1])) + (
-        box[0].start + offset[0], box[1].start + offset[1])
+    cells = cells[order]
     starts = np.flatnonzero(np.r_[True, lab[1:] != lab[:-1]])
     sizes = np.diff(np.r_[starts, len(lab)])
     extent = np.maximum(np.maximum.reduceat(cells, starts) - np.minimum.reduceat(cells, starts),
@@ -135,8 +147,7 @@ def find_frontiers(grid: GridMap, min_size: int = 3, max_length: float = 2.0,
     d2 = ((allc - means[gid]) ** 2).sum(axis=1)
     first = np.lexsort((d2, gid))
     nearest = allc[first[np.r_[0, np.flatnonzero(np.diff(gid[first])) + 1]]]
-    # Every free cell is in the window, so its edge hides none of them.
-    goal_cells = _free_neighbours(free, nearest - offset) + offset
+    goal_cells = _free_neighbours(grid.data, nearest)
     centres = grid.cell_to_world(means)
     goals = grid.cell_to_world(goal_cells)
     return [Frontier(group, centres[i], (int(goal_cells[i, 0]), int(goal_cells[i, 1])),
@@ -154,17 +165,175 @@ def _free_box(free: np.ndarray) -> tuple[slice, slice] | None:
             slice(max(cols[0] - 1, 0), min(cols[-1] + 2, free.shape[1])))
 
 
-def _free_neighbours(free: np.ndarray, cells: np.ndarray) -> np.ndarray:
-    """For each (row, col), its first free 4-neighbour (east, north, west, south)."""
-    rows, cols = free.shape
+def _free_neighbours(data: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """For each (row, col), its first 4-neighbour (east, north, west, south) known free in
+    the map's cell values ``data``."""
+    rows, cols = data.shape
     steps = np.array([(0, 1), (1, 0), (0, -1), (-1, 0)])
     cand = cells[:, None, :] + steps[None]
     inside = (cand[..., 0] >= 0) & (cand[..., 0] < rows) & (cand[..., 1] >= 0) & (
         cand[..., 1] < cols)
     ok = np.zeros(inside.shape, bool)
-    ok[inside] = free[cand[inside][:, 0], cand[inside][:, 1]]
+    ok[inside] = is_free(data[cand[inside][:, 0], cand[inside][:, 1]])
     assert ok.any(axis=1).all(), "a frontier cell always has a free 4-neighbour"
     return cand[np.arange(len(cells)), ok.argmax(axis=1)]
+
+
+@numba.njit(cache=True)
+def _refresh_mask(data, cols, cells, mask, where, listed, n_listed):
+    """Sets ``mask`` (flat, 1 on frontier cells) anew at each flat cell of ``cells`` and its
+    4-neighbours, from the flat cell values ``data``; the frontier cells stay listed in
+    ``listed[:n_listed]`` (any order; ``where`` holds each one's place), which needs room
+    for 5 more per cell. Returns the new ``n_listed``."""
+    rows = len(data) // cols
+    for c in cells:
+        r0, c0 = c // cols, c % cols
+        for k in range(5):
+            rr, cc = r0 + _DR4[k], c0 + _DC4[k]
+            if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
+                continue
+            y = rr * cols + cc
+            flag = 0
+            if data[y] < 0:
+                for j in range(1, 5):
+                    nr, nc = rr + _DR4[j], cc + _DC4[j]
+                    if 0 <= nr < rows and 0 <= nc < cols and 0 <= data[nr * cols + nc] < 50:
+                        flag = 1
+                        break
+            if flag and not mask[y]:
+                where[y] = n_listed
+                listed[n_listed] = y
+                n_listed += 1
+            elif mask[y] and not flag:  # The last listed cell takes y's place.
+                n_listed -= 1
+                last = listed[n_listed]
+                listed[where[y]] = last
+                where[last] = where[y]
+            mask[y] = flag
+    return n_listed
+
+
+@numba.njit(cache=True)
+def _first_free(data, r0, r1, c0, c1):
+    """(first row, first column) holding a cell known free in ``data[r0:r1, c0:c1]`` (rows,
+    columns of the whole map), or (-1, -1) when none is free."""
+    first_row = -1
+    for r in range(r0, r1):
+        for c in range(c0, c1):
+            if 0 <= data[r, c] < 50:
+                first_row = r
+                break
+        if first_row >= 0:
+            break
+    if first_row < 0:
+        return -1, -1
+    for c in range(c0, c1):
+        for r in range(first_row, r1):
+            if 0 <= data[r, c] < 50:
+                return first_row, c
+    return -1, -1  # Unreachable: the first row holds a free cell.
+
+
+@numba.njit(cache=True)
+def _block_labels(flat, cols, r0, c0):
+    """8-connected cluster labels of the sorted flat cells ``flat``, numbered as OpenCV's
+    ``connectedComponents`` numbers them (from 0) on an image whose corner is cell (r0, c0):
+    in the raster order of the 2 x 2 blocks of the image where each cluster first appears
+    (the cells of one block are all 8-adjacent, so no two clusters share a first block)."""
+    n = len(flat)
+    parent = np.arange(n)
+    for i in range(n):
+        c = flat[i]
+        r, col = c // cols, c % cols
+        # The neighbours met before c in a raster scan: west, then the row below.
+        for k in range(4):
+            dr, dc = (0, -1, -1, -1)[k], (-1, -1, 0, 1)[k]
+            if col + dc < 0 or col + dc >= cols or r + dr < 0:
+                continue
+            y = c + dr * cols + dc
+            j = np.searchsorted(flat[:i], y)
+            if j < i and flat[j] == y:
+                a, b = i, j
+                while parent[a] != a:
+                    a = parent[a]
+                while parent[b] != b:
+                    b = parent[b]
+                if a != b:
+                    parent[max(a, b)] = min(a, b)
+    first_block = np.full(n, np.int64(1) << 62)
+    for i in range(n):
+        a = i
+        while parent[a] != a:
+            a = parent[a]
+        parent[i] = a
+        r, col = flat[i] // cols, flat[i] % cols
+        block = ((r - r0) // 2) * cols + (col - c0) // 2
+        if block < first_block[a]:
+            first_block[a] = block
+    roots = np.flatnonzero(parent == np.arange(n))
+    number = np.empty(n, np.int64)
+    number[roots[np.argsort(first_block[roots])]] = np.arange(len(roots))
+    labels = np.empty(n, np.int64)
+    for i in range(n):
+        labels[i] = number[parent[i]]
+    return labels
+
+
+class FrontierMask:
+    """The frontier cells of a map kept current cell by cell (as :func:`frontier_mask`),
+    and listed, so that reading them costs nothing per map cell.
+
+    Args:
+        shape: (rows, cols) of the map.
+    """
+
+    def __init__(self, shape: tuple[int, int]) -> None:
+        self.shape = (int(shape[0]), int(shape[1]))
+        n = self.shape[0] * self.shape[1]
+        self._mask = np.zeros(n, np.uint8)
+        self._where = np.zeros(n, np.int64)
+        self._listed = np.empty(1024, np.int64)
+        self._n = 0
+
+    @property
+    def mask(self) -> np.ndarray:
+        """(rows, cols) uint8, 1 on frontier cells (a view)."""
+        return self._mask.reshape(self.shape)
+
+    def reset(self, grid: GridMap) -> None:
+        """Finds the frontier cells of the whole map."""
+        self._mask[:] = 0
+        self._n = 0
+        self.update(grid, np.flatnonzero(frontier_mask(grid)))
+
+    def update(self, grid: GridMap, cells: np.ndarray) -> None:
+        """Refreshes the cells around ``cells`` (flat indices whose value changed)."""
+        cells = np.asarray(cells, np.int64)
+        need = self._n + 5 * len(cells)
+        if need > len(self._listed):
+            grown = np.empty(max(need, 2 * len(self._listed)), np.int64)
+            grown[:self._n] = self._listed[:self._n]
+            self._listed = grown
+        self._n = _refresh_mask(grid.data.reshape(-1), self.shape[1], cells, self._mask,
+                                self._where, self._listed, self._n)
+
+    def frontiers(self, grid: GridMap, min_size: int = 3, max_length: float = 2.0,
+                  within: tuple[slice, slice] | None = None) -> list[Frontier]:
+        """:func:`find_frontiers` of ``grid`` (the map the mask follows); ``within`` as
+        there (no cell outside it may be free): the rows and columns searched for the first
+        free cell."""
+        window = _grown(within, self.shape)
+        # find_frontiers labels the free cells' box grown by one cell: its corner sets
+        # OpenCV's 2 x 2 blocks, hence the clusters' order.
+        first_row, first_col = _first_free(grid.data, window[0].start, window[0].stop,
+                                           window[1].start, window[1].stop)
+        if first_row < 0 or self._n == 0:
+            return []
+        flat = np.sort(self._listed[:self._n])
+        labels = _block_labels(flat, self.shape[1], max(first_row - 1, 0),
+                               max(first_col - 1, 0))
+        return _clusters(grid, np.column_stack(np.divmod(flat, self.shape[1])), labels,
+                         min_size, max_length)
 
 
 def information_gain(grid: GridMap, ground_truth: GridMap,

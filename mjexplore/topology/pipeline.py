@@ -22,6 +22,7 @@ import numpy as np
 from mjexplore.maps import GridMap, is_known, is_occupied
 from mjexplore.topology.frontiers import (
     Frontier,
+    FrontierMask,
     estimated_information_gain,
     find_frontiers,
     information_gain,
@@ -78,6 +79,7 @@ class TopologyTracker:
         # (map cell array, [first row, last row, first col, last col]) of the cells known
         # in that array so far, or ever reported changed (a box that only grows).
         self._known_box: tuple[np.ndarray, list[int] | None] | None = None
+        self._frontier_mask = FrontierMask(shape)  # Of the map in _known_box.
 
     def observe(self, grid: GridMap, changed: np.ndarray | None = None) -> int:
         """Updates the GVD after the map changed.
@@ -91,6 +93,11 @@ class TopologyTracker:
             Number of cells whose distance field changed.
         """
         self._frontiers = None
+        if changed is None or self._known_box is None or self._known_box[0] is not grid.data:
+            self._frontier_mask.reset(grid)
+        else:
+            self._frontier_mask.update(grid, changed[:, 0].astype(np.int64) * grid.shape[1] +
+                                       changed[:, 1])
         self._grow_known_box(grid, changed)
         if changed is None:
             return self.gvd.update(grid.occupied, grid.known)
@@ -121,21 +128,21 @@ class TopologyTracker:
 
         Found once per map state: kept until the next :meth:`observe` (or a call with
         another map), so the explorer's view and the TER of one decision share them. On
-        the map observed last, only the box of its known cells is read (no free cell lies
-        outside it), so the cost grows with the explored part, not with the map.
+        the map observed last they come from the frontier cells kept current scan by scan,
+        read in the box of the known cells (no free cell lies outside it): the cost grows
+        with the explored part and the frontiers, not with the map.
         """
         if self._frontiers is None or self._frontiers[0] is not grid.data:
             cfg = self.config
-            within = None
-            if free is None and self._known_box is not None and \
-                    self._known_box[0] is grid.data:
+            if self._known_box is not None and self._known_box[0] is grid.data:
                 box = self._known_box[1]
-                if box is None:  # Nothing known: nothing free, no frontier.
-                    self._frontiers = grid.data, []
-                    return []
-                within = np.s_[box[0]:box[1] + 1, box[2]:box[3] + 1]
-            self._frontiers = grid.data, find_frontiers(grid, cfg.frontier_min_size,
-                                                        cfg.frontier_max_length, free, within)
+                found = [] if box is None else self._frontier_mask.frontiers(
+                    grid, cfg.frontier_min_size, cfg.frontier_max_length,
+                    np.s_[box[0]:box[1] + 1, box[2]:box[3] + 1])
+            else:
+                found = find_frontiers(grid, cfg.frontier_min_size, cfg.frontier_max_length,
+                                       free)
+            self._frontiers = grid.data, found
         return self._frontiers[1]
 
     def graph(self, grid: GridMap, free: np.ndarray | None = None) -> GvdGraph:
