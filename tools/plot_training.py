@@ -1,14 +1,55 @@
-"""Training curves of a run folder: episode return and length (TensorBoard scalars) and the
-held-out evaluation (eval.csv), as one PNG and one JSON line of the last values.
+"""Training curves of a run folder: the learning curve against the prior and the oracle,
+the held-out evaluation per layout, and episode return and length (TensorBoard scalars), as
+one PNG and one JSON line.
 
-Usage: python tools/plot_training.py runs/train/gvn docs/training_gvn.png
+The learning curve is the mean validation exploration time (simulated s) of each evaluation
+in ``RUN/eval.csv`` against the decisions trained, with two horizontal lines measured on the
+same validation layouts (the run's ``eval.scene_list()``) with the same episode settings and
+seed: ``pocket_nearest`` (the policy's prior alone: the nearest node by path, counting each
+``policy.prior_pocket_m`` metres farther per unit of pocket probability; ``prior`` mode of
+``tools/probe_policy.py``) and ``oracle`` (the ground-truth explorer; its mode there). They
+are measured once and cached in ``RUN/baselines.json`` (see
+:mod:`mjexplore.eval.learning_curve`); ``--recompute-baselines`` measures them again,
+``--no-baselines`` leaves them out.
+
+The JSON line holds:
+
+* ``rollout/...``: the last TensorBoard rollout figures; ``steps``: the last step logged;
+  ``evaluations``: the eval.csv rows (as before);
+* ``decisions_trained`` and ``checkpoint`` (``checkpoints/latest.json``), ``revision`` (the
+  git revision the run was trained at), ``imitation`` (the warm start's decisions, episodes
+  and wall s, when ``imitation.json`` exists);
+* ``wall_s``: what TensorBoard recorded of the time: ``collect`` and ``update`` (sums of
+  ``time/collect_s`` and ``time/update_s``: rollouts and PPO updates, s) and ``span`` (first
+  to last event of each TensorBoard folder, summed over resumes: evaluations and
+  checkpoints included, but not the first rollout and update, nor a warm start);
+* ``workers``: ``n_envs``, ``torch_threads`` and ``update_threads`` from the run's config
+  (settings, not the machine);
+* ``curve`` (per evaluation: steps, mean exploration time s, layouts explored, score),
+  ``best`` (the evaluation model selection kept, ``best.safetensors``);
+* ``baselines``: per baseline its mean exploration time (s) and layouts explored, with
+  ``cached`` and ``measured_at`` (revision of the code that measured them);
+* ``best_vs_pocket_nearest`` and ``best_vs_oracle``: the best evaluation's per-layout
+  exploration times over the baseline's: mean of per-layout ratios, bootstrap 95 % interval,
+  layouts faster and slower, sign test p-value;
+* with ``--departures``: ``departures``, how often the shipped policy (``--weights``,
+  default ``RUN/best.safetensors`` else ``RUN/policy.safetensors``) departs from its prior
+  on the validation layouts (:func:`mjexplore.eval.learning_curve.prior_departures`).
+
+A run folder does not record the machine's cores, nor the wall time of a whole run
+(warm start to end, across resumes): ``wall_s`` is what TensorBoard holds of it.
+
+Usage: python tools/plot_training.py RUN OUT.png [--workers 2] [--recompute-baselines |
+    --no-baselines] [--departures [--weights W.safetensors]]
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
+import io
 import json
+import multiprocessing as mp
+import sys
 from pathlib import Path
 
 import matplotlib
@@ -16,59 +57,252 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from mjexplore.eval.learning_curve import (  # noqa: E402
+    BASELINES,
+    baseline_means,
+    best_evaluation,
+    cached_baselines,
+    layout_name,
+    learning_curve,
+    paired_ratio,
+    prior_departures,
+    read_evaluations,
+    run_facts,
+    run_revision,
+)
 from mjexplore.io.atomic import write_bytes_atomic  # noqa: E402
 
+# probe_policy's modes for the baselines.
+PROBE_MODES = {"pocket_nearest": "prior", "oracle": "oracle"}
 
-def scalars(run: Path) -> dict[str, list[tuple[int, float]]]:
+
+def _accumulators(run: Path) -> list:
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-    out: dict[str, list[tuple[int, float]]] = {}
+    out = []
     for folder in sorted((run / "tb").glob("*")):
         acc = EventAccumulator(str(folder))
         acc.Reload()
+        out.append(acc)
+    return out
+
+
+def scalars(run: Path) -> dict[str, list[tuple[int, float]]]:
+    """Every TensorBoard scalar of the run: tag -> (step, value), sorted by step."""
+    out: dict[str, list[tuple[int, float]]] = {}
+    for acc in _accumulators(run):
         for tag in acc.Tags()["scalars"]:
             out.setdefault(tag, []).extend((e.step, e.value) for e in acc.Scalars(tag))
     return {k: sorted(v) for k, v in out.items()}
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("run", type=Path)
-    parser.add_argument("out", type=Path)
-    args = parser.parse_args()
-    s = scalars(args.run)
-    evals = []
-    if (args.run / "eval.csv").is_file():
-        with open(args.run / "eval.csv") as f:
-            evals = list(csv.DictReader(f))
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
-    for ax, tag, label in ((axes[0], "rollout/ep_rew_mean", "episode return"),
-                           (axes[1], "rollout/ep_len_mean", "decisions per episode")):
-        if tag in s:
-            steps, values = zip(*s[tag])
-            ax.plot(steps, values)
-        ax.set_xlabel("decision steps")
-        ax.set_title(label)
-    if evals:
-        for scene in sorted({e["scene"] for e in evals}):
-            rows = [e for e in evals if e["scene"] == scene]
-            axes[2].plot([int(e["steps"]) for e in rows],
-                         [float(e["exploration_time_s"]) for e in rows], "o-", label=scene)
-        axes[2].legend()
-    axes[2].set_xlabel("decision steps")
-    axes[2].set_title("held-out exploration time (s, simulated)")
-    fig.tight_layout()
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    import io
+def wall_times(run: Path) -> dict[str, float]:
+    """What TensorBoard recorded of the run's time, s (see the module docstring: ``collect``,
+    ``update``, ``span``); {} without TensorBoard folders."""
+    totals = {"collect": 0.0, "update": 0.0, "span": 0.0}
+    found = False
+    for acc in _accumulators(run):
+        tags = acc.Tags()["scalars"]
+        stamps = [e.wall_time for tag in tags for e in acc.Scalars(tag)]
+        if not stamps:
+            continue
+        found = True
+        totals["span"] += max(stamps) - min(stamps)
+        for name in ("collect", "update"):
+            if f"time/{name}_s" in tags:
+                totals[name] += sum(e.value for e in acc.Scalars(f"time/{name}_s"))
+    return {k: round(v, 1) for k, v in totals.items()} if found else {}
 
+
+def _probe_job(job: tuple[str, str, int, str]) -> dict:
+    import probe_policy
+
+    config_path, mode, seed, scene = job
+    return probe_policy._episode((config_path, "", mode, seed, scene))
+
+
+def measure_baselines(config_path: Path, workers: int):
+    """A measuring function for :func:`~mjexplore.eval.learning_curve.cached_baselines`:
+    ``tools/probe_policy.py``'s ``prior`` and ``oracle`` episodes on the config's validation
+    layouts (``pocket_nearest`` only with v2 or v3 GVN observations: the path feature)."""
+    def measure(config) -> dict[str, list[dict]]:
+        from mjexplore.envs.observation import POSED
+
+        names = [n for n in BASELINES if n != "pocket_nearest" or (
+            config.kind == "gvn" and config.env.observation.features in POSED)]
+        jobs = [(str(config_path), PROBE_MODES[n], config.eval.seed, scene)
+                for n in names for scene in config.eval.scene_list()]
+        if workers > 1:
+            with mp.get_context("spawn").Pool(workers) as pool:
+                rows = pool.map(_probe_job, jobs, chunksize=1)
+        else:
+            rows = [_probe_job(job) for job in jobs]
+        by_mode = {v: k for k, v in PROBE_MODES.items()}
+        out: dict[str, list[dict]] = {n: [] for n in names}
+        for row in rows:
+            out[by_mode[row["mode"]]].append({
+                "layout": layout_name(row["scene"]),
+                "exploration_time_s": row["exploration_time_s"],
+                "path_length_m": row["path_length_m"], "explored": row["explored"]})
+        return out
+    return measure
+
+
+def shipped_weights(run: Path) -> Path | None:
+    """The run's shipped policy: the best evaluated weights, else the final ones."""
+    for name in ("best.safetensors", "policy.safetensors"):
+        if (run / name).is_file():
+            return run / name
+    return None
+
+
+def departures(weights: Path, config) -> dict:
+    """:func:`~mjexplore.eval.learning_curve.prior_departures` of the weights on the run's
+    validation layouts (this process, one torch thread)."""
+    import torch
+
+    from mjexplore.policies.weights import load_policy
+
+    torch.set_num_threads(1)
+    policy = load_policy(weights, expected_kind=config.kind)[0]
+    return {"weights": str(weights), **prior_departures(policy, config)}
+
+
+def report(run: Path, baselines: bool = True, recompute: bool = False, workers: int = 1,
+           departures_of: Path | None = None) -> tuple[dict, dict]:
+    """The JSON figures of a run folder (see the module docstring) and what the plot needs
+    beyond them (``rows``: eval.csv; ``scalars``; ``lines``: baseline means, s)."""
+    s = scalars(run)
+    rows = read_evaluations(run)
+    figures: dict = {tag: round(v[-1][1], 3) for tag, v in s.items()
+                     if tag.startswith("rollout/")}
+    figures["steps"] = max((v[-1][0] for v in s.values()), default=0)
+    figures["evaluations"] = [{k: r[k] for k in ("steps", "scene", "exploration_time_s",
+                                                 "path_length_m", "end_reason")} for r in rows]
+    figures.update(run_facts(run))
+    wall = wall_times(run)
+    if wall:
+        figures["wall_s"] = wall
+    config = None
+    if (run / "config.yaml").is_file():
+        from mjexplore.learning.training import load_train_config
+
+        config = load_train_config(run / "config.yaml")
+        figures["workers"] = {"n_envs": config.n_envs, "torch_threads": config.torch_threads,
+                              "update_threads": config.update_threads or config.torch_threads}
+    points = learning_curve(rows)
+    figures["curve"] = points
+    best = best_evaluation(points)
+    if best is not None:
+        figures["best"] = best
+    lines: dict[str, float] = {}
+    if baselines and config is not None:
+        entry, cached = cached_baselines(run, config, run_revision(run),
+                                         measure_baselines(run / "config.yaml", workers),
+                                         recompute)
+        means = baseline_means(entry)
+        figures["baselines"] = {**means, "cached": cached, "measured_at": entry["measured_at"],
+                                "pocket_m": config.policy.prior_pocket_m}
+        lines = {name: m["mean_exploration_time_s"] for name, m in means.items()}
+        if best is not None:
+            mine = [r for r in rows if r["steps"] == best["steps"]]
+            for name in means:
+                paired = paired_ratio(mine, entry[name])
+                if paired is not None:
+                    figures[f"best_vs_{name}"] = paired
+    if departures_of is not None and config is not None:
+        figures["departures"] = departures(departures_of, config)
+    return figures, {"rows": rows, "scalars": s, "lines": lines, "best": best}
+
+
+def plot(figures: dict, extra: dict, out: Path) -> None:
+    """The four panels: learning curve with the baselines' lines, per-layout curves, episode
+    return and length; written atomically as PNG."""
+    fig, axes = plt.subplots(2, 2, figsize=(12, 7.2))
+    ax = axes[0, 0]
+    points = figures["curve"]
+    if points:
+        ax.plot([p["steps"] for p in points], [p["mean_exploration_time_s"] for p in points],
+                "o-", color="C0", label="policy (mean over layouts)")
+    best = extra["best"]
+    if best is not None:
+        ax.plot([best["steps"]], [best["mean_exploration_time_s"]], "*", color="C3",
+                markersize=14, label=f"best ({best['steps']} decisions)")
+    for (name, value), style in zip(sorted(extra["lines"].items()), ("--", ":"), strict=False):
+        ax.axhline(value, linestyle=style, color="k" if name == "oracle" else "C2",
+                   label=f"{name} {value:.0f} s")
+    ax.set_xlabel("decisions trained")
+    ax.set_title("validation exploration time (s, simulated)")
+    if points or extra["lines"]:
+        ax.legend(fontsize=8)
+    ax = axes[0, 1]
+    rows = extra["rows"]
+    scenes = sorted({r["scene"] for r in rows})
+    for scene in scenes:
+        mine = [r for r in rows if r["scene"] == scene]
+        ax.plot([r["steps"] for r in mine], [r["exploration_time_s"] for r in mine], "o-",
+                label=layout_name(scene), linewidth=0.8, markersize=3)
+    if 0 < len(scenes) <= 8:
+        ax.legend(fontsize=7)
+    ax.set_xlabel("decisions trained")
+    ax.set_title("per validation layout (s, simulated)")
+    s = extra["scalars"]
+    for ax, tag, label in ((axes[1, 0], "rollout/ep_rew_mean", "episode return"),
+                           (axes[1, 1], "rollout/ep_len_mean", "decisions per episode")):
+        if tag in s:
+            steps, values = zip(*s[tag], strict=True)
+            ax.plot(steps, values, marker="." if len(steps) < 50 else None)
+        ax.set_xlabel("decisions trained")
+        ax.set_title(label)
+    fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
-    write_bytes_atomic(args.out, buf.getvalue())
-    last = {tag: round(v[-1][1], 3) for tag, v in s.items() if tag.startswith("rollout/")}
-    last["steps"] = max((v[-1][0] for v in s.values()), default=0)
-    last["evaluations"] = [{k: e[k] for k in ("steps", "scene", "exploration_time_s",
-                                               "path_length_m", "end_reason")} for e in evals]
-    print(json.dumps(last))
+    plt.close(fig)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_bytes_atomic(out, buf.getvalue())
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run", type=Path, help="a run folder of mjexplore train --out")
+    parser.add_argument("out", type=Path, help="the PNG to write")
+    parser.add_argument("--workers", type=int, default=2,
+                        help="processes measuring the baselines")
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--recompute-baselines", action="store_true",
+                       help="measure the baselines again even if RUN/baselines.json has them")
+    group.add_argument("--no-baselines", action="store_true",
+                       help="neither measure nor show the baselines")
+    parser.add_argument("--departures", action="store_true",
+                        help="run the shipped policy's greedy episodes on the validation "
+                             "layouts and count its departures from its prior")
+    parser.add_argument("--weights", type=Path,
+                        help="the policy for --departures (default: RUN/best.safetensors, "
+                             "else RUN/policy.safetensors)")
+    args = parser.parse_args(argv)
+    if not args.run.is_dir():
+        parser.error(f"{str(args.run)!r} is not a folder: give a run folder of "
+                     "mjexplore train --out")
+    weights = None
+    if args.departures:
+        weights = args.weights or shipped_weights(args.run)
+        if weights is None:
+            parser.error(f"--departures: {str(args.run)!r} holds no best.safetensors or "
+                         "policy.safetensors; pass --weights")
+        if not (args.run / "config.yaml").is_file():
+            parser.error(f"--departures needs {str(args.run / 'config.yaml')!r}")
+        from mjexplore.learning.training import load_train_config
+
+        if load_train_config(args.run / "config.yaml").policy.prior_temperature is None:
+            parser.error("--departures: the run's policy has no prior (policy.prior_temperature "
+                         "is null): there is nothing to depart from")
+    figures, extra = report(args.run, baselines=not args.no_baselines,
+                            recompute=args.recompute_baselines, workers=args.workers,
+                            departures_of=weights)
+    plot(figures, extra, args.out)
+    print(json.dumps(figures))
 
 
 if __name__ == "__main__":

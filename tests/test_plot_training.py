@@ -1,0 +1,174 @@
+"""The learning-curve report of a run folder (tools/plot_training.py and
+mjexplore/eval/learning_curve.py): the curve, the cached baselines, the JSON figures, and how
+often a residual policy departs from its prior."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from mjexplore.config import from_dict, to_dict
+from mjexplore.eval.learning_curve import prior_departures
+from mjexplore.learning.training import (
+    NearestNodeRule,
+    TrainConfig,
+    _fresh_policy,
+    _policy_kwargs,
+    evaluate_policy_episodes,
+)
+from mjexplore.policies.registry import layout_of
+from mjexplore.policies.weights import save_policy_weights
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+
+import plot_training  # noqa: E402
+
+EPISODE = {"max_time": 300.0, "sim": {"dynamics": "grid"},
+           "navigator": {"replan_rate_hz": 0.5, "replan_when_blocked": True}}
+LAYOUTS = ["train_loop", "train_office_small"]
+CONFIG = from_dict(TrainConfig, {
+    "kind": "gvn", "n_envs": 1,
+    "env": {"scenes": ["train_loop"], "max_decisions": 6, "episode": EPISODE,
+            "observation": {"max_nodes": 64, "max_neighbours": 4, "memory_length": 3,
+                            "features": "v2"}},
+    "policy": {"hidden": 16, "prior_temperature": 1.0},
+    "eval": {"scenes": LAYOUTS, "every": 0, "episode": EPISODE}})
+# Per evaluation (decisions trained), per layout: exploration time (s), end reason.
+EVALS = {8: [(120.0, "time_limit"), (200.0, "explored")],
+         16: [(90.0, "explored"), (150.0, "explored")],
+         24: [(100.0, "explored"), (140.0, "explored")]}
+
+
+def _run(tmp_path: Path, revision: str = "abc123") -> Path:
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True, exist_ok=True)
+    (run / "config.yaml").write_text(f"# git revision {revision}\n"
+                                     + yaml.safe_dump(to_dict(CONFIG), sort_keys=False))
+    lines = ["steps,scene,exploration_time_s,path_length_m,exploration_ratio,end_reason"]
+    for steps, results in EVALS.items():
+        for scene, (seconds, end) in zip(LAYOUTS, results, strict=True):
+            ratio = 0.99 if end == "explored" else 0.8
+            lines.append(f"{steps},{scene},{seconds},{seconds / 2},{ratio},{end}")
+    (run / "eval.csv").write_text("\n".join(lines) + "\n")
+    (run / "checkpoints" / "latest.json").write_text(
+        json.dumps({"checkpoint": "step_000000032.pt", "num_timesteps": 32}))
+    return run
+
+
+def _fake_measure(calls: list):
+    def make(config_path, workers):
+        def measure(config):
+            calls.append(config.eval.scene_list())
+            return {"pocket_nearest": [
+                        {"layout": "train_loop", "exploration_time_s": 100.0,
+                         "path_length_m": 50.0, "explored": True},
+                        {"layout": "train_office_small", "exploration_time_s": 200.0,
+                         "path_length_m": 80.0, "explored": True}],
+                    "oracle": [
+                        {"layout": "train_loop", "exploration_time_s": 60.0,
+                         "path_length_m": 30.0, "explored": True},
+                        {"layout": "train_office_small", "exploration_time_s": 100.0,
+                         "path_length_m": 40.0, "explored": False}]}
+        return measure
+    return make
+
+
+def test_curve_json_fields_and_baselines_measured_once(tmp_path, monkeypatch, capsys):
+    run = _run(tmp_path)
+    calls: list = []
+    monkeypatch.setattr(plot_training, "measure_baselines", _fake_measure(calls))
+    plot_training.main([str(run), str(tmp_path / "curve.png"), "--workers", "1"])
+    figures = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert (tmp_path / "curve.png").read_bytes()[:4] == b"\x89PNG"
+    assert [(p["steps"], p["mean_exploration_time_s"], p["explored"]) for p in
+            figures["curve"]] == [(8, 160.0, 1), (16, 120.0, 2), (24, 120.0, 2)]
+    # Model selection's choice: all explored, then the fastest; the first of equals.
+    assert (figures["best"]["steps"], figures["best"]["mean_exploration_time_s"]) == (16, 120.0)
+    assert (figures["decisions_trained"], figures["checkpoint"]) == (32, "step_000000032.pt")
+    assert figures["revision"] == "abc123"
+    assert figures["workers"] == {"n_envs": 1, "torch_threads": 1, "update_threads": 1}
+    assert "wall_s" not in figures and "cores" not in figures  # Not recorded: not made up.
+    base = figures["baselines"]
+    assert base["pocket_nearest"] == {"mean_exploration_time_s": 150.0, "explored": 2,
+                                      "layouts": 2}
+    assert base["oracle"]["mean_exploration_time_s"] == 80.0 and base["oracle"]["explored"] == 1
+    assert base["cached"] is False and len(calls) == 1
+    # Per layout 90 / 100 and 150 / 200: the mean of the ratios, not the ratio of means.
+    paired = figures["best_vs_pocket_nearest"]
+    assert paired["ratio"] == pytest.approx(0.825) and paired["layouts"] == 2
+    assert (paired["faster"], paired["slower"]) == (2, 0)
+    assert paired["ci95"][0] <= 0.825 <= paired["ci95"][1]
+    assert figures["best_vs_oracle"]["ratio"] == pytest.approx((1.5 + 1.5) / 2)
+    assert "departures" not in figures
+
+    plot_training.main([str(run), str(tmp_path / "curve.png")])  # Cached: not measured.
+    again = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert again["baselines"]["cached"] is True and len(calls) == 1
+    assert again["best_vs_pocket_nearest"] == paired
+    plot_training.main([str(run), str(tmp_path / "curve.png"), "--recompute-baselines"])
+    assert json.loads(capsys.readouterr().out.splitlines()[-1])["baselines"]["cached"] is False
+    assert len(calls) == 2
+    stored = json.loads((run / "baselines.json").read_text())
+    [entry] = stored["entries"].values()
+    assert entry["key"]["layouts"] == LAYOUTS and entry["key"]["revision"] == "abc123"
+
+    _run(tmp_path, revision="def456")  # Another revision: another key, measured again.
+    plot_training.main([str(run), str(tmp_path / "curve.png")])
+    capsys.readouterr()
+    assert len(calls) == 3
+    assert len(json.loads((run / "baselines.json").read_text())["entries"]) == 2
+    assert not list(run.glob("*.tmp*")) and not list(run.glob(".*"))  # Written atomically.
+
+    plot_training.main([str(run), str(tmp_path / "curve.png"), "--no-baselines"])
+    plain = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert "baselines" not in plain and len(calls) == 3
+
+
+def test_baselines_are_the_prior_and_the_oracle_on_the_validation_layouts(tmp_path):
+    run = _run(tmp_path)
+    config = from_dict(TrainConfig, {**to_dict(CONFIG), "eval": {
+        **to_dict(CONFIG.eval), "scenes": ["train_loop"]}})
+    measured = plot_training.measure_baselines(run / "config.yaml", workers=1)(config)
+    assert set(measured) == {"pocket_nearest", "oracle"}
+    # The prior alone, with the settings the held-out evaluation (eval.csv) runs.
+    [rule] = evaluate_policy_episodes(NearestNodeRule(CONFIG.policy.prior_pocket_m), config)
+    [mine] = measured["pocket_nearest"]
+    assert mine["layout"] == "train_loop"
+    assert mine["exploration_time_s"] == rule["exploration_time_s"]
+    assert mine["path_length_m"] == rule["path_length_m"]
+    [oracle] = measured["oracle"]
+    assert oracle["layout"] == "train_loop" and oracle["exploration_time_s"] > 0
+
+
+def test_departures_from_the_prior_none_without_a_residual_some_with_a_large_one(
+        tmp_path, capsys):
+    torch.manual_seed(0)
+    policy = _fresh_policy(CONFIG)
+    last = policy.mlp_extractor.actor[-1]
+    with torch.no_grad():
+        last.weight.zero_()
+        last.bias.zero_()
+    run = _run(tmp_path)
+    save_policy_weights(run / "best.safetensors", policy, CONFIG.kind, _policy_kwargs(CONFIG),
+                        layout_of(CONFIG.kind, CONFIG.env), {"config": to_dict(CONFIG)})
+    plot_training.main([str(run), str(tmp_path / "curve.png"), "--no-baselines",
+                        "--departures"])
+    figures = json.loads(capsys.readouterr().out.splitlines()[-1])
+    counted = figures["departures"]
+    assert counted["weights"].endswith("best.safetensors")
+    assert counted["decisions"] > 0 and counted["choices"] > 0
+    assert counted["departures"] == 0 and counted["share"] == 0.0
+    assert [r["layout"] for r in counted["per_layout"]] == LAYOUTS
+
+    with torch.no_grad():
+        last.weight.copy_(100.0 * torch.as_tensor(
+            np.random.default_rng(0).normal(size=tuple(last.weight.shape)), dtype=torch.float32))
+    large = prior_departures(policy, CONFIG, scenes=["train_loop"])
+    assert large["departures"] > 0
+    assert 0 < large["share"] <= large["share_of_choices"] <= 1
