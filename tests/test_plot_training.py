@@ -105,7 +105,7 @@ def test_curve_json_fields_and_baselines_measured_once(tmp_path, monkeypatch, ca
     assert (paired["faster"], paired["slower"]) == (2, 0)
     assert paired["ci95"][0] <= 0.825 <= paired["ci95"][1]
     assert figures["best_vs_oracle"]["ratio"] == pytest.approx((1.5 + 1.5) / 2)
-    assert "departures" not in figures
+    assert "departures" not in figures and "shipped" not in figures
 
     plot_training.main([str(run), str(tmp_path / "curve.png")])  # Cached: not measured.
     again = json.loads(capsys.readouterr().out.splitlines()[-1])
@@ -156,10 +156,12 @@ def test_departures_from_the_prior_none_without_a_residual_some_with_a_large_one
         last.bias.zero_()
     run = _run(tmp_path)
     save_policy_weights(run / "best.safetensors", policy, CONFIG.kind, _policy_kwargs(CONFIG),
-                        layout_of(CONFIG.kind, CONFIG.env), {"config": to_dict(CONFIG)})
+                        layout_of(CONFIG.kind, CONFIG.env),
+                        {"config": to_dict(CONFIG), "num_timesteps": 16})
     plot_training.main([str(run), str(tmp_path / "curve.png"), "--no-baselines",
                         "--departures"])
     figures = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert figures["shipped"] == {"weights": "best.safetensors", "decisions": 16}
     counted = figures["departures"]
     assert counted["weights"].endswith("best.safetensors")
     assert counted["decisions"] > 0 and counted["choices"] > 0
@@ -172,3 +174,16 @@ def test_departures_from_the_prior_none_without_a_residual_some_with_a_large_one
     large = prior_departures(policy, CONFIG, scenes=["train_loop"])
     assert large["departures"] > 0
     assert 0 < large["share"] <= large["share_of_choices"] <= 1
+
+
+def test_wall_times_are_what_tensorboard_recorded(tmp_path):
+    from torch.utils.tensorboard import SummaryWriter
+
+    for part, (first, second) in enumerate(((1.5, 0.5), (2.0, 1.0))):  # A run and a resume.
+        writer = SummaryWriter(str(tmp_path / "tb" / f"ppo_{part}"))
+        writer.add_scalar("time/collect_s", first, 8, walltime=100.0 + 50 * part)
+        writer.add_scalar("time/update_s", second, 8, walltime=101.0 + 50 * part)
+        writer.add_scalar("time/collect_s", first, 16, walltime=110.0 + 50 * part)
+        writer.close()
+    assert plot_training.wall_times(tmp_path) == {"collect": 7.0, "update": 1.5, "span": 20.0}
+    assert plot_training.wall_times(tmp_path / "none") == {}

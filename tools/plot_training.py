@@ -17,8 +17,9 @@ The JSON line holds:
 * ``rollout/...``: the last TensorBoard rollout figures; ``steps``: the last step logged;
   ``evaluations``: the eval.csv rows (as before);
 * ``decisions_trained`` and ``checkpoint`` (``checkpoints/latest.json``), ``revision`` (the
-  git revision the run was trained at), ``imitation`` (the warm start's decisions, episodes
-  and wall s, when ``imitation.json`` exists);
+  git revision the run was trained at), ``shipped`` (``best.safetensors``, else
+  ``policy.safetensors``, and the decisions it was trained), ``imitation`` (the warm
+  start's decisions, episodes and wall s, when ``imitation.json`` exists);
 * ``wall_s``: what TensorBoard recorded of the time: ``collect`` and ``update`` (sums of
   ``time/collect_s`` and ``time/update_s``: rollouts and PPO updates, s) and ``span`` (first
   to last event of each TensorBoard folder, summed over resumes: evaluations and
@@ -71,6 +72,7 @@ from mjexplore.eval.learning_curve import (  # noqa: E402
     read_evaluations,
     run_facts,
     run_revision,
+    shipped_weights,
 )
 from mjexplore.io.atomic import write_bytes_atomic  # noqa: E402
 
@@ -148,14 +150,6 @@ def measure_baselines(config_path: Path, workers: int):
                 "path_length_m": row["path_length_m"], "explored": row["explored"]})
         return out
     return measure
-
-
-def shipped_weights(run: Path) -> Path | None:
-    """The run's shipped policy: the best evaluated weights, else the final ones."""
-    for name in ("best.safetensors", "policy.safetensors"):
-        if (run / name).is_file():
-            return run / name
-    return None
 
 
 def departures(weights: Path, config) -> dict:

@@ -102,18 +102,37 @@ def run_revision(run: str | Path) -> str | None:
     return first[len(prefix):].strip() or None
 
 
+def shipped_weights(run: str | Path) -> Path | None:
+    """A run's shipped policy: the best evaluated weights (``best.safetensors``), else the
+    final ones (``policy.safetensors``); None if it has neither."""
+    for name in ("best.safetensors", "policy.safetensors"):
+        if (Path(run) / name).is_file():
+            return Path(run) / name
+    return None
+
+
 def run_facts(run: str | Path) -> dict[str, Any]:
     """What a run folder records of its training, and only that.
 
     Returns:
-        ``decisions_trained`` and ``checkpoint`` (from ``checkpoints/latest.json``; absent
-        without it), ``revision`` (see :func:`run_revision`), and with a warm start
+        ``revision`` (see :func:`run_revision`; else the shipped weights'), and where
+        recorded: ``decisions_trained`` and ``checkpoint`` (``checkpoints/latest.json``),
+        ``shipped`` (the shipped weights' file and the decisions they were trained, from
+        their provenance; see :func:`shipped_weights`), and with a warm start
         ``imitation``: its decisions, episodes and wall time (s). Cores are not recorded by
         a run, nor its total wall time (see the tool ``tools/plot_training.py`` for the
         phase times TensorBoard holds).
     """
+    from mjexplore.policies.weights import read_policy_weights
+
     run = Path(run)
     facts: dict[str, Any] = {"revision": run_revision(run)}
+    weights = shipped_weights(run)
+    if weights is not None:
+        provenance = read_policy_weights(weights)[1]["provenance"]
+        facts["shipped"] = {"weights": weights.name,
+                            "decisions": provenance.get("num_timesteps")}
+        facts["revision"] = facts["revision"] or provenance.get("git_revision")
     latest = run / "checkpoints" / "latest.json"
     if latest.is_file():
         marker = json.loads(latest.read_text())
