@@ -182,6 +182,43 @@ def test_frontier_mask_kept_cell_by_cell_gives_the_whole_maps_frontiers(seed):
                                find_frontiers(grid, 3, 0.5))
 
 
+
+def _groups_one_by_one(cells, lab, min_size, max_cells):
+    """The frontier cell groups as a loop over the clusters cut them (the reference for
+    the vectorised cut): runs along each long cluster's longer axis."""
+    groups = []
+    for label in np.unique(lab):
+        group = cells[lab == label]
+        if len(group) < min_size:
+            continue
+        extent = np.ptp(group, axis=0)
+        if extent.max() + 1 <= max_cells:
+            groups.append(group)
+            continue
+        axis = int(np.argmax(extent))
+        order = np.argsort(group[:, axis], kind="stable")
+        pieces = int(np.ceil((extent[axis] + 1) / max_cells))
+        groups.extend(group[idx] for idx in np.array_split(order, pieces))
+    return groups
+
+
+@pytest.mark.parametrize("seed,max_length", [(0, 0.3), (1, 0.5), (2, 1.0), (3, 2.0)])
+def test_long_clusters_are_cut_as_a_loop_over_them_cuts_them(seed, max_length):
+    import cv2
+
+    grid = _random_partial_map(seed, True)
+    mask = frontier_mask(grid)
+    _, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    cells = np.argwhere(mask)
+    expected = _groups_one_by_one(cells, labels[mask], 3, max_length / grid.resolution)
+    got = find_frontiers(grid, 3, max_length)
+    assert len(got) == len(expected) > 10
+    if max_length <= 1.0:  # Some clusters were cut.
+        assert len(got) > (np.bincount(labels[mask])[1:] >= 3).sum()
+    for f, group in zip(got, expected):
+        assert np.array_equal(f.cells, group)
+
+
 def test_tracker_frontiers_of_an_episode_are_the_whole_maps():
     """Along a real episode (office, physics, nearest frontier), every decision's
     frontiers read from the tracker's box of known cells are those of the whole map."""

@@ -68,15 +68,6 @@ def frontier_mask(grid: GridMap, free: np.ndarray | None = None) -> np.ndarray:
     return (grid.data < 0) & near_free
 
 
-def _split(cells: np.ndarray, max_cells: float) -> list[np.ndarray]:
-    """Cuts a cluster into ceil(extent / max_cells) runs along its longer grid axis."""
-    extent = np.ptp(cells, axis=0)
-    axis = int(np.argmax(extent))
-    pieces = int(np.ceil((extent[axis] + 1) / max_cells))
-    order = np.argsort(cells[:, axis], kind="stable")
-    return [cells[idx] for idx in np.array_split(order, pieces)]
-
-
 def find_frontiers(grid: GridMap, min_size: int = 3, max_length: float = 2.0,
                    free: np.ndarray | None = None,
                    within: tuple[slice, slice] | None = None) -> list[Frontier]:
@@ -127,20 +118,32 @@ def _clusters(grid: GridMap, cells: np.ndarray, lab: np.ndarray, min_size: int,
     cells = cells[order]
     starts = np.flatnonzero(np.r_[True, lab[1:] != lab[:-1]])
     sizes = np.diff(np.r_[starts, len(lab)])
-    extent = np.maximum(np.maximum.reduceat(cells, starts) - np.minimum.reduceat(cells, starts),
-                        0).max(axis=1) + 1
+    ptp = np.maximum.reduceat(cells, starts) - np.minimum.reduceat(cells, starts)
     max_cells = max_length / grid.resolution
-    groups: list[np.ndarray] = []
-    for start, size, ext in zip(starts, sizes, extent):
-        if size < min_size:
-            continue
-        group = cells[start:start + size]
-        groups.extend(_split(group, max_cells) if ext > max_cells else [group])
-    if not groups:
+    # Clusters too long are cut into ceil(extent / max_cells) runs along their longer grid
+    # axis, all at once: each one's cells sorted (stably) along it and dealt into pieces as
+    # np.array_split deals them.
+    axis = np.argmax(ptp, axis=1)
+    too_long = ptp.max(axis=1) + 1 > max_cells
+    pieces = np.where(too_long, np.ceil((ptp[np.arange(len(ptp)), axis] + 1) / max_cells),
+                      1).astype(np.int64)
+    cluster = np.repeat(np.arange(len(starts)), sizes)
+    key = np.where(too_long[cluster], cells[np.arange(len(cells)), axis[cluster]], 0)
+    order = np.lexsort((key, cluster))
+    cells, cluster = cells[order], cluster[order]
+    at = np.arange(len(cells)) - starts[cluster]
+    size, count = sizes[cluster], pieces[cluster]
+    small, extra = np.maximum(size // count, 1), size % count
+    split = extra * (small + 1)
+    piece = np.where(at < split, at // (small + 1), extra + (at - split) // small)
+    kept = (sizes >= min_size)[cluster]
+    cells, cluster, piece = cells[kept], cluster[kept], piece[kept]
+    if len(cells) == 0:
         return []
+    gid = np.cumsum(np.r_[False, (cluster[1:] != cluster[:-1]) | (piece[1:] != piece[:-1])])
+    allc = cells
+    groups = np.split(allc, np.flatnonzero(np.diff(gid)) + 1)
     # Per-group centre, the cell nearest to it, and that cell's free 4-neighbour: at once.
-    gid = np.repeat(np.arange(len(groups)), [len(g) for g in groups])
-    allc = np.concatenate(groups)
     counts = np.bincount(gid).astype(float)
     means = np.column_stack([np.bincount(gid, allc[:, 0]), np.bincount(gid, allc[:, 1])])
     means /= counts[:, None]
