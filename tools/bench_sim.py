@@ -31,6 +31,9 @@ run of the reactive wanderer (closed loop on the lidar) is recorded first; then:
                        --size 100x100 --seed 0``, 16 times the office's area) over its first
                        600 simulated seconds: whether the cost grows with what changed
                        rather than with the map (target: >= 60, beside exploration_rtf);
+    exploration_cpu_rtf, large_office_cpu_rtf  the same two by the process's CPU time
+                       (what other load on a shared machine inflates less than the wall
+                       time); load_average_1min says how loaded the machine was at the end;
     ratios             full_loop_over_physics, exploration_over_physics,
                        full_loop_over_loop_without_lidar,
                        lds01_over_ideal (full_loop_rtf_lds01 / full_loop_rtf),
@@ -103,8 +106,17 @@ def replay_wall(sim: World, twists: list[tuple[float, float]]) -> float:
     return time.perf_counter() - t0
 
 
-def _large_office_rtf(seconds: float) -> float:
-    """Real-time factor of nearest's first ``seconds`` on a generated 100 x 100 m office."""
+def _timed_run(episode) -> tuple[float, float]:
+    """(wall, CPU) seconds of ``episode.run()``; the CPU time is the process's, which a
+    shared machine's other load does not inflate as much as the wall time."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    episode.run()
+    return time.perf_counter() - t0, time.process_time() - c0
+
+
+def _large_office_rtf(seconds: float) -> tuple[float, float]:
+    """(wall, CPU) real-time factors of nearest's first ``seconds`` on a generated 100 x 100
+    m office."""
     import tempfile
     from pathlib import Path
 
@@ -117,9 +129,8 @@ def _large_office_rtf(seconds: float) -> float:
         write_scene(generate_scene("office", 100.0, 100.0, 0), Path(tmp) / "scene")
         scene = load_scene_files(Path(tmp) / "scene")
         episode = Episode(scene, make_explorer("nearest"), 0, EpisodeConfig(max_time=seconds))
-        t0 = time.perf_counter()
-        episode.run()
-        return round(episode.sim.time / (time.perf_counter() - t0), 1)
+        wall, cpu = _timed_run(episode)
+        return round(episode.sim.time / wall, 1), round(episode.sim.time / cpu, 1)
 
 
 def main() -> None:
@@ -196,12 +207,10 @@ def main() -> None:
     episode_config = EpisodeConfig() if args.episode_seconds is None else \
         EpisodeConfig(max_time=args.episode_seconds)
     episode = Episode(scene, make_explorer("nearest"), 0, episode_config)
-    t0 = time.perf_counter()
-    episode.run()
-    exploration_wall = time.perf_counter() - t0
+    exploration_wall, exploration_cpu = _timed_run(episode)
     exploration_seconds = episode.sim.time
 
-    large_office_rtf = _large_office_rtf(600.0)
+    large_office_rtf, large_office_cpu_rtf = _large_office_rtf(600.0)
 
     sample = poses[:: max(1, len(poses) // 200)]
     lidar_s = seconds_per_scan(m, d, sample, lambda: sim.lidar.scan(d, 0.0))
@@ -233,6 +242,9 @@ def main() -> None:
         "exploration_rtf": round(exploration_seconds / exploration_wall, 1),
         "exploration_sim_seconds": round(exploration_seconds, 1),
         "large_office_rtf": large_office_rtf,
+        "exploration_cpu_rtf": round(exploration_seconds / exploration_cpu, 1),
+        "large_office_cpu_rtf": large_office_cpu_rtf,
+        "load_average_1min": round(os.getloadavg()[0], 2),
         "exploration_end_reason": episode.end_reason,
         "exploration_over_physics": round(
             (exploration_seconds / exploration_wall) / (sim_seconds / physics_wall), 3),
