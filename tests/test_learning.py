@@ -594,6 +594,11 @@ def test_training_saves_resumes_and_loads(tmp_path):
     assert meta["layout"]["max_nodes"] == 64
     assert meta["provenance"]["num_timesteps"] == 32
     assert (out / "tb").is_dir() and (out / "config.yaml").is_file()
+    first, second = json.loads((out / "sessions.json").read_text())["sessions"]
+    assert (first["steps_from"], first["steps_to"], second["steps_from"],
+            second["steps_to"]) == (0, 16, 16, 32)
+    assert second["n_envs"] == 2 and second["cores"] >= 1 and second["device"] == "cpu"
+    assert second["wall_s"] > 0 and second["learner_cpu_s"] > 0
 
 
 @pytest.mark.slow

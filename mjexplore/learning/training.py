@@ -3,8 +3,10 @@
 A run folder holds ``config.yaml`` (the resolved config and git revision), ``checkpoints/``
 (``step_<n>.pt``: policy and optimizer state dicts plus metadata, loaded with
 ``torch.load(weights_only=True)``; ``latest.json`` names the newest), ``tb/`` (TensorBoard),
-``eval.csv`` (held-out evaluations), ``policy.safetensors`` (the final weights) and
-``best.safetensors`` (the best evaluation so far).
+``eval.csv`` (held-out evaluations), ``policy.safetensors`` (the final weights),
+``best.safetensors`` (the best evaluation so far) and ``sessions.json`` (what each start or
+resume of the run cost: host, cores, device, revision, the steps it took the run from and
+to, wall and learner CPU seconds, the warm start included; updated at every checkpoint).
 
 Checkpoints are written between PPO updates, atomically, so a run killed at any moment
 (``kill -9`` included) resumes with ``--resume`` from its last checkpoint and loses only
@@ -22,6 +24,8 @@ import io
 import json
 import logging
 import multiprocessing
+import os
+import platform
 import random
 import shutil
 import tempfile
@@ -486,6 +490,12 @@ class _Checkpointer:
         # The code that runs is the code imported at the start, whatever the checkout
         # becomes while training runs.
         self.revision = git_revision()
+        self.ledger = out / "sessions.json"
+        self.session = {"started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                        "host": platform.node(), "cores": len(os.sched_getaffinity(0)),
+                        "revision": self.revision, "n_envs": config.n_envs,
+                        "steps_from": None}
+        self._clock = (time.perf_counter(), time.process_time())
 
     def latest(self) -> Path | None:
         marker = self.dir / "latest.json"
@@ -511,7 +521,25 @@ class _Checkpointer:
         write_bytes_atomic(path, buf.getvalue())
         write_text_atomic(self.dir / "latest.json", json.dumps({"checkpoint": path.name,
                                                                 "num_timesteps": steps}) + "\n")
+        self.record(steps, str(model.device))
         return path
+
+    def record(self, steps: int, device: str, steps_from: int | None = None) -> None:
+        """Writes this session's entry of ``sessions.json`` (the run's steps now; with
+        ``steps_from``, where the session took the run from)."""
+        if steps_from is not None:
+            self.session["steps_from"] = int(steps_from)
+        wall, cpu = self._clock
+        self.session.update(device=device, steps_to=int(steps),
+                            wall_s=round(time.perf_counter() - wall, 1),
+                            learner_cpu_s=round(time.process_time() - cpu, 1))
+        earlier = []
+        if self.ledger.is_file():
+            with contextlib.suppress(ValueError, KeyError, TypeError):
+                earlier = [e for e in json.loads(self.ledger.read_text())["sessions"]
+                           if e.get("started_utc") != self.session["started_utc"]]
+        write_text_atomic(self.ledger, json.dumps({"sessions": [*earlier, self.session]},
+                                                  indent=1) + "\n")
 
 
 def load_checkpoint(path: Path) -> dict[str, Any]:
@@ -757,6 +785,7 @@ def _train(config: TrainConfig, out: Path, ckpt: _Checkpointer, state: dict | No
     from mjexplore.io.progress import Progress
 
     done = int(state["num_timesteps"]) if state else 0
+    ckpt.session["steps_from"] = done
     failed = True
     try:
         out.mkdir(parents=True, exist_ok=True)
