@@ -94,6 +94,12 @@ def test_curve_json_fields_and_baselines_measured_once(tmp_path, monkeypatch, ca
     assert figures["revision"] == "abc123"
     assert figures["workers"] == {"n_envs": 1, "torch_threads": 1, "update_threads": 1}
     assert "wall_s" not in figures and "cores" not in figures  # Not recorded: not made up.
+    assert "sessions" not in figures
+    sessions = [{"host": "h", "cores": 2, "steps_from": 0, "steps_to": 16, "wall_s": 10.0},
+                {"host": "h", "cores": 16, "steps_from": 16, "steps_to": 32, "wall_s": 5.5}]
+    (run / "sessions.json").write_text(json.dumps({"sessions": sessions}))
+    facts = plot_training.run_facts(run)
+    assert facts["sessions"] == sessions and facts["sessions_wall_s"] == 15.5
     base = figures["baselines"]
     assert base["pocket_nearest"] == {"mean_exploration_time_s": 150.0, "explored": 2,
                                       "layouts": 2}

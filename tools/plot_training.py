@@ -19,7 +19,9 @@ The JSON line holds:
 * ``decisions_trained`` and ``checkpoint`` (``checkpoints/latest.json``), ``revision`` (the
   git revision the run was trained at), ``shipped`` (``best.safetensors``, else
   ``policy.safetensors``, and the decisions it was trained), ``imitation`` (the warm
-  start's decisions, episodes and wall s, when ``imitation.json`` exists);
+  start's decisions, episodes and wall s, when ``imitation.json`` exists), ``sessions`` and
+  ``sessions_wall_s`` (``sessions.json``, runs since 51c9f13: each start or resume's host,
+  cores, device, steps, wall and learner CPU s, warm start included);
 * ``wall_s``: what TensorBoard recorded of the time: ``collect`` and ``update`` (sums of
   ``time/collect_s`` and ``time/update_s``: rollouts and PPO updates, s) and ``span`` (first
   to last event of each TensorBoard folder, summed over resumes: evaluations and
@@ -37,7 +39,7 @@ The JSON line holds:
   default ``RUN/best.safetensors`` else ``RUN/policy.safetensors``) departs from its prior
   on the validation layouts (:func:`mjexplore.eval.learning_curve.prior_departures`).
 
-A run folder does not record the machine's cores, nor the wall time of a whole run
+Runs before 51c9f13 do not record the machine's cores, nor the wall time of a whole run
 (warm start to end, across resumes): ``wall_s`` is what TensorBoard holds of it.
 
 Usage: python tools/plot_training.py RUN OUT.png [--workers 2] [--recompute-baselines |

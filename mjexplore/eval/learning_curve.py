@@ -119,9 +119,11 @@ def run_facts(run: str | Path) -> dict[str, Any]:
         recorded: ``decisions_trained`` and ``checkpoint`` (``checkpoints/latest.json``),
         ``shipped`` (the shipped weights' file and the decisions they were trained, from
         their provenance; see :func:`shipped_weights`), and with a warm start
-        ``imitation``: its decisions, episodes and wall time (s). Cores are not recorded by
-        a run, nor its total wall time (see the tool ``tools/plot_training.py`` for the
-        phase times TensorBoard holds).
+        ``imitation``: its decisions, episodes and wall time (s); from ``sessions.json``
+        (runs since 51c9f13) ``sessions`` (each start or resume: host, cores, device,
+        revision, steps from and to, wall and learner CPU seconds) and their total
+        ``sessions_wall_s``. Older runs have only the phase times TensorBoard holds (see the tool
+        ``tools/plot_training.py``).
     """
     from mjexplore.policies.weights import read_policy_weights
 
@@ -143,6 +145,10 @@ def run_facts(run: str | Path) -> dict[str, Any]:
         stats = json.loads(imitation.read_text())
         facts["imitation"] = {k: stats[k] for k in ("decisions", "episodes", "wall_s")
                               if k in stats}
+    ledger = run / "sessions.json"
+    if ledger.is_file():
+        facts["sessions"] = json.loads(ledger.read_text())["sessions"]
+        facts["sessions_wall_s"] = round(sum(e.get("wall_s", 0.0) for e in facts["sessions"]), 1)
     return facts
 
 
