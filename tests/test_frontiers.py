@@ -139,20 +139,6 @@ def _assert_same_frontiers(got, expected):
         assert np.array_equal(a.centre, b.centre) and np.array_equal(a.goal, b.goal)
 
 
-@pytest.mark.parametrize("seed,edge", [(0, False), (1, True), (2, False), (3, True)])
-def test_frontiers_within_a_box_of_the_free_cells_are_the_whole_maps(seed, edge):
-    grid = _random_partial_map(seed, edge)
-    rows, cols = np.nonzero(grid.free)
-    whole = find_frontiers(grid)
-    assert len(whole) > 3
-    for margin in (0, 1, 7):  # The free cells' own box and larger ones.
-        within = np.s_[max(rows.min() - margin, 0):rows.max() + 1 + margin,
-                       max(cols.min() - margin, 0):cols.max() + 1 + margin]
-        _assert_same_frontiers(find_frontiers(grid, within=within), whole)
-        _assert_same_frontiers(find_frontiers(grid, free=grid.free, within=within), whole)
-
-
-
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_frontier_mask_kept_cell_by_cell_gives_the_whole_maps_frontiers(seed):
     """Rooms appear, walls appear and vanish, free cells turn back: after every change the

@@ -69,22 +69,18 @@ def frontier_mask(grid: GridMap, free: np.ndarray | None = None) -> np.ndarray:
 
 
 def find_frontiers(grid: GridMap, min_size: int = 3, max_length: float = 2.0,
-                   free: np.ndarray | None = None,
-                   within: tuple[slice, slice] | None = None) -> list[Frontier]:
+                   free: np.ndarray | None = None) -> list[Frontier]:
     """Frontier clusters of a map, in a deterministic order (OpenCV's label order).
+
+    :class:`FrontierMask` finds the same, kept current as the map changes.
 
     Args:
         grid: The partial map.
         min_size: Clusters with fewer cells are noise and dropped.
         max_length: Clusters longer than this (metres) are cut into pieces.
         free: ``grid.free`` if already computed.
-        within: (rows, cols) slices (steps of 1) of a part of the map outside which no cell
-            is free, e.g. the bounding box of the cells ever known: only that part, grown
-            by one cell, is read, and the frontiers are the same as without it.
     """
-    window = _grown(within, grid.shape)
-    data = grid.data[window]
-    free = is_free(data) if free is None else free[window]
+    free = grid.free if free is None else free
     # Frontier cells neighbour free ones: only the box round the free cells can hold them,
     # and labelling the box gives the whole map's labels in the same (raster) order.
     box = _free_box(free)
@@ -92,21 +88,13 @@ def find_frontiers(grid: GridMap, min_size: int = 3, max_length: float = 2.0,
         return []
     near_free = cv2.dilate(free[box].astype(np.uint8), FOUR_NEIGHBOURS,
                            borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
-    mask = (data[box] < 0) & near_free
+    mask = (grid.data[box] < 0) & near_free
     flat = np.flatnonzero(mask.reshape(-1))  # Much faster than 2D nonzero on bool.
     if len(flat) == 0:
         return []
     _, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
-    cells = np.column_stack(np.divmod(flat, mask.shape[1])) + (
-        window[0].start + box[0].start, window[1].start + box[1].start)
+    cells = np.column_stack(np.divmod(flat, mask.shape[1])) + (box[0].start, box[1].start)
     return _clusters(grid, cells, labels.reshape(-1)[flat], min_size, max_length)
-
-
-def _grown(within: tuple[slice, slice] | None, shape: tuple[int, int]) -> tuple[slice, slice]:
-    """``within`` grown by one cell and clipped to a map of ``shape``; None: the map."""
-    if within is None:
-        return slice(0, shape[0]), slice(0, shape[1])
-    return tuple(slice(max(s.start - 1, 0), min(s.stop + 1, n)) for s, n in zip(within, shape))
 
 
 def _clusters(grid: GridMap, cells: np.ndarray, lab: np.ndarray, min_size: int,
@@ -294,7 +282,7 @@ class FrontierMask:
         self.shape = (int(shape[0]), int(shape[1]))
         n = self.shape[0] * self.shape[1]
         self._mask = np.zeros(n, np.uint8)
-        self._where = np.zeros(n, np.int64)
+        self._where = np.zeros(n, np.int32)  # Places in _listed (< n cells).
         self._listed = np.empty(1024, np.int64)
         self._n = 0
 
@@ -322,14 +310,21 @@ class FrontierMask:
 
     def frontiers(self, grid: GridMap, min_size: int = 3, max_length: float = 2.0,
                   within: tuple[slice, slice] | None = None) -> list[Frontier]:
-        """:func:`find_frontiers` of ``grid`` (the map the mask follows); ``within`` as
-        there (no cell outside it may be free): the rows and columns searched for the first
-        free cell."""
-        window = _grown(within, self.shape)
+        """:func:`find_frontiers` of ``grid`` (the map the mask follows).
+
+        Args:
+            grid: The map.
+            min_size: As :func:`find_frontiers`'.
+            max_length: As :func:`find_frontiers`', metres.
+            within: (rows, cols) slices (steps of 1) of a part of the map outside which no
+                cell is free (e.g. the box of the cells ever known), searched for the first
+                free row and column; None: the whole map.
+        """
+        rows, cols = within or (slice(0, self.shape[0]), slice(0, self.shape[1]))
         # find_frontiers labels the free cells' box grown by one cell: its corner sets
         # OpenCV's 2 x 2 blocks, hence the clusters' order.
-        first_row, first_col = _first_free(grid.data, window[0].start, window[0].stop,
-                                           window[1].start, window[1].stop)
+        first_row, first_col = _first_free(grid.data, rows.start, rows.stop, cols.start,
+                                           cols.stop)
         if first_row < 0 or self._n == 0:
             return []
         flat = np.sort(self._listed[:self._n])
