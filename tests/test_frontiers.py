@@ -163,9 +163,9 @@ def test_frontier_mask_kept_cell_by_cell_gives_the_whole_maps_frontiers(seed):
         assert np.array_equal(kept.mask.astype(bool), frontier_mask(grid))
         assert np.array_equal(np.sort(kept._listed[:kept._n]), np.flatnonzero(kept.mask))
         rows, cols = np.nonzero(grid.known)
-        within = np.s_[rows.min():rows.max() + 1, cols.min():cols.max() + 1]
-        _assert_same_frontiers(kept.frontiers(grid, 3, 0.5, within),
-                               find_frontiers(grid, 3, 0.5))
+        r0, r1, c0, c1 = kept.box
+        assert r0 <= rows.min() and r1 >= rows.max() and c0 <= cols.min() and c1 >= cols.max()
+        _assert_same_frontiers(kept.frontiers(grid, 3, 0.5), find_frontiers(grid, 3, 0.5))
 
 
 
@@ -223,7 +223,7 @@ def test_tracker_frontiers_of_an_episode_are_the_whole_maps():
         cfg = tracker.config
         _assert_same_frontiers(got, find_frontiers(grid, cfg.frontier_min_size,
                                                    cfg.frontier_max_length))
-        box = tracker._known_box[1]
+        box = tracker._frontier_mask.box
         checked.append((len(got), (box[1] - box[0] + 1) * (box[3] - box[2] + 1)))
         return got
 

@@ -171,14 +171,17 @@ def _free_neighbours(data: np.ndarray, cells: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _refresh_mask(data, cols, cells, mask, where, listed, n_listed):
+def _refresh_mask(data, cols, cells, mask, where, listed, n_listed, box):
     """Sets ``mask`` (flat, 1 on frontier cells) anew at each flat cell of ``cells`` and its
     4-neighbours, from the flat cell values ``data``; the frontier cells stay listed in
     ``listed[:n_listed]`` (any order; ``where`` holds each one's place), which needs room
-    for 5 more per cell. Returns the new ``n_listed``."""
+    for 5 more per cell. ``box`` (first row, last row, first col, last col) grows to hold
+    ``cells``. Returns the new ``n_listed``."""
     rows = len(data) // cols
     for c in cells:
         r0, c0 = c // cols, c % cols
+        box[0], box[1] = min(box[0], r0), max(box[1], r0)
+        box[2], box[3] = min(box[2], c0), max(box[3], c0)
         for k in range(5):
             rr, cc = r0 + _DR4[k], c0 + _DC4[k]
             if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
@@ -272,10 +275,15 @@ def _block_labels(flat, cols, r0, c0):
 
 class FrontierMask:
     """The frontier cells of a map kept current cell by cell (as :func:`frontier_mask`),
-    and listed, so that reading them costs nothing per map cell.
+    and listed, so that reading them costs nothing per map cell; told every change of the
+    map after :meth:`reset`.
 
     Args:
         shape: (rows, cols) of the map.
+
+    Attributes:
+        box: int64 (first row, last row, first col, last col) of the cells known at the
+            reset or changed since: no free cell lies outside (first > last: none).
     """
 
     def __init__(self, shape: tuple[int, int]) -> None:
@@ -285,6 +293,7 @@ class FrontierMask:
         self._where = np.zeros(n, np.int32)  # Places in _listed (< n cells).
         self._listed = np.empty(1024, np.int64)
         self._n = 0
+        self.box = np.array([n, -1, n, -1], np.int64)
 
     @property
     def mask(self) -> np.ndarray:
@@ -292,10 +301,14 @@ class FrontierMask:
         return self._mask.reshape(self.shape)
 
     def reset(self, grid: GridMap) -> None:
-        """Finds the frontier cells of the whole map."""
+        """Finds the frontier cells and the known cells' box of the whole map."""
         self._mask[:] = 0
         self._n = 0
         self.update(grid, np.flatnonzero(frontier_mask(grid)))
+        known = grid.known
+        rows, cols = np.flatnonzero(known.any(axis=1)), np.flatnonzero(known.any(axis=0))
+        n = self._mask.size
+        self.box[:] = (rows[0], rows[-1], cols[0], cols[-1]) if len(rows) else (n, -1, n, -1)
 
     def update(self, grid: GridMap, cells: np.ndarray) -> None:
         """Refreshes the cells around ``cells`` (flat indices whose value changed)."""
@@ -306,25 +319,16 @@ class FrontierMask:
             grown[:self._n] = self._listed[:self._n]
             self._listed = grown
         self._n = _refresh_mask(grid.data.reshape(-1), self.shape[1], cells, self._mask,
-                                self._where, self._listed, self._n)
+                                self._where, self._listed, self._n, self.box)
 
-    def frontiers(self, grid: GridMap, min_size: int = 3, max_length: float = 2.0,
-                  within: tuple[slice, slice] | None = None) -> list[Frontier]:
-        """:func:`find_frontiers` of ``grid`` (the map the mask follows).
-
-        Args:
-            grid: The map.
-            min_size: As :func:`find_frontiers`'.
-            max_length: As :func:`find_frontiers`', metres.
-            within: (rows, cols) slices (steps of 1) of a part of the map outside which no
-                cell is free (e.g. the box of the cells ever known), searched for the first
-                free row and column; None: the whole map.
-        """
-        rows, cols = within or (slice(0, self.shape[0]), slice(0, self.shape[1]))
+    def frontiers(self, grid: GridMap, min_size: int = 3,
+                  max_length: float = 2.0) -> list[Frontier]:
+        """:func:`find_frontiers` of ``grid`` (the map the mask follows), with the same
+        arguments; the map is read in ``box`` alone."""
+        r0, r1, c0, c1 = (int(v) for v in self.box)
         # find_frontiers labels the free cells' box grown by one cell: its corner sets
         # OpenCV's 2 x 2 blocks, hence the clusters' order.
-        first_row, first_col = _first_free(grid.data, rows.start, rows.stop, cols.start,
-                                           cols.stop)
+        first_row, first_col = _first_free(grid.data, r0, r1 + 1, c0, c1 + 1)
         if first_row < 0 or self._n == 0:
             return []
         flat = np.sort(self._listed[:self._n])

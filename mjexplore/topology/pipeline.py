@@ -76,10 +76,8 @@ class TopologyTracker:
         self.gvd = DynamicGVD(shape)
         # (map cell array, its frontiers) as last observed.
         self._frontiers: tuple[np.ndarray, list[Frontier]] | None = None
-        # (map cell array, [first row, last row, first col, last col]) of the cells known
-        # in that array so far, or ever reported changed (a box that only grows).
-        self._known_box: tuple[np.ndarray, list[int] | None] | None = None
-        self._frontier_mask = FrontierMask(shape)  # Of the map in _known_box.
+        self._frontier_mask = FrontierMask(shape)
+        self._frontier_data: np.ndarray | None = None  # The cell array the mask follows.
 
     def observe(self, grid: GridMap, changed: np.ndarray | None = None) -> int:
         """Updates the GVD after the map changed.
@@ -93,35 +91,18 @@ class TopologyTracker:
             Number of cells whose distance field changed.
         """
         self._frontiers = None
-        if changed is None or self._known_box is None or self._known_box[0] is not grid.data:
-            self._frontier_mask.reset(grid)
-        else:
-            self._frontier_mask.update(grid, changed[:, 0].astype(np.int64) * grid.shape[1] +
-                                       changed[:, 1])
-        self._grow_known_box(grid, changed)
         if changed is None:
+            self._frontier_mask.reset(grid)
+            self._frontier_data = grid.data
             return self.gvd.update(grid.occupied, grid.known)
         cells = changed[:, 0].astype(np.int64) * grid.shape[1] + changed[:, 1]
+        if self._frontier_data is grid.data:
+            self._frontier_mask.update(grid, cells)
+        else:  # A map not seen before: its frontiers are found once, then kept.
+            self._frontier_mask.reset(grid)
+            self._frontier_data = grid.data
         values = grid.data.reshape(-1)[cells]
         return self.gvd.update_cells(cells, is_occupied(values), is_known(values))
-
-    def _grow_known_box(self, grid: GridMap, changed: np.ndarray | None) -> None:
-        """Grows the box of known cells by ``changed`` (the whole map's known cells for a
-        map not seen before or when ``changed`` is None)."""
-        if changed is None or self._known_box is None or self._known_box[0] is not grid.data:
-            known = grid.known
-            rows = np.flatnonzero(known.any(axis=1))
-            cols = np.flatnonzero(known.any(axis=0))
-            box = [rows[0], rows[-1], cols[0], cols[-1]] if len(rows) else None
-            self._known_box = grid.data, box
-            return
-        if len(changed) == 0:
-            return
-        lo, hi = changed.min(axis=0), changed.max(axis=0)
-        box = self._known_box[1]
-        self._known_box = grid.data, [int(lo[0]), int(hi[0]), int(lo[1]), int(hi[1])] \
-            if box is None else [min(box[0], int(lo[0])), max(box[1], int(hi[0])),
-                                 min(box[2], int(lo[1])), max(box[3], int(hi[1]))]
 
     def frontiers(self, grid: GridMap, free: np.ndarray | None = None) -> list[Frontier]:
         """The map's frontiers (:func:`find_frontiers` with the configured sizes).
@@ -134,11 +115,9 @@ class TopologyTracker:
         """
         if self._frontiers is None or self._frontiers[0] is not grid.data:
             cfg = self.config
-            if self._known_box is not None and self._known_box[0] is grid.data:
-                box = self._known_box[1]
-                found = [] if box is None else self._frontier_mask.frontiers(
-                    grid, cfg.frontier_min_size, cfg.frontier_max_length,
-                    np.s_[box[0]:box[1] + 1, box[2]:box[3] + 1])
+            if self._frontier_data is grid.data:
+                found = self._frontier_mask.frontiers(grid, cfg.frontier_min_size,
+                                                      cfg.frontier_max_length)
             else:
                 found = find_frontiers(grid, cfg.frontier_min_size, cfg.frontier_max_length,
                                        free)
