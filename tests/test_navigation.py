@@ -96,3 +96,18 @@ def test_replanning_on_a_blocked_path_at_1_hz_explores_as_fast_as_at_5_hz():
     assert default["collisions"] == 0
     for key in ("exploration_time_s", "path_length_m"):
         assert default[key] <= 1.1 * every_200ms[key]
+
+
+def test_known_cells_in_windows_are_numpys_slices():
+    """The blacklist's watched windows, counted at once, read what numpy's slices of each
+    window read, at the map's edges and beyond them too."""
+    from mjexplore.navigation.blacklist import known_in_windows
+
+    rng = np.random.default_rng(0)
+    data = rng.choice(np.array([-1, 0, 100], np.int8), size=(40, 55))
+    cells = np.concatenate([rng.integers(-15, 70, size=(300, 2)),
+                            [[0, 0], [39, 54], [-40, 3], [5, -60], [39, 0]]])
+    half = rng.integers(1, 12, size=len(cells))
+    expected = [int((data[max(r - k, 0):r + k + 1, max(c - k, 0):c + k + 1] >= 0).sum())
+                for (r, c), k in zip(cells, half)]
+    assert known_in_windows(data, cells, half).tolist() == expected

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import numba
 import numpy as np
 
 from mjexplore.maps import GridMap
@@ -52,6 +53,34 @@ class BlacklistConfig:
                 or self.max_attempts < 1:
             raise ValueError("radius, forget_radius, forget_area and seen_area must be > 0, "
                              "max_attempts >= 1")
+
+
+@numba.njit(cache=True)
+def _count_known(data, r0, r1, c0, c1):
+    out = np.zeros(len(r0), np.int64)
+    for i in range(len(r0)):
+        for r in range(r0[i], r1[i]):
+            for c in range(c0[i], c1[i]):
+                if data[r, c] >= 0:
+                    out[i] += 1
+    return out
+
+
+def known_in_windows(data: np.ndarray, cells: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """Known cells (value >= 0) of the map ``data`` in ``data[max(r - k, 0):r + k + 1,
+    max(c - k, 0):c + k + 1]`` for each (r, c) of ``cells`` (k, 2) and k of ``half`` (k,),
+    with numpy's slicing (clipped to the map; a negative end counts from the far side)."""
+    rows, cols = data.shape
+
+    def bounds(centre, size):
+        start = np.minimum(np.maximum(centre - half, 0), size)
+        stop = centre + half + 1
+        stop = np.where(stop < 0, np.maximum(stop + size, 0), np.minimum(stop, size))
+        return start, np.maximum(stop, start)
+
+    r0, r1 = bounds(cells[:, 0], rows)
+    c0, c1 = bounds(cells[:, 1], cols)
+    return _count_known(data, r0, r1, c0, c1)
 
 
 @dataclasses.dataclass
@@ -93,10 +122,14 @@ class GoalBlacklist:
             return cfg.radius, cfg.seen_area
         return cfg.forget_radius, cfg.forget_area
 
-    def _known_cells(self, grid: GridMap, point: np.ndarray, reason: str) -> int:
-        r, c = grid.world_to_cell(point)
-        k = max(1, int(round(self._watch(reason)[0] / grid.resolution)))
-        return int((grid.data[max(r - k, 0):r + k + 1, max(c - k, 0):c + k + 1] >= 0).sum())
+    def _known_cells(self, grid: GridMap, points: np.ndarray, reasons: list[str]) -> np.ndarray:
+        """Known cells in the watched window of each (x, y) of ``points`` (k, 2) given up
+        for the reason of the same index: the square of half-side the watch radius in cells
+        (at least 1) around the point's cell, clipped to the map."""
+        cells = grid.world_to_cell(np.asarray(points, float).reshape(-1, 2))
+        half = np.array([max(1, int(round(self._watch(r)[0] / grid.resolution)))
+                         for r in reasons], np.int64)
+        return known_in_windows(grid.data, cells, half)
 
     def add(self, point: np.ndarray, reason: str, grid: GridMap) -> None:
         """Gives up the goal ``point`` (x, y) for ``reason`` on the map ``grid``.
@@ -107,7 +140,7 @@ class GoalBlacklist:
         if reason not in REASONS:
             raise ValueError(f"reason must be one of {REASONS}")
         point = np.asarray(point, float)[:2].copy()
-        known = self._known_cells(grid, point, reason)
+        known = int(self._known_cells(grid, point, [reason])[0])
         for e in self._entries:
             if np.hypot(*(e.point - point)) <= self.config.radius:
                 # The first point stays: a renewed entry must not creep away from the
@@ -121,9 +154,12 @@ class GoalBlacklist:
         """Forgets the entries whose surroundings changed; returns how many."""
         cell_area = grid.resolution ** 2
         forgotten = 0
-        for e in self._entries:
-            if (self._known_cells(grid, e.point, e.reason) - e.known_cells) * cell_area >= \
-                    self._watch(e.reason)[1]:
+        if not self._entries:
+            return 0
+        known = self._known_cells(grid, np.array([e.point for e in self._entries]),
+                                  [e.reason for e in self._entries])
+        for e, now in zip(self._entries, known.tolist()):
+            if (now - e.known_cells) * cell_area >= self._watch(e.reason)[1]:
                 forgotten += e.active
                 e.attempts = 0  # A changed map: a fresh start, no attempts to remember.
         self._entries = [e for e in self._entries if e.attempts > 0]
