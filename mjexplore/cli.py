@@ -522,7 +522,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     config = load_train_config(args.config, total_steps=args.total_steps, n_envs=args.n_envs)
     check_output_folder(args.out)
     summary = train(config, args.out, resume=args.resume, progress=not args.no_progress,
-                    ray_address=args.ray, device=args.device, recipe=Path(args.config).name)
+                    ray_address=args.ray, device=args.device, recipe=Path(args.config).name,
+                    init_weights=args.init_weights)
     print(json.dumps(summary))
     return 0
 
@@ -850,6 +851,10 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--device", default="auto", metavar="DEVICE",
                     help="the learner's torch device: auto (a GPU when there is one), cpu, "
                          "cuda, cuda:1 ... (default: auto); may change on --resume")
+    tr.add_argument("--init-weights", type=Path, default=None, metavar="WEIGHTS",
+                    help="start a fresh run from these weights (of the config's network, e.g. "
+                    "a warm start saved by tools/dagger_probe.py) instead of the config's "
+                    "imitation warm start")
     tr.add_argument("--no-progress", action="store_true",
                     help="no progress bar on a terminal, no progress lines elsewhere")
     tr.set_defaults(func=cmd_train)

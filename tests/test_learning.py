@@ -601,6 +601,42 @@ def test_training_saves_resumes_and_loads(tmp_path):
     assert second["wall_s"] > 0 and second["learner_cpu_s"] > 0
 
 
+def test_training_starts_from_init_weights_and_refuses_another_network(tmp_path):
+    from mjexplore.learning.training import _fresh_policy, _policy_kwargs, train
+    from mjexplore.policies.registry import layout_of
+    from mjexplore.policies.weights import (
+        load_policy,
+        read_policy_weights,
+        save_policy_weights,
+        tensors_sha256,
+    )
+
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text(TINY.format(total=8, n_envs=1))
+    config = load_train_config(cfg)
+    policy = _fresh_policy(config)
+    with torch.no_grad():
+        policy.value_net.bias.fill_(7.0)  # One PPO update moves it by about 1e-3.
+    init = tmp_path / "init.safetensors"
+    save_policy_weights(init, policy, config.kind, _policy_kwargs(config),
+                        layout_of(config.kind, config.env), {"num_timesteps": 0, "note": "x"})
+    train(config, tmp_path / "run", progress=False, init_weights=init)
+    trained, _ = load_policy(tmp_path / "run" / "policy.safetensors")
+    assert trained.value_net.bias.item() == pytest.approx(7.0, abs=0.05)
+    record = json.loads((tmp_path / "run" / "init.json").read_text())
+    assert record["tensors_sha256"] == tensors_sha256(read_policy_weights(init)[0])
+    assert record["provenance"]["note"] == "x"
+    assert not (tmp_path / "run" / "imitation.json").exists()
+    other = tmp_path / "other.yaml"
+    other.write_text(TINY.format(total=8, n_envs=1).replace("hidden: 16", "hidden: 8"))
+    r = _train_cli(["--config", str(other), "--out", str(tmp_path / "run2"),
+                    "--init-weights", str(init)])
+    assert r.returncode == 2 and "another network" in r.stderr
+    r = _train_cli(["--config", str(cfg), "--out", str(tmp_path / "run"), "--resume",
+                    "--init-weights", str(init)])
+    assert r.returncode == 2 and "fresh run" in r.stderr
+
+
 @pytest.mark.slow
 def test_resumed_training_keeps_the_best_weights_of_the_first_part(tmp_path, monkeypatch):
     import mjexplore.learning.training as training

@@ -713,7 +713,8 @@ def _best_score(path: Path) -> float | None:
 
 def train(config: TrainConfig, out: str | Path, resume: bool = False,
           progress: bool = True, ray_address: str | None = None,
-          device: str = "auto", recipe: str | None = None) -> dict[str, Any]:
+          device: str = "auto", recipe: str | None = None,
+          init_weights: str | Path | None = None) -> dict[str, Any]:
     """Trains a policy into the run folder ``out`` (see the module docstring).
 
     ``ray_address`` runs the envs as Ray actors (see :func:`make_vec_env`) and ``device``
@@ -732,6 +733,10 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
     Args:
         recipe: The name of the config the run was made from (its file's name), kept in the
             weights' provenance.
+        init_weights: A fresh run starts from these weights (a policy file of this config's
+            network, e.g. a warm start made by ``tools/dagger_probe.py``) instead of the
+            config's own warm start; ``init.json`` records the file, its tensors' sha256
+            and its provenance.
 
     Returns:
         Summary: steps, checkpoints written, final weights path.
@@ -739,9 +744,13 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
     Raises:
         UserInputError: ``out`` already holds a run and ``resume`` is not set, or
             ``resume`` is set and there is nothing to resume, or no Ray cluster at
-            ``ray_address``, or an env worker cannot build its env (its message).
+            ``ray_address``, or an env worker cannot build its env (its message), or
+            ``init_weights`` with ``resume``, or weights of another network.
     """
     out = Path(out)
+    if init_weights is not None and resume:
+        raise UserInputError("--init-weights starts a fresh run; a resumed run continues from "
+                             "its checkpoint: drop one of them.")
     ckpt = _Checkpointer(out, config)
     latest = ckpt.latest()
     if latest is not None and not resume:
@@ -764,8 +773,31 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
     reuse_freed_memory()  # The learner's tensors: see mjexplore/episode/workers.py.
     _seed_everything(config.seed + done)
     torch.set_num_threads(config.torch_threads)
+    init = _initial_weights(config, init_weights) if init_weights is not None else None
     venv = make_vec_env(config, config.seed + done, ray_address)  # Before writing: may refuse.
-    return _train(config, out, ckpt, state, latest, venv, progress, device, recipe)
+    return _train(config, out, ckpt, state, latest, venv, progress, device, recipe, init)
+
+
+def _initial_weights(config: TrainConfig, path: str | Path) -> dict[str, Any]:
+    """The tensors of ``path`` and what ``init.json`` records of them, checked against the
+    network ``config`` builds.
+
+    Raises:
+        UserInputError: unreadable file, or weights of another network.
+    """
+    from mjexplore.policies.weights import load_policy, tensors_sha256
+
+    policy, meta = load_policy(path)
+    wanted = json.loads(json.dumps({"kind": config.kind, "policy_kwargs": _policy_kwargs(config),
+                                    "layout": layout_of(config.kind, config.env)}))
+    if any(json.loads(json.dumps(meta.get(k))) != v for k, v in wanted.items()):
+        raise UserInputError(f"--init-weights {str(path)!r} holds another network than "
+                             f"{config.kind} with this config's policy and observation "
+                             "settings: use weights made from the same config.")
+    return {"tensors": policy.state_dict(), "record": {
+        "weights": str(Path(path).resolve()),
+        "tensors_sha256": tensors_sha256(read_policy_weights(path)[0]),
+        "policy_kwargs": meta.get("policy_kwargs"), "provenance": meta.get("provenance")}}
 
 
 def planned_steps(config: TrainConfig, done: int) -> int:
@@ -778,7 +810,7 @@ def planned_steps(config: TrainConfig, done: int) -> int:
 
 def _train(config: TrainConfig, out: Path, ckpt: _Checkpointer, state: dict | None,
            latest: Path | None, venv, progress: bool, device: str,
-           recipe: str | None) -> dict[str, Any]:
+           recipe: str | None, init: dict[str, Any] | None = None) -> dict[str, Any]:
     """:func:`train` once its envs run (they are closed when it returns or raises)."""
     from stable_baselines3.common.callbacks import BaseCallback
 
@@ -799,6 +831,9 @@ def _train(config: TrainConfig, out: Path, ckpt: _Checkpointer, state: dict | No
             model.num_timesteps = done
             model._n_updates = int(state["n_updates"])
             log.info("resumed from %s at %d steps", latest, done)
+        elif init is not None:
+            model.policy.load_state_dict(init["tensors"])
+            write_text_atomic(out / "init.json", json.dumps(init["record"], indent=2) + "\n")
         elif config.imitation.episodes > 0:
             _warm_start(model.policy, config, out)
 
