@@ -64,7 +64,8 @@ log = logging.getLogger(__name__)
 
 CHECKPOINT_FORMAT = "mjexplore-checkpoint-v1"
 # Settings a resumed run may change: how long it trains, on how many envs and threads.
-RESUMABLE_CHANGES = ("total_steps", "n_envs", "torch_threads", "update_threads")
+RESUMABLE_CHANGES = ("total_steps", "n_envs", "torch_threads", "update_threads",
+                     "keep_checkpoints")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -225,6 +226,8 @@ class TrainConfig:
         total_steps: Decision steps to train for (all envs together).
         n_envs: Environments, each in its own worker process when more than one.
         checkpoint_every: Checkpoint after at least this many steps since the last one.
+        keep_checkpoints: Keep only this many newest checkpoints (each 3.5 MB for the v3
+            GVN, one per update by default: 7 GB over 10^6 decisions); 0 keeps all.
         seed: Seed of torch, numpy and the envs.
         torch_threads: torch intra-op threads in the learner (1 is fastest on 2 cores).
         update_threads: torch intra-op threads during PPO updates, while the env workers
@@ -241,6 +244,7 @@ class TrainConfig:
     total_steps: int = 20000
     n_envs: int = 2
     checkpoint_every: int = 512
+    keep_checkpoints: int = 0
     seed: int = 0
     torch_threads: int = 1
     update_threads: int | None = None
@@ -267,6 +271,8 @@ class TrainConfig:
                              "env.valid_actions: all_nodes, and all_nodes only with none")
         if self.total_steps < 1 or self.n_envs < 1 or self.checkpoint_every < 1:
             raise ValueError("total_steps, n_envs and checkpoint_every must be >= 1")
+        if self.keep_checkpoints < 0:
+            raise ValueError("keep_checkpoints must be >= 0 (0 keeps all)")
         if self.torch_threads < 1 or (self.update_threads or 1) < 1:
             raise ValueError("torch_threads and update_threads must be >= 1")
         if self.ppo.minibatch_block > 1 and self.kind != "gvn":
@@ -522,6 +528,9 @@ class _Checkpointer:
         write_text_atomic(self.dir / "latest.json", json.dumps({"checkpoint": path.name,
                                                                 "num_timesteps": steps}) + "\n")
         self.record(steps, str(model.device))
+        if self.config.keep_checkpoints:  # Older ones go only once latest.json is written.
+            for old in sorted(self.dir.glob("step_*.pt"))[:-self.config.keep_checkpoints]:
+                old.unlink(missing_ok=True)
         return path
 
     def record(self, steps: int, device: str, steps_from: int | None = None) -> None:
