@@ -70,7 +70,19 @@ RESUMABLE_CHANGES = ("total_steps", "n_envs", "torch_threads", "update_threads",
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class PpoConfig:
-    """MaskablePPO hyperparameters (SB3 names; steps are decisions per env)."""
+    """MaskablePPO hyperparameters (SB3 names; steps are decisions per env).
+
+    ``overlap`` runs each update in a thread while the next rollout is collected with the
+    policy as it was before that update (:mod:`mjexplore.learning.overlap_ppo`): the env
+    workers no longer wait for the update, at the cost of a one-update policy lag (PPO's
+    ratio and clipping use the stored log-probabilities of the policy that collected, as
+    APPO does; the loss is MaskablePPO's own). The update thread runs ``update_threads``
+    torch threads (None: ``torch_threads``); checkpoints and evaluations still see the
+    weights after a completed update, with every decision they count trained on. Checkpoints
+    are therefore the same in both modes and switching ``overlap`` when a run resumes would
+    be safe, but the resume check compares ``ppo`` as a whole (not in ``RESUMABLE_CHANGES``):
+    a run keeps the mode it started with.
+    """
 
     n_steps: int = 256
     batch_size: int = 128
@@ -85,8 +97,11 @@ class PpoConfig:
     # Minibatches of runs of this many consecutive decisions of one env, not single ones
     # (mjexplore/learning/rollout_blocks.py: the GVN then encodes about a third of the TERs).
     minibatch_block: int = 1
+    overlap: bool = False
 
     def __post_init__(self) -> None:
+        if not isinstance(self.overlap, bool):
+            raise ValueError("ppo.overlap must be true or false")
         for name in ("n_steps", "batch_size", "n_epochs", "minibatch_block"):
             if getattr(self, name) < 1:
                 raise ValueError(f"ppo.{name} must be >= 1")
@@ -406,26 +421,32 @@ def make_vec_env(config: TrainConfig, seed: int, ray_address: str | None = None)
 
 def make_model(config: TrainConfig, venv, seed: int, tensorboard_log: str | None = None,
                device: str = "auto"):
-    """The MaskablePPO learner of ``config`` on the envs ``venv``, on torch ``device``."""
+    """The MaskablePPO learner of ``config`` on the envs ``venv``, on torch ``device``
+    (:class:`~mjexplore.learning.overlap_ppo.OverlapMaskablePPO` with ``ppo.overlap``)."""
     from sb3_contrib import MaskablePPO
 
+    from mjexplore.learning.overlap_ppo import OverlapMaskablePPO
     from mjexplore.policies.registry import policy_class
 
     ppo = config.ppo
-    buffer = {}
+    buffer: dict[str, Any] = {}
+    if ppo.overlap:
+        learner = functools.partial(OverlapMaskablePPO, update_threads=(
+            config.update_threads or config.torch_threads))
+    else:
+        learner = MaskablePPO
     if ppo.minibatch_block > 1:
         from mjexplore.learning.rollout_blocks import BlockDictRolloutBuffer
 
         buffer = {"rollout_buffer_class": BlockDictRolloutBuffer,
                   "rollout_buffer_kwargs": {"block": ppo.minibatch_block, "seed": seed}}
-    return MaskablePPO(policy_class(config.kind), venv, n_steps=ppo.n_steps,
-                       batch_size=ppo.batch_size, n_epochs=ppo.n_epochs,
-                       learning_rate=ppo.learning_rate, gamma=ppo.gamma,
-                       gae_lambda=ppo.gae_lambda, clip_range=ppo.clip_range,
-                       ent_coef=ppo.ent_coef, vf_coef=ppo.vf_coef,
-                       max_grad_norm=ppo.max_grad_norm, policy_kwargs=_policy_kwargs(config),
-                       tensorboard_log=tensorboard_log, seed=seed, verbose=0, device=device,
-                       **buffer)
+    return learner(policy_class(config.kind), venv, n_steps=ppo.n_steps,
+                   batch_size=ppo.batch_size, n_epochs=ppo.n_epochs,
+                   learning_rate=ppo.learning_rate, gamma=ppo.gamma, gae_lambda=ppo.gae_lambda,
+                   clip_range=ppo.clip_range, ent_coef=ppo.ent_coef, vf_coef=ppo.vf_coef,
+                   max_grad_norm=ppo.max_grad_norm, policy_kwargs=_policy_kwargs(config),
+                   tensorboard_log=tensorboard_log, seed=seed, verbose=0, device=device,
+                   **buffer)
 
 
 def set_phase_threads(config: TrainConfig, updating: bool) -> None:
