@@ -111,13 +111,14 @@ class OverlapMaskablePPO(MaskablePPO):
             self.behaviour = self.policy_class(self.observation_space, self.action_space,
                                                self.lr_schedule, **self.policy_kwargs)
         self.behaviour = self.behaviour.to(self.device)
-        self._spare_buffer = self.rollout_buffer_class(
+        # One filled by the collection while the update reads the other.
+        self._buffers = (self.rollout_buffer, self.rollout_buffer_class(
             self.n_steps, self.observation_space, self.action_space, self.device,
             gamma=self.gamma, gae_lambda=self.gae_lambda, n_envs=self.n_envs,
-            **self.rollout_buffer_kwargs)
+            **self.rollout_buffer_kwargs))
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "behaviour", "_spare_buffer"]  # Rebuilt.
+        return [*super()._excluded_save_params(), "behaviour", "_buffers"]  # Rebuilt.
 
     def _collect(self, callback, buffer: RolloutBuffer, use_masking: bool) -> tuple[int, bool]:
         """Fills ``buffer`` with the behaviour policy: the decisions it took and whether the
@@ -144,7 +145,7 @@ class OverlapMaskablePPO(MaskablePPO):
             total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
         callback.on_training_start(locals(), globals())
         assert self.env is not None
-        buffers = [self.rollout_buffer, self._spare_buffer]
+        buffers = self._buffers
         iteration = 0
         self.behaviour.load_state_dict(self.policy.state_dict())
         steps, complete = self._collect(callback, buffers[0], use_masking)
