@@ -38,8 +38,22 @@ their defaults (``recipe_decisions_per_s_default_threads``: what training ran be
 workers were held to one thread each). ``--recipe-only`` measures just that, and
 ``--n-envs N`` the recipe with N envs (a bigger machine), beside its baseline.
 
+``--overlap`` measures instead ``ppo.overlap`` (each update overlapped with the next
+rollout's collection, :mod:`mjexplore.learning.overlap_ppo`) against the same recipe
+without it, in the same run: ``--rollouts`` rollouts and updates as ``mjexplore train``
+runs them (fresh weights, one fresh process each, the two alternated ``--repeats`` times),
+of the shipped recipe or ``--recipe``. The figure is the steady state: decisions per second
+from the first update's start to the last one's (one collection and one update per rollout
+in that window, overlapped or not; the first collection and the last update, which nothing
+overlaps, lie outside it): ``sequential_decisions_per_s``, ``overlap_decisions_per_s`` and
+their ratio ``overlap_speedup``, beside each mode's mean collection and update wall seconds,
+the update thread's CPU seconds, and the 1-minute load average before and after (a machine
+others use gives the envs' and the update's threads less than a core each).
+
 Usage: python tools/bench_train.py [--scenes loop_with_corridor,maze] [--max-time 300]
        python tools/bench_train.py --recipe-only [--n-envs 15] [--device auto]
+       python tools/bench_train.py --overlap [--recipe training/gvn_long.yaml]
+           [--rollouts 3] [--repeats 1] [--n-steps 64] [--n-envs 2]
 """
 
 from __future__ import annotations
@@ -186,14 +200,112 @@ def recipe_round(n_envs: int, default_threads: bool = False, device: str = "auto
         return training.ppo_round(config, device=device)
 
 
-def _fresh(*args) -> dict[str, float]:
-    """:func:`recipe_round` in a fresh process: each round starts its own workers (and
-    forkserver), so that one round's thread settings cannot reach another's."""
+def _fresh(*args, round_=recipe_round) -> dict[str, float]:
+    """``round_`` (default :func:`recipe_round`) in a fresh process: each round starts its
+    own workers (and forkserver), so that one round's thread settings cannot reach
+    another's."""
     from concurrent.futures import ProcessPoolExecutor
 
     # Not a multiprocessing.Pool: its daemonic workers may not start the envs' workers.
     with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn")) as pool:
-        return pool.submit(recipe_round, *args).result()
+        return pool.submit(round_, *args).result()
+
+
+def overlap_round(recipe: str, overlap: bool, rollouts: int, device: str,
+                  n_steps: int | None = None, n_envs: int | None = None) -> dict[str, float]:
+    """``rollouts`` rollouts and updates of ``recipe`` (a path under the repository) as
+    ``mjexplore train`` runs them (its torch threads per phase), with ``ppo.overlap`` set to
+    ``overlap``, ``n_envs`` envs and ``n_steps`` decisions per env (default the recipe's):
+    the decisions of a rollout, the wall seconds from the first update's start to the last
+    one's and of the whole run, the mean wall seconds of a collection and of an update, and
+    the update's CPU seconds on its own thread (with one torch thread, all of them: what its
+    wall time exceeds it by, it waited for a core or for the GIL)."""
+    import torch
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from mjexplore.episode import workers
+    from mjexplore.learning import training
+
+    config = training.load_train_config(REPO / recipe)
+    config = dataclasses.replace(config, n_envs=n_envs or config.n_envs, ppo=dataclasses.replace(
+        config.ppo, overlap=overlap, n_steps=n_steps or config.ppo.n_steps))
+    collections: list[tuple[float, float]] = []
+    updates: list[tuple[float, float, float]] = []
+
+    class Phases(BaseCallback):
+        def _on_rollout_start(self) -> None:
+            training.set_phase_threads(config, updating=False)
+            self.start = time.perf_counter()
+
+        def _on_rollout_end(self) -> None:
+            training.set_phase_threads(config, updating=True)
+            collections.append((self.start, time.perf_counter()))
+
+        def _on_step(self) -> bool:
+            return True
+
+    with workers.thread_environment(None):
+        venv = training.make_vec_env(config, config.seed)
+    try:
+        model = training.make_model(config, venv, config.seed, device=device)
+        train = model.train
+
+        def timed_train() -> None:  # In the update thread with overlap.
+            start, cpu = time.perf_counter(), time.thread_time()
+            train()
+            updates.append((start, time.perf_counter(), time.thread_time() - cpu))
+
+        model.train = timed_train
+        torch.set_num_threads(config.torch_threads)
+        decisions = config.ppo.n_steps * config.n_envs
+        start = time.perf_counter()
+        model.learn(rollouts * decisions, callback=Phases())
+        wall = time.perf_counter() - start
+    finally:
+        training.set_phase_threads(config, updating=False)
+        venv.close()
+    return {"decisions": decisions, "n_envs": config.n_envs,
+            "steady_s": updates[-1][0] - updates[0][0], "wall_s": wall,
+            "collect_s": sum(b - a for a, b in collections) / rollouts,
+            "update_s": sum(b - a for a, b, _ in updates) / rollouts,
+            "update_thread_cpu_s": sum(c for _, _, c in updates) / rollouts}
+
+
+def overlap_figures(recipe: str, rollouts: int, repeats: int, device: str,
+                    n_steps: int | None = None, n_envs: int | None = None) -> dict[str, object]:
+    """``ppo.overlap``'s figures against the same recipe without it (see the module
+    docstring). A first short round fills numba's compile caches."""
+    import os
+
+    if rollouts < 2:
+        raise SystemExit("--rollouts must be >= 2: the steady state lies between the first "
+                         "update's start and the last one's")
+    load_before = os.getloadavg()[0]
+    _fresh(recipe, False, 1, device, 32, n_envs, round_=overlap_round)
+    runs: dict[bool, list[dict[str, float]]] = {False: [], True: []}
+    for _ in range(repeats):
+        for overlap in (False, True):
+            runs[overlap].append(_fresh(recipe, overlap, rollouts, device, n_steps, n_envs,
+                                        round_=overlap_round))
+    out: dict[str, object] = {"recipe": recipe, "rollouts": rollouts, "repeats": repeats,
+                              "n_envs": runs[False][0]["n_envs"],
+                              "decisions_per_rollout": runs[False][0]["decisions"]}
+    rates = {}
+    for overlap, name in ((False, "sequential"), (True, "overlap")):
+        rs = runs[overlap]
+        rates[overlap] = sum((rollouts - 1) * r["decisions"] for r in rs) / sum(
+            r["steady_s"] for r in rs)
+        out[f"{name}_decisions_per_s"] = round(rates[overlap], 2)
+        out[f"{name}_decisions_per_s_each"] = [
+            round((rollouts - 1) * r["decisions"] / r["steady_s"], 2) for r in rs]
+        out[f"{name}_end_to_end_decisions_per_s"] = round(
+            sum(rollouts * r["decisions"] for r in rs) / sum(r["wall_s"] for r in rs), 2)
+        for phase in ("collect_s", "update_s", "update_thread_cpu_s"):
+            out[f"{name}_{phase}"] = round(sum(r[phase] for r in rs) / len(rs), 2)
+    out.update(overlap_speedup=round(rates[True] / rates[False], 2), cores=os.cpu_count(),
+               load_average_before=round(load_before, 2),
+               load_average_after=round(os.getloadavg()[0], 2))
+    return out
 
 
 def recipe_figures(n_envs: list[int], device: str,
@@ -236,7 +348,22 @@ def main() -> None:
     parser.add_argument("--device", default="auto", help="the learner's torch device")
     parser.add_argument("--n-steps", type=int, default=None,
                         help="decisions per env in the recipe's round (default: the recipe's)")
+    parser.add_argument("--overlap", action="store_true",
+                        help="measure only ppo.overlap against the same recipe without it")
+    parser.add_argument("--recipe", default=None,
+                        help="with --overlap: the recipe (default: the shipped one's)")
+    parser.add_argument("--rollouts", type=int, default=3,
+                        help="with --overlap: rollouts and updates per measured run")
+    parser.add_argument("--repeats", type=int, default=1,
+                        help="with --overlap: runs of each mode, alternated")
     args = parser.parse_args()
+    if args.overlap:
+        from mjexplore.policies.models import DEFAULT_MODEL
+
+        recipe = args.recipe or f"training/{DEFAULT_MODEL['gvn']}.yaml"
+        print(json.dumps(overlap_figures(recipe, args.rollouts, args.repeats, args.device,
+                                         args.n_steps, args.n_envs)))
+        return
     envs = [args.n_envs] if args.n_envs else [2, 1, 4]
     if args.recipe_only:
         print(json.dumps(recipe_figures(envs, args.device, args.n_steps)))
