@@ -854,7 +854,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--init-weights", type=Path, default=None, metavar="WEIGHTS",
                     help="start a fresh run from these weights (of the config's network, e.g. "
                     "a warm start saved by tools/dagger_probe.py) instead of the config's "
-                    "imitation warm start")
+                    "imitation warm start (default: none, the config's own)")
     tr.add_argument("--no-progress", action="store_true",
                     help="no progress bar on a terminal, no progress lines elsewhere")
     tr.set_defaults(func=cmd_train)
