@@ -583,15 +583,19 @@ def test_training_saves_resumes_and_loads(tmp_path):
     again = _train_cli(["--config", str(cfg), "--out", str(out)])
     assert again.returncode == 2 and "--resume" in again.stderr
     assert len(list((out / "checkpoints").glob("step_*.pt"))) == 2  # 8 and 16.
-    # Steps, envs and the checkpoints kept may change.
+    # Steps, envs, the checkpoints kept and overlapping updates may change.
     cfg.write_text(TINY.format(total=32, n_envs=2).replace(
-        "checkpoint_every: 8", "checkpoint_every: 8\nkeep_checkpoints: 2"))
+        "checkpoint_every: 8", "checkpoint_every: 8\nkeep_checkpoints: 2").replace(
+        "n_epochs: 1}", "n_epochs: 1, overlap: true}"))
     r = _train_cli(["--config", str(cfg), "--out", str(out), "--resume"])
     assert r.returncode == 0, r.stderr
     summary = json.loads(r.stdout.splitlines()[-1])
     assert summary["resumed_from"] == 16 and summary["num_timesteps"] == 32
     assert sorted(p.name for p in (out / "checkpoints").glob("step_*.pt")) == [
         "step_000000016.pt", "step_000000032.pt"]
+    cfg.write_text(TINY.format(total=48, n_envs=2).replace("n_epochs: 1}", "n_epochs: 2}"))
+    refused = _train_cli(["--config", str(cfg), "--out", str(out), "--resume"])
+    assert refused.returncode == 2 and "ppo.overlap may change" in refused.stderr
     state = load_checkpoint(out / "checkpoints" / "step_000000032.pt")
     assert state["num_timesteps"] == 32 and "git_revision" in state
     assert from_dict(TrainConfig, json.loads(state["config"])).total_steps == 32

@@ -18,6 +18,7 @@ continues: episodes in progress start afresh and every random stream is re-seede
 from __future__ import annotations
 
 import contextlib
+import copy
 import dataclasses
 import functools
 import io
@@ -63,9 +64,10 @@ from mjexplore.policies.weights import build_policy, read_policy_weights, save_p
 log = logging.getLogger(__name__)
 
 CHECKPOINT_FORMAT = "mjexplore-checkpoint-v1"
-# Settings a resumed run may change: how long it trains, on how many envs and threads.
+# Settings a resumed run may change (dotted: inside a section): how long it trains, on how
+# many envs and threads, the checkpoints it keeps, and whether updates overlap collection.
 RESUMABLE_CHANGES = ("total_steps", "n_envs", "torch_threads", "update_threads",
-                     "keep_checkpoints")
+                     "keep_checkpoints", "ppo.overlap")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -79,9 +81,7 @@ class PpoConfig:
     APPO does; the loss is MaskablePPO's own). The update thread runs ``update_threads``
     torch threads (None: ``torch_threads``); checkpoints and evaluations still see the
     weights after a completed update, with every decision they count trained on. Checkpoints
-    are therefore the same in both modes and switching ``overlap`` when a run resumes would
-    be safe, but the resume check compares ``ppo`` as a whole (not in ``RESUMABLE_CHANGES``):
-    a run keeps the mode it started with.
+    are therefore the same in both modes, and a resumed run may switch ``overlap``.
     """
 
     n_steps: int = 256
@@ -554,11 +554,8 @@ class _Checkpointer:
                 old.unlink(missing_ok=True)
         return path
 
-    def record(self, steps: int, device: str, steps_from: int | None = None) -> None:
-        """Writes this session's entry of ``sessions.json`` (the run's steps now; with
-        ``steps_from``, where the session took the run from)."""
-        if steps_from is not None:
-            self.session["steps_from"] = int(steps_from)
+    def record(self, steps: int, device: str) -> None:
+        """Writes this session's entry of ``sessions.json`` (the run's steps now)."""
         wall, cpu = self._clock
         self.session.update(device=device, steps_to=int(steps),
                             wall_s=round(time.perf_counter() - wall, 1),
@@ -794,8 +791,7 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
         # Settings added since the run started read as their defaults (which keep the
         # behaviour the run had; a changed default is named explicitly in the configs).
         saved = to_dict(from_dict(TrainConfig, json.loads(state["config"]), "saved config"))
-        if ({k: v for k, v in saved.items() if k not in RESUMABLE_CHANGES}
-                != {k: v for k, v in to_dict(config).items() if k not in RESUMABLE_CHANGES}):
+        if _fixed_settings(saved) != _fixed_settings(to_dict(config)):
             raise UserInputError(f"the config differs from the one {str(out)!r} was trained with "
                                  f"(only {', '.join(RESUMABLE_CHANGES)} may change): resume "
                                  f"with {str(out / 'config.yaml')!r}.")
@@ -806,6 +802,18 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
     init = _initial_weights(config, init_weights) if init_weights is not None else None
     venv = make_vec_env(config, config.seed + done, ray_address)  # Before writing: may refuse.
     return _train(config, out, ckpt, state, latest, venv, progress, device, recipe, init)
+
+
+def _fixed_settings(config: dict[str, Any]) -> dict[str, Any]:
+    """A config dict without the settings a resumed run may change (``RESUMABLE_CHANGES``)."""
+    out = copy.deepcopy(config)
+    for name in RESUMABLE_CHANGES:
+        *sections, key = name.split(".")
+        part = out
+        for section in sections:
+            part = part.get(section) or {}
+        part.pop(key, None)
+    return out
 
 
 def _initial_weights(config: TrainConfig, path: str | Path) -> dict[str, Any]:
