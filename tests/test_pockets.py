@@ -16,6 +16,7 @@ from mjexplore.topology.pockets import (
     PocketPredictor,
     frontier_lengths,
     frontier_patches,
+    frontier_windows,
     pocket_areas,
     pocket_predictor,
     save_pocket_net,
@@ -72,6 +73,40 @@ def test_pocket_areas_are_the_unseen_free_space_behind_each_frontier():
     east_half = float(((truth.data == 0) & (grid.data < 0)).sum()) * 0.05 ** 2 - 0.125
     assert areas.max() == pytest.approx(east_half, rel=1e-6)
     assert areas.min() == pytest.approx(0.125, rel=1e-6)  # The alcove's frontier.
+
+
+def test_memo_predicts_only_frontiers_whose_surroundings_changed(monkeypatch):
+    room, _ = _room(0.05)  # Twice, 14 m apart: farther than a window's side.
+    gap = np.full((room.shape[0], 280), -1, np.int8)
+    grid = GridMap(np.hstack([room.data, gap, room.data[::-1]]), 0.05)
+    frontiers = find_frontiers(grid)
+    predictor = pocket_predictor(SHIPPED)
+    batches = []
+    predict = predictor._predict
+    monkeypatch.setattr(predictor, "_predict",
+                        lambda patches, lengths: batches.append(len(patches))
+                        or predict(patches, lengths))
+    memo = {}
+    first = predictor.small_probability(grid, frontiers, memo)
+    assert first == pytest.approx(predictor.small_probability(grid, frontiers), abs=1e-6)
+    assert batches == [len(frontiers), len(frontiers)] and len(memo) == len(frontiers)
+    # Nothing changed: read back, bit for bit.
+    assert np.array_equal(predictor.small_probability(grid, frontiers, memo), first)
+    assert batches == [len(frontiers), len(frontiers)]
+    # A free cell beside an alcove's frontier turns to wall: the frontiers whose window
+    # holds it (not those of the other room) are predicted again, and only theirs move.
+    alcove = int(np.argmin([f.size for f in frontiers]))
+    seen = grid.data.copy()
+    free = np.argwhere(seen == 0)
+    r, c = free[np.argmin(np.abs(free - frontiers[alcove].cells[0]).sum(axis=1))]
+    seen[r, c] = 100
+    changed = GridMap(seen, 0.05)
+    moved = [not np.array_equal(a[0], b[0]) for a, b in zip(
+        frontier_windows(grid, frontiers), frontier_windows(changed, frontiers))]
+    assert moved[alcove] and not all(moved)
+    after = predictor.small_probability(changed, frontiers, memo)
+    assert batches[-1] == sum(moved) and len(memo) == len(frontiers) + sum(moved)
+    assert np.array_equal(after[~np.array(moved)], first[~np.array(moved)])
 
 
 def test_weights_file_round_trip_and_refusals(tmp_path):

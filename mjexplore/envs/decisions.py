@@ -89,6 +89,7 @@ class TerDecisions:
         self.current: dict[str, np.ndarray] | None = None  # ...as observation arrays...
         self.pose: np.ndarray | None = None  # ...and the robot's map pose then.
         self.mask = np.zeros(self.config.max_nodes, bool)
+        self.pocket_memo: dict[bytes, np.float32] = {}  # The episode's pocket predictions.
 
     def _extra_features(self, padded: PaddedTer, state: ExplorationState,
                         frontiers: list[Frontier]) -> np.ndarray:
@@ -105,7 +106,8 @@ class TerDecisions:
             path = state.costmap.distances_near(state.pose[:2], cells, half)
             extra[real, :3] = path_features(path, state.allowed(positions))
         if self.pockets is not None and frontiers:
-            extra[:, 3] = self.pockets.node_probability(padded, state.grid, frontiers)
+            extra[:, 3] = self.pockets.node_probability(padded, state.grid, frontiers,
+                                                         self.pocket_memo)
         return extra
 
     def prepare(self, state: ExplorationState) -> bool:

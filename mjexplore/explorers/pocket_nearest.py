@@ -107,6 +107,7 @@ class PocketNearest:
         self.padded: PaddedTer | None = None  # The TER of the last decision...
         self.mask = np.zeros(0, bool)  # ...its valid nodes...
         self.cost = np.zeros(0, np.float32)  # ...and their costs (metres, inf: invalid).
+        self.pocket_memo: dict[bytes, np.float32] = {}  # The episode's pocket predictions.
 
     def _tracker_of(self, state: ExplorationState) -> TopologyTracker:
         """The episode's topology tracker, or (outside an episode) one of our own brought
@@ -163,7 +164,8 @@ class PocketNearest:
         path = np.clip(path, -FEATURE_BOUND, FEATURE_BOUND)
         cost = path + np.float32(EXCLUDED_M) * unreachable
         if self.pockets is not None and frontiers:
-            pocket = self.pockets.node_probability(padded, grid, frontiers)
+            pocket = self.pockets.node_probability(padded, grid, frontiers,
+                                                   self.pocket_memo)
             cost = cost + np.float32(self.pocket_m) * np.clip(pocket, -FEATURE_BOUND,
                                                               FEATURE_BOUND)
         return cost.astype(np.float32)

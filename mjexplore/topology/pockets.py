@@ -21,6 +21,7 @@ serves it to the decision space, which gives each TER frontier node the probabil
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from pathlib import Path
@@ -44,6 +45,50 @@ PATCH_CHANNELS = ("free", "occupied", "frontier")
 FORMAT = "mjexplore-pockets-v1"
 
 
+def frontier_windows(grid: GridMap, frontiers: list[Frontier]
+                     ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The map around each frontier at its own resolution, what :func:`frontier_patches`
+    resamples.
+
+    Returns:
+        Per frontier: int8 (side, side) classes of the map's cells in the square of
+        ``PATCH_CELLS * PATCH_RESOLUTION`` metres centred on the mean of the frontier's
+        cells (-1 unknown or outside the map, 0 free, 1 occupied; rows along +y), and the
+        frontier's cells (k, 2) in that square's (row, col) (some may lie outside it).
+    """
+    side = max(1, int(round(PATCH_CELLS * PATCH_RESOLUTION / grid.resolution)))
+    half = side // 2
+    data = grid.data
+    rows, cols = data.shape
+    out = []
+    for f in frontiers:
+        r0, c0 = np.round(f.cells.mean(axis=0)).astype(int) - half
+        window = np.full((side, side), -1, np.int8)
+        a0, a1 = max(r0, 0), min(r0 + side, rows)
+        b0, b1 = max(c0, 0), min(c0 + side, cols)
+        if a0 < a1 and b0 < b1:
+            np.sign(data[a0:a1, b0:b1], out=window[a0 - r0:a1 - r0, b0 - c0:b1 - c0])
+        out.append((window, f.cells - (r0, c0)))
+    return out
+
+
+def window_patch(window: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """The patch (uint8 (3, PATCH_CELLS, PATCH_CELLS)) of one of :func:`frontier_windows`'
+    windows and frontier cells."""
+    side = len(window)
+    layers = np.zeros((3, side, side), np.float32)  # Free, occupied, the frontier's cells.
+    layers[0] = window == 0
+    layers[1] = window > 0
+    inside = ((cells >= 0) & (cells < side)).all(axis=1)
+    layers[2, cells[inside, 0], cells[inside, 1]] = 1.0
+    out = np.empty((3, PATCH_CELLS, PATCH_CELLS), np.uint8)
+    for k, layer in enumerate(layers):
+        resized = layer if side == PATCH_CELLS else cv2.resize(
+            layer, (PATCH_CELLS, PATCH_CELLS), interpolation=cv2.INTER_AREA)
+        out[k] = np.round(np.clip(resized, 0.0, 1.0) * 255.0)
+    return out
+
+
 def frontier_patches(grid: GridMap, frontiers: list[Frontier]) -> np.ndarray:
     """Map patches centred on each frontier's cells, at ``PATCH_RESOLUTION``.
 
@@ -56,29 +101,8 @@ def frontier_patches(grid: GridMap, frontiers: list[Frontier]) -> np.ndarray:
         uint8 (n, 3, PATCH_CELLS, PATCH_CELLS).
     """
     out = np.zeros((len(frontiers), len(PATCH_CHANNELS), PATCH_CELLS, PATCH_CELLS), np.uint8)
-    if not frontiers:
-        return out
-    side = max(1, int(round(PATCH_CELLS * PATCH_RESOLUTION / grid.resolution)))
-    half = side // 2
-    data = grid.data
-    rows, cols = data.shape
-    window = np.zeros((3, side, side), np.float32)  # Free, occupied, the frontier's cells.
-    for i, f in enumerate(frontiers):
-        r0, c0 = np.round(f.cells.mean(axis=0)).astype(int) - half
-        window[:] = 0.0  # Outside the map reads as unknown.
-        a0, a1 = max(r0, 0), min(r0 + side, rows)
-        b0, b1 = max(c0, 0), min(c0 + side, cols)
-        if a0 < a1 and b0 < b1:
-            part = data[a0:a1, b0:b1]
-            window[0, a0 - r0:a1 - r0, b0 - c0:b1 - c0] = part == 0
-            window[1, a0 - r0:a1 - r0, b0 - c0:b1 - c0] = part > 0
-        cells = f.cells - (r0, c0)
-        inside = ((cells >= 0) & (cells < side)).all(axis=1)
-        window[2, cells[inside, 0], cells[inside, 1]] = 1.0
-        for k, layer in enumerate(window):
-            resized = layer if side == PATCH_CELLS else cv2.resize(
-                layer, (PATCH_CELLS, PATCH_CELLS), interpolation=cv2.INTER_AREA)
-            out[i, k] = np.round(np.clip(resized, 0.0, 1.0) * 255.0)
+    for i, (window, cells) in enumerate(frontier_windows(grid, frontiers)):
+        out[i] = window_patch(window, cells)
     return out
 
 
@@ -166,8 +190,8 @@ class PocketPredictor:
                                  f"({str(exc).splitlines()[0]}).") from None
         self.net.eval()
 
-    def node_probability(self, padded: PaddedTer, grid: GridMap,
-                         frontiers: list[Frontier]) -> np.ndarray:
+    def node_probability(self, padded: PaddedTer, grid: GridMap, frontiers: list[Frontier],
+                         memo: dict[bytes, np.float32] | None = None) -> np.ndarray:
         """(N_max,) float32: each frontier node's probability that its pocket is small (a
         node sits at its frontier's goal cell; every frontier node is predicted in one
         batch); 0 for the other nodes.
@@ -176,6 +200,7 @@ class PocketPredictor:
             padded: A decision's padded TER.
             grid: The partial map.
             frontiers: The frontiers the TER was built from.
+            memo: The episode's predictions so far (see :meth:`small_probability`).
         """
         out = np.zeros(len(padded.node_mask), np.float32)
         nodes = np.flatnonzero((padded.node_mask > 0)
@@ -188,17 +213,51 @@ class PocketPredictor:
         matched = [(n, i) for n, i in matched if i is not None]
         if matched:
             out[[n for n, _ in matched]] = self.small_probability(
-                grid, [frontiers[i] for _, i in matched])
+                grid, [frontiers[i] for _, i in matched], memo)
         return out
 
-    def small_probability(self, grid: GridMap, frontiers: list[Frontier]) -> np.ndarray:
-        """(n,) probability that each frontier's pocket is below ``small_area_m2``."""
+    def small_probability(self, grid: GridMap, frontiers: list[Frontier],
+                          memo: dict[bytes, np.float32] | None = None) -> np.ndarray:
+        """(n,) probability that each frontier's pocket is below ``small_area_m2``.
+
+        Args:
+            grid: The partial map.
+            frontiers: The frontiers to predict.
+            memo: Predictions already made, by patch and length (a digest of both), which
+                this call reads and extends: a frontier whose patch and length did not
+                change since an earlier decision of the episode (about 6 in 10 of a
+                decision's frontiers) is not predicted again. Keep one per episode (it
+                grows by a few hundred bytes per new frontier). A remembered value is the
+                one predicted then, in that decision's batch: it can differ from this
+                batch's in the last bits of a float32 (convolutions sum in an order that
+                depends on the batch size). None: predict every frontier.
+        """
         if not frontiers:
             return np.zeros(0, np.float32)
-        patches = torch.from_numpy(frontier_patches(grid, frontiers))
-        lengths = torch.from_numpy(frontier_lengths(grid, frontiers))
+        lengths = frontier_lengths(grid, frontiers)
+        if memo is None:
+            return self._predict(frontier_patches(grid, frontiers), lengths)
+        windows = frontier_windows(grid, frontiers)
+        keys = [_window_digest(window, cells, length)
+                for (window, cells), length in zip(windows, lengths)]
+        new = [i for i, key in enumerate(keys) if key not in memo]
+        if new:
+            patches = np.stack([window_patch(*windows[i]) for i in new])
+            memo.update(zip((keys[i] for i in new), self._predict(patches, lengths[new])))
+        return np.array([memo[key] for key in keys], np.float32)
+
+    def _predict(self, patches: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+        """(n,) probabilities of patches (n, 3, S, S) uint8 and lengths (n,) metres."""
         with torch.no_grad():
-            return torch.sigmoid(self.net(patches, lengths)).numpy()
+            return torch.sigmoid(self.net(torch.from_numpy(patches),
+                                          torch.from_numpy(lengths))).numpy()
+
+
+def _window_digest(window: np.ndarray, cells: np.ndarray, length: np.float32) -> bytes:
+    """What decides a frontier's prediction (its window, cells and length), digested."""
+    digest = hashlib.blake2b(memoryview(window), digest_size=16, key=length.tobytes())
+    digest.update(np.ascontiguousarray(cells, np.int64).tobytes())
+    return digest.digest()
 
 
 _PREDICTORS: dict[tuple[str, float], PocketPredictor] = {}
