@@ -561,6 +561,19 @@ def cmd_collect(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_collect_training(args: argparse.Namespace) -> int:
+    from mjexplore.eval.training_record import collect_training
+
+    if not args.run.is_dir():
+        raise UserInputError(f"{str(args.run)!r} is not a folder: give a run folder of "
+                             "'mjexplore train --out'.")
+    check_output_folder(args.data, "--data")
+    record = collect_training(args.run, args.data, args.name)
+    print(json.dumps({"record": str(record),
+                      "files": sorted(p.name for p in record.iterdir())}))
+    return 0
+
+
 def cmd_report(args: argparse.Namespace) -> int:
     from mjexplore.eval.report import build_report
 
@@ -900,6 +913,20 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("--merge", action="store_true",
                     help="keep the existing summary's runs of methods this sweep lacks")
     co.set_defaults(func=cmd_collect)
+
+    ct = sub.add_parser(
+        "collect-training", help="keep a training run's record for the results report",
+        description="Keep what the report needs of a training run (its validation "
+                    "evaluations, the baselines tools/plot_training.py measured on the same "
+                    "layouts, the resolved config, decisions trained and the sessions' hosts, "
+                    "cores and wall time; no weights) in DATA/training/NAME/, for the "
+                    "report's learning curve. Collect again as the run goes on.")
+    ct.add_argument("run", type=Path, help="the run folder (mjexplore train --out)")
+    ct.add_argument("--name", default=None,
+                    help="the record's name (default: the run folder's name)")
+    ct.add_argument("--data", type=Path, default=Path("docs/results/data"),
+                    help="summaries folder")
+    ct.set_defaults(func=cmd_collect_training)
 
     rep = sub.add_parser(
         "report", help="write docs/results.md from the collected sweep summaries",

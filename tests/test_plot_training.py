@@ -136,6 +136,39 @@ def test_curve_json_fields_and_baselines_measured_once(tmp_path, monkeypatch, ca
     assert "baselines" not in plain and len(calls) == 3
 
 
+def test_collected_run_shows_in_the_report_paired_against_the_prior(tmp_path, monkeypatch,
+                                                                    capsys):
+    from mjexplore.cli import main as cli
+    from mjexplore.eval.report import build_report
+
+    run = _run(tmp_path)
+    monkeypatch.setattr(plot_training, "measure_baselines", _fake_measure([]))
+    plot_training.main([str(run), str(tmp_path / "curve.png"), "--workers", "1"])
+    (run / "sessions.json").write_text(json.dumps({"sessions": [
+        {"host": "h", "cores": 2, "device": "cpu", "revision": "aaaaaaa1", "steps_from": 0,
+         "steps_to": 16, "wall_s": 5400.0},
+        {"host": "h", "cores": 16, "device": "cuda", "revision": "bbbbbbb2",
+         "steps_from": 16, "steps_to": 32, "wall_s": 1800.0}]}))
+    data = tmp_path / "data"
+    # No evaluations yet: nothing to keep.
+    assert cli(["collect-training", str(tmp_path), "--data", str(data)]) == 2
+    assert "eval.csv" in capsys.readouterr().err and not data.exists()
+    assert cli(["collect-training", str(run), "--data", str(data), "--name", "long"]) == 0
+    record = data / "training" / "long"
+    assert sorted(p.name for p in record.iterdir()) == ["baselines.json", "config.yaml",
+                                                        "eval.csv", "facts.json"]
+    report = build_report(data, tmp_path / "out" / "results.md").read_text()
+    section = report[report.index("## Training runs"):]
+    assert "Started at revision `aaaaaaa`; 32 decisions trained so far" in section
+    assert "2.0 h of wall time on 2 or 16 cores (cpu, cuda)" in section
+    # Per evaluation, paired per layout against pocket_nearest's 100 and 200 s.
+    assert "| 8 | 1/2 | 160.0 | 1.100 (" in section  # (120 / 100 + 200 / 200) / 2
+    assert "| 16 (kept) | 2/2 | 120.0 | 0.825 (" in section
+    assert "| 2 / 0 |" in section
+    assert "pocket_nearest 150.0 s (2/2 explored); oracle 80.0 s (1/2 explored)" in section
+    assert (tmp_path / "out" / "results" / "training_long.png").read_bytes()[:4] == b"\x89PNG"
+
+
 def test_baselines_are_the_prior_and_the_oracle_on_the_validation_layouts(tmp_path):
     run = _run(tmp_path)
     config = from_dict(TrainConfig, {**to_dict(CONFIG), "eval": {

@@ -37,7 +37,8 @@ The JSON line holds:
   layouts faster and slower, sign test p-value;
 * with ``--departures``: ``departures``, how often the shipped policy (``--weights``,
   default ``RUN/best.safetensors`` else ``RUN/policy.safetensors``) departs from its prior
-  on the validation layouts (:func:`mjexplore.eval.learning_curve.prior_departures`).
+  on the validation layouts (:func:`mjexplore.eval.learning_curve.prior_departures`),
+  also written to ``RUN/departures.json`` (``mjexplore collect-training`` keeps it).
 
 Runs before 51c9f13 do not record the machine's cores, nor the wall time of a whole run
 (warm start to end, across resumes): ``wall_s`` is what TensorBoard holds of it.
@@ -76,7 +77,9 @@ from mjexplore.eval.learning_curve import (  # noqa: E402
     run_revision,
     shipped_weights,
 )
-from mjexplore.io.atomic import write_bytes_atomic  # noqa: E402
+from mjexplore.eval.plots import draw_learning_curve  # noqa: E402
+from mjexplore.eval.training_record import DEPARTURES_FILE  # noqa: E402
+from mjexplore.io.atomic import write_bytes_atomic, write_text_atomic  # noqa: E402
 
 # probe_policy's modes for the baselines.
 PROBE_MODES = {"pocket_nearest": "prior", "oracle": "oracle"}
@@ -210,6 +213,8 @@ def report(run: Path, baselines: bool = True, recompute: bool = False, workers: 
                     figures[f"best_vs_{name}"] = paired
     if departures_of is not None and config is not None:
         figures["departures"] = departures(departures_of, config)
+        # Kept beside the run for mjexplore collect-training.
+        write_text_atomic(run / DEPARTURES_FILE, json.dumps(figures["departures"]) + "\n")
     return figures, {"rows": rows, "scalars": s, "lines": lines, "best": best}
 
 
@@ -217,22 +222,7 @@ def plot(figures: dict, extra: dict, out: Path) -> None:
     """The four panels: learning curve with the baselines' lines, per-layout curves, episode
     return and length; written atomically as PNG."""
     fig, axes = plt.subplots(2, 2, figsize=(12, 7.2))
-    ax = axes[0, 0]
-    points = figures["curve"]
-    if points:
-        ax.plot([p["steps"] for p in points], [p["mean_exploration_time_s"] for p in points],
-                "o-", color="C0", label="policy (mean over layouts)")
-    best = extra["best"]
-    if best is not None:
-        ax.plot([best["steps"]], [best["mean_exploration_time_s"]], "*", color="C3",
-                markersize=14, label=f"best ({best['steps']} decisions)")
-    for (name, value), style in zip(sorted(extra["lines"].items()), ("--", ":"), strict=False):
-        ax.axhline(value, linestyle=style, color="k" if name == "oracle" else "C2",
-                   label=f"{name} {value:.0f} s")
-    ax.set_xlabel("decisions trained")
-    ax.set_title("validation exploration time (s, simulated)")
-    if points or extra["lines"]:
-        ax.legend(fontsize=8)
+    draw_learning_curve(axes[0, 0], figures["curve"], extra["best"], extra["lines"])
     ax = axes[0, 1]
     rows = extra["rows"]
     scenes = sorted({r["scene"] for r in rows})

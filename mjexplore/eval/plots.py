@@ -115,3 +115,34 @@ def map_figure(grid: GridMap, path_xy: np.ndarray, goals: np.ndarray,
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     _save(fig, path)
+
+
+def draw_learning_curve(ax, points: list[dict], best: dict | None,
+                        lines: dict[str, float]) -> None:
+    """A training run's mean validation exploration time (s) per evaluation against the
+    decisions trained (``points`` of :func:`mjexplore.eval.learning_curve.learning_curve`),
+    the evaluation model selection kept (``best``) starred, and each baseline's mean as a
+    horizontal line (``lines``: name -> s)."""
+    if points:
+        ax.plot([p["steps"] for p in points], [p["mean_exploration_time_s"] for p in points],
+                "o-", color="C0", label="policy (mean over layouts)")
+    if best is not None:
+        ax.plot([best["steps"]], [best["mean_exploration_time_s"]], "*", color="C3",
+                markersize=14, label=f"kept ({best['steps']} decisions)")
+    for name, value in sorted(lines.items()):
+        ax.axhline(value, linestyle=":" if name == "oracle" else "--",
+                   color=COLOURS.get(name, "k"), label=f"{name} {value:.0f} s")
+    ax.set_xlabel("decisions trained")
+    ax.set_title("validation exploration time (s, simulated)")
+    if points or lines:
+        ax.legend(fontsize=8)
+
+
+def learning_curve_figure(points: list[dict], lines: dict[str, float], best: dict | None,
+                          path: str | os.PathLike, title: str = "") -> None:
+    """:func:`draw_learning_curve` alone, as a PNG at ``path``."""
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    draw_learning_curve(ax, points, best, lines)
+    if title:
+        ax.set_title(f"{title}: validation exploration time (s, simulated)")
+    _save(fig, path)

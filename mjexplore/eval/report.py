@@ -24,6 +24,7 @@ from mjexplore.eval.stats import compare_paired
 from mjexplore.eval.summaries import KINEMATIC_FIELDS, KINEMATICS_DT, ratio_curve, read_summary
 from mjexplore.eval.sweep import MEAN_STD_NOTE, format_mean_std, markdown_table, summary_table
 from mjexplore.eval.team_report import team_section
+from mjexplore.eval.training_record import training_section
 from mjexplore.io.atomic import write_text_atomic
 
 METHOD_ORDER = ("nearest", "pocket_nearest", "explore_lite", "frontier_tsp", "rrt", "potential",
@@ -684,6 +685,7 @@ def build_report(data_dir: str | os.PathLike, out: str | os.PathLike,
                       "Seed 0 on each scene: the map at the end, the trajectory and the TER.", ""]
             lines += [f"![{scene}: final map, trajectory and TER]({rel}/{still})"
                       for scene, still in stills.items()] + [""]
+    lines += training_section(data, figures, rel)
     lines += revisions_section(summaries)
     if missing:
         lines += ["## Not yet run", "",
