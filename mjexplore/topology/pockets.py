@@ -223,10 +223,11 @@ class PocketPredictor:
         Args:
             grid: The partial map.
             frontiers: The frontiers to predict.
-            memo: Predictions already made, by patch and length (a digest of both), which
-                this call reads and extends: a frontier whose patch and length did not
+            memo: Predictions already made, by what decides them (the frontier's window
+                of :func:`frontier_windows`, its cells and length, digested), which this
+                call reads and extends: a frontier whose window, cells and length did not
                 change since an earlier decision of the episode (about 6 in 10 of a
-                decision's frontiers) is not predicted again. Keep one per episode (it
+                decision's frontiers) is neither cut into a patch nor predicted again. Keep one per episode (it
                 grows by a few hundred bytes per new frontier). A remembered value is the
                 one predicted then, in that decision's batch: it can differ from this
                 batch's in the last bits of a float32 (convolutions sum in an order that
