@@ -4,6 +4,7 @@ often a residual policy departs from its prior."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -63,20 +64,22 @@ def _run(tmp_path: Path, revision: str = "abc123") -> Path:
 
 def _fake_measure(calls: list):
     def make(config_path, workers):
-        def measure(config):
-            calls.append(config.eval.scene_list())
-            return {"pocket_nearest": [
-                        {"layout": "train_loop", "exploration_time_s": 100.0,
-                         "path_length_m": 50.0, "explored": True},
-                        {"layout": "train_office_small", "exploration_time_s": 200.0,
-                         "path_length_m": 80.0, "explored": True}],
-                    "oracle": [
-                        {"layout": "train_loop", "exploration_time_s": 60.0,
-                         "path_length_m": 30.0, "explored": True},
-                        {"layout": "train_office_small", "exploration_time_s": 100.0,
-                         "path_length_m": 40.0, "explored": False}]}
+        def measure(config, names):
+            calls.append((config.eval.scene_list(), names))
+            return {name: figures for name, figures in _FAKE_BASELINES.items() if name in names}
         return measure
     return make
+
+
+def _layouts(loop: float, office: float, explored: tuple[bool, bool] = (True, True)):
+    return [{"layout": name, "exploration_time_s": seconds, "path_length_m": seconds / 2,
+             "explored": done}
+            for name, seconds, done in zip(LAYOUTS, (loop, office), explored, strict=True)]
+
+
+_FAKE_BASELINES = {"pocket_nearest": _layouts(100.0, 200.0),
+                   "nearest": _layouts(90.0, 300.0),
+                   "oracle": _layouts(60.0, 100.0, (True, False))}
 
 
 def test_curve_json_fields_and_baselines_measured_once(tmp_path, monkeypatch, capsys):
@@ -136,6 +139,29 @@ def test_curve_json_fields_and_baselines_measured_once(tmp_path, monkeypatch, ca
     assert "baselines" not in plain and len(calls) == 3
 
 
+def test_a_baseline_missing_from_the_cache_is_measured_alone(tmp_path, monkeypatch, capsys):
+    run = _run(tmp_path)
+    calls: list = []
+    monkeypatch.setattr(plot_training, "measure_baselines", _fake_measure(calls))
+    plot_training.main([str(run), str(tmp_path / "curve.png"), "--workers", "1"])
+    capsys.readouterr()
+    path = run / "baselines.json"
+    stored = json.loads(path.read_text())
+    [entry] = stored["entries"].values()
+    del entry["nearest"]  # As an older file kept it: no nearest, one revision for all.
+    entry["measured_at"] = "0ld"
+    path.write_text(json.dumps(stored))
+    plot_training.main([str(run), str(tmp_path / "curve.png"), "--workers", "1"])
+    figures = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert [names for _, names in calls] == [["pocket_nearest", "nearest", "oracle"],
+                                             ["nearest"]]
+    assert figures["baselines"]["cached"] is False
+    assert figures["baselines"]["nearest"]["mean_exploration_time_s"] == 195.0
+    measured_at = figures["baselines"]["measured_at"]
+    assert measured_at["pocket_nearest"] == measured_at["oracle"] == "0ld"
+    assert measured_at["nearest"] != "0ld"
+
+
 def test_collected_run_shows_in_the_report_paired_against_the_prior(tmp_path, monkeypatch,
                                                                     capsys):
     from mjexplore.cli import main as cli
@@ -164,8 +190,9 @@ def test_collected_run_shows_in_the_report_paired_against_the_prior(tmp_path, mo
     # Per evaluation, paired per layout against pocket_nearest's 100 and 200 s.
     assert "| 8 | 1/2 | 160.0 | 1.100 (" in section  # (120 / 100 + 200 / 200) / 2
     assert "| 16 (kept) | 2/2 | 120.0 | 0.825 (" in section
-    assert "| 2 / 0 |" in section
-    assert "pocket_nearest 150.0 s (2/2 explored); oracle 80.0 s (1/2 explored)" in section
+    assert "| 2 / 0 | 0.50 | 0.750 (" in section  # Beside: (90 / 90 + 150 / 300) / 2.
+    assert ("pocket_nearest 150.0 s (2/2 explored); nearest 195.0 s (2/2 explored); oracle "
+            "80.0 s (1/2 explored)") in section
     assert (tmp_path / "out" / "results" / "training_long.png").read_bytes()[:4] == b"\x89PNG"
 
 
@@ -173,8 +200,15 @@ def test_baselines_are_the_prior_and_the_oracle_on_the_validation_layouts(tmp_pa
     run = _run(tmp_path)
     config = from_dict(TrainConfig, {**to_dict(CONFIG), "eval": {
         **to_dict(CONFIG.eval), "scenes": ["train_loop"]}})
-    measured = plot_training.measure_baselines(run / "config.yaml", workers=1)(config)
-    assert set(measured) == {"pocket_nearest", "oracle"}
+    names = plot_training.applicable_baselines(config)
+    assert names == ["pocket_nearest", "nearest", "oracle"]
+    v1 = dataclasses.replace(
+        config, policy=dataclasses.replace(config.policy, prior_temperature=None),
+        env=dataclasses.replace(config.env, observation=dataclasses.replace(
+            config.env.observation, features="v1")))
+    assert plot_training.applicable_baselines(v1) == ["nearest", "oracle"]  # No path feature.
+    measured = plot_training.measure_baselines(run / "config.yaml", workers=1)(config, names)
+    assert set(measured) == set(names)
     # The prior alone, with the settings the held-out evaluation (eval.csv) runs.
     [rule] = evaluate_policy_episodes(NearestNodeRule(CONFIG.policy.prior_pocket_m), config)
     [mine] = measured["pocket_nearest"]
@@ -183,6 +217,8 @@ def test_baselines_are_the_prior_and_the_oracle_on_the_validation_layouts(tmp_pa
     assert mine["path_length_m"] == rule["path_length_m"]
     [oracle] = measured["oracle"]
     assert oracle["layout"] == "train_loop" and oracle["exploration_time_s"] > 0
+    [nearest] = measured["nearest"]  # The classic explorer on the same episode.
+    assert nearest["layout"] == "train_loop" and nearest["exploration_time_s"] > 0
 
 
 def test_departures_from_the_prior_none_without_a_residual_some_with_a_large_one(

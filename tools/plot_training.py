@@ -3,11 +3,12 @@ the held-out evaluation per layout, and episode return and length (TensorBoard s
 one PNG and one JSON line.
 
 The learning curve is the mean validation exploration time (simulated s) of each evaluation
-in ``RUN/eval.csv`` against the decisions trained, with two horizontal lines measured on the
+in ``RUN/eval.csv`` against the decisions trained, with horizontal lines measured on the
 same validation layouts (the run's ``eval.scene_list()``) with the same episode settings and
 seed: ``pocket_nearest`` (the policy's prior alone: the nearest node by path, counting each
 ``policy.prior_pocket_m`` metres farther per unit of pocket probability; ``prior`` mode of
-``tools/probe_policy.py``) and ``oracle`` (the ground-truth explorer; its mode there). They
+``tools/probe_policy.py``; v2 and v3 observations only), ``nearest`` (the classic
+nearest-frontier explorer; its mode there) and ``oracle`` (the ground-truth explorer). They
 are measured once and cached in ``RUN/baselines.json`` (see
 :mod:`mjexplore.eval.learning_curve`); ``--recompute-baselines`` measures them again,
 ``--no-baselines`` leaves them out.
@@ -31,7 +32,7 @@ The JSON line holds:
 * ``curve`` (per evaluation: steps, mean exploration time s, layouts explored, score),
   ``best`` (the evaluation model selection kept, ``best.safetensors``);
 * ``baselines``: per baseline its mean exploration time (s) and layouts explored, with
-  ``cached`` and ``measured_at`` (revision of the code that measured them);
+  ``cached`` and ``measured_at`` (per baseline, the revision of the code that measured it);
 * ``best_vs_pocket_nearest`` and ``best_vs_oracle``: the best evaluation's per-layout
   exploration times over the baseline's: mean of per-layout ratios, bootstrap 95 % interval,
   layouts faster and slower, sign test p-value;
@@ -82,7 +83,7 @@ from mjexplore.eval.training_record import DEPARTURES_FILE  # noqa: E402
 from mjexplore.io.atomic import write_bytes_atomic, write_text_atomic  # noqa: E402
 
 # probe_policy's modes for the baselines.
-PROBE_MODES = {"pocket_nearest": "prior", "oracle": "oracle"}
+PROBE_MODES = {"pocket_nearest": "prior", "nearest": "nearest", "oracle": "oracle"}
 
 
 def _accumulators(run: Path) -> list:
@@ -130,15 +131,20 @@ def _probe_job(job: tuple[str, str, int, str]) -> dict:
     return probe_policy._episode((config_path, "", mode, seed, scene))
 
 
+def applicable_baselines(config) -> list[str]:
+    """The baselines that apply to a run: ``pocket_nearest`` only with v2 or v3 GVN
+    observations (the path feature its rule reads)."""
+    from mjexplore.envs.observation import POSED
+
+    return [n for n in BASELINES if n != "pocket_nearest" or (
+        config.kind == "gvn" and config.env.observation.features in POSED)]
+
+
 def measure_baselines(config_path: Path, workers: int):
     """A measuring function for :func:`~mjexplore.eval.learning_curve.cached_baselines`:
-    ``tools/probe_policy.py``'s ``prior`` and ``oracle`` episodes on the config's validation
-    layouts (``pocket_nearest`` only with v2 or v3 GVN observations: the path feature)."""
-    def measure(config) -> dict[str, list[dict]]:
-        from mjexplore.envs.observation import POSED
-
-        names = [n for n in BASELINES if n != "pocket_nearest" or (
-            config.kind == "gvn" and config.env.observation.features in POSED)]
+    ``tools/probe_policy.py``'s ``prior``, ``nearest`` and ``oracle`` episodes on the
+    config's validation layouts."""
+    def measure(config, names: list[str]) -> dict[str, list[dict]]:
         jobs = [(str(config_path), PROBE_MODES[n], config.eval.seed, scene)
                 for n in names for scene in config.eval.scene_list()]
         if workers > 1:
@@ -200,7 +206,7 @@ def report(run: Path, baselines: bool = True, recompute: bool = False, workers: 
     if baselines and config is not None:
         entry, cached = cached_baselines(run, config, run_revision(run),
                                          measure_baselines(run / "config.yaml", workers),
-                                         recompute)
+                                         recompute, applicable_baselines(config))
         means = baseline_means(entry)
         figures["baselines"] = {**means, "cached": cached, "measured_at": entry["measured_at"],
                                 "pocket_m": config.policy.prior_pocket_m}

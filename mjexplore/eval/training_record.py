@@ -141,17 +141,22 @@ def record_section(record: Path, figures: Path, rel: str) -> list[str]:
                           best, figure, title=name)
     lines += [f"![{name}: validation exploration time against decisions trained]"
               f"({rel}/{figure.name})", ""]
+    # Paired in full against the first baseline there is (the prior when the run has one);
+    # against plain nearest-frontier as a ratio beside it.
+    main = next((n for n in ("pocket_nearest", "nearest") if n in baselines), None)
+    beside = "nearest" if main == "pocket_nearest" and "nearest" in baselines else None
     table = []
     for p in points:
         mine = [r for r in rows if r["steps"] == p["steps"]]
-        paired = paired_ratio(mine, baselines["pocket_nearest"]) \
-            if "pocket_nearest" in baselines else None
-        table.append([f"{p['steps']:,}" + (" (kept)" if p is best else ""),
-                      f"{p['explored']}/{p['layouts']}", f"{p['mean_exploration_time_s']:.1f}",
-                      *_ratio_cells(paired)])
-    lines += [markdown_table(["decisions", "explored", "mean ET (s)",
-                              "/ pocket_nearest (95 % CI)", "faster / slower", "sign p"],
-                             table), ""]
+        row = [f"{p['steps']:,}" + (" (kept)" if p is best else ""),
+               f"{p['explored']}/{p['layouts']}", f"{p['mean_exploration_time_s']:.1f}",
+               *_ratio_cells(paired_ratio(mine, baselines[main]) if main else None)]
+        if beside:
+            row.append(_ratio_cells(paired_ratio(mine, baselines[beside]))[0])
+        table.append(row)
+    header = ["decisions", "explored", "mean ET (s)", f"/ {main or 'baseline'} (95 % CI)",
+              "faster / slower", "sign p"] + ([f"/ {beside} (95 % CI)"] if beside else [])
+    lines += [markdown_table(header, table), ""]
     if means:
         said = "; ".join(f"{n} {m['mean_exploration_time_s']:.1f} s ({m['explored']}/"
                          f"{m['layouts']} explored)" for n, m in means.items())

@@ -227,11 +227,12 @@ class PocketPredictor:
                 of :func:`frontier_windows`, its cells and length, digested), which this
                 call reads and extends: a frontier whose window, cells and length did not
                 change since an earlier decision of the episode (about 6 in 10 of a
-                decision's frontiers) is neither cut into a patch nor predicted again. Keep one per episode (it
-                grows by a few hundred bytes per new frontier). A remembered value is the
-                one predicted then, in that decision's batch: it can differ from this
-                batch's in the last bits of a float32 (convolutions sum in an order that
-                depends on the batch size). None: predict every frontier.
+                decision's frontiers) is neither cut into a patch nor predicted again.
+                Keep one per episode (it grows by a few dozen bytes per new frontier). A
+                remembered value is the one predicted then, in that decision's batch: it
+                can differ from this batch's in the last bits of a float32 (convolutions
+                sum in an order that depends on the batch size). None: predict every
+                frontier.
         """
         if not frontiers:
             return np.zeros(0, np.float32)
