@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import csv
 import dataclasses
 import functools
 import io
@@ -838,6 +839,25 @@ def _initial_weights(config: TrainConfig, path: str | Path) -> dict[str, Any]:
         "policy_kwargs": meta.get("policy_kwargs"), "provenance": meta.get("provenance")}}
 
 
+def _last_evaluation(out: Path) -> int | None:
+    """The decisions at the run's last held-out evaluation (``eval.csv``), None before any."""
+    path = out / "eval.csv"
+    if not path.is_file():
+        return None
+    with open(path) as f:
+        steps = [int(row["steps"]) for row in csv.DictReader(f)]
+    return max(steps, default=None)
+
+
+def _next_evaluation(every: int, last: int | None) -> int:
+    """The decisions at which the next held-out evaluation is due: the first multiple of
+    ``every`` past the last evaluation (``last``; None: none yet), so that a run evaluates at
+    the same counts however often it is resumed; one a resume skipped is due at once."""
+    if every <= 0:
+        return 0
+    return ((last or 0) // every + 1) * every
+
+
 def planned_steps(config: TrainConfig, done: int) -> int:
     """The steps a run that has ``done`` trains to: ``total_steps`` rounded up to whole
     rollouts of ``ppo.n_steps`` decisions of each of the ``n_envs`` envs."""
@@ -899,7 +919,7 @@ def _train(config: TrainConfig, out: Path, ckpt: _Checkpointer, state: dict | No
         class Callback(BaseCallback):
             def _on_training_start(self) -> None:
                 self.last_ckpt = self.num_timesteps
-                self.last_eval = self.num_timesteps
+                self.next_eval = _next_evaluation(config.eval.every, _last_evaluation(out))
                 self.evaluations = 0
                 self.mark = time.perf_counter()
                 shown.phase("collecting")
@@ -921,8 +941,8 @@ def _train(config: TrainConfig, out: Path, ckpt: _Checkpointer, state: dict | No
                     shown.phase("checkpointing")
                     written.append(ckpt.save(self.model, n).name)
                     self.last_ckpt = n
-                if config.eval.every and n - self.last_eval >= config.eval.every:
-                    self.last_eval = n
+                if config.eval.every and n >= self.next_eval:
+                    self.next_eval = _next_evaluation(config.eval.every, n)
                     shown.phase("evaluating")
                     self._evaluate(n)
                 if n > done:
