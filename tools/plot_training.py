@@ -75,8 +75,8 @@ from mjexplore.eval.learning_curve import (  # noqa: E402
     prior_departures,
     read_evaluations,
     run_facts,
-    run_revision,
     shipped_weights,
+    start_revision,
 )
 from mjexplore.eval.plots import draw_learning_curve  # noqa: E402
 from mjexplore.eval.training_record import DEPARTURES_FILE  # noqa: E402
@@ -204,7 +204,7 @@ def report(run: Path, baselines: bool = True, recompute: bool = False, workers: 
         figures["best"] = best
     lines: dict[str, float] = {}
     if baselines and config is not None:
-        entry, cached = cached_baselines(run, config, run_revision(run),
+        entry, cached = cached_baselines(run, config, start_revision(run),
                                          measure_baselines(run / "config.yaml", workers),
                                          recompute, applicable_baselines(config))
         means = baseline_means(entry)

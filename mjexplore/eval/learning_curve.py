@@ -103,6 +103,17 @@ def run_revision(run: str | Path) -> str | None:
     return first[len(prefix):].strip() or None
 
 
+def start_revision(run: str | Path) -> str | None:
+    """The git revision a run started at: its first session's (``sessions.json``), else
+    :func:`run_revision` (a resume rewrites ``config.yaml`` with its own revision)."""
+    ledger = Path(run) / "sessions.json"
+    if ledger.is_file():
+        sessions = json.loads(ledger.read_text()).get("sessions") or []
+        if sessions and sessions[0].get("revision"):
+            return sessions[0]["revision"]
+    return run_revision(run)
+
+
 def shipped_weights(run: str | Path) -> Path | None:
     """A run's shipped policy: the best evaluated weights (``best.safetensors``), else the
     final ones (``policy.safetensors``); None if it has neither."""
@@ -183,7 +194,7 @@ def cached_baselines(run: str | Path, config: TrainConfig, revision: str | None,
     Args:
         run: The run folder.
         config: The run's config.
-        revision: The run's revision (part of the key).
+        revision: The revision the run started at (part of the key; :func:`start_revision`).
         measure: Measures the named baselines on ``config.eval.scene_list()`` (see
             :data:`Measured`).
         recompute: Measure again even if cached.
