@@ -519,7 +519,8 @@ def cmd_train(args: argparse.Namespace) -> int:
 
     _check_device(args.device)
 
-    config = load_train_config(args.config, total_steps=args.total_steps, n_envs=args.n_envs)
+    config = load_train_config(args.config, total_steps=args.total_steps, n_envs=args.n_envs,
+                               seed=args.seed)
     check_output_folder(args.out)
     summary = train(config, args.out, resume=args.resume, progress=not args.no_progress,
                     ray_address=args.ray, device=args.device, recipe=Path(args.config).name,
@@ -855,6 +856,11 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--n-envs", type=_count, default=None, metavar="N",
                     help="environments, one worker process each; may change on --resume "
                          "(default: the config's n_envs)")
+    tr.add_argument("--seed", type=_seed, default=None, metavar="N",
+                    help="the training seed (network initialisation, the layouts drawn, PPO's "
+                         "sampling): another training seed of the same recipe, judged on the "
+                         "same validation layouts (eval.seed stays); not on --resume "
+                         "(default: the config's seed)")
     tr.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
                     help="run each env in a Ray actor: without ADDRESS on a local Ray instance "
                          "on this machine; with ADDRESS (auto, or the head's HOST:6379) on an "

@@ -568,6 +568,17 @@ def test_train_flags_replace_the_configs_steps_and_envs(tmp_path, capsys):
     assert json.loads(r.stdout.splitlines()[-1])["num_timesteps"] == 8
     saved = load_train_config(out / "config.yaml")
     assert (saved.total_steps, saved.n_envs) == (8, 1)
+    # Another training seed of the same recipe: the run's seed changes, the validation
+    # layouts' does not, and a resume cannot switch seeds.
+    assert load_train_config(cfg, seed=3) == dataclasses.replace(load_train_config(cfg), seed=3)
+    r = _train_cli(["--config", str(cfg), "--out", str(tmp_path / "seed3"), "--total-steps",
+                    "8", "--n-envs", "1", "--seed", "3"])
+    assert r.returncode == 0, r.stderr
+    saved = load_train_config(tmp_path / "seed3" / "config.yaml")
+    assert saved.seed == 3 and saved.eval.seed == load_train_config(cfg).eval.seed
+    r = _train_cli(["--config", str(cfg), "--out", str(tmp_path / "seed3"), "--total-steps",
+                    "16", "--n-envs", "1", "--seed", "4", "--resume"])
+    assert r.returncode == 2 and "seed" in r.stderr
 
 
 @pytest.mark.slow

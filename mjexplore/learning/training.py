@@ -296,12 +296,12 @@ class TrainConfig:
 
 
 def load_train_config(path: str | Path, total_steps: int | None = None,
-                      n_envs: int | None = None) -> TrainConfig:
-    """Reads a training YAML (see training/gvn.yaml); ``total_steps`` and ``n_envs``, when
-    given, replace the file's values."""
+                      n_envs: int | None = None, seed: int | None = None) -> TrainConfig:
+    """Reads a training YAML (see training/gvn.yaml); ``total_steps``, ``n_envs`` and
+    ``seed``, when given, replace the file's values."""
     config = load_yaml_config(TrainConfig, path)
-    overrides = {k: v for k, v in (("total_steps", total_steps), ("n_envs", n_envs))
-                 if v is not None}
+    overrides = {k: v for k, v in (("total_steps", total_steps), ("n_envs", n_envs),
+                                   ("seed", seed)) if v is not None}
     return dataclasses.replace(config, **overrides) if overrides else config
 
 
