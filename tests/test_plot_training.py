@@ -238,7 +238,8 @@ def test_departures_from_the_prior_none_without_a_residual_some_with_a_large_one
     figures = json.loads(capsys.readouterr().out.splitlines()[-1])
     assert figures["shipped"] == {"weights": "best.safetensors", "decisions": 16}
     counted = figures["departures"]
-    assert counted["weights"].endswith("best.safetensors")
+    assert counted["weights"].endswith("best.safetensors") and counted["trained"] == 16
+    assert json.loads((run / "departures.json").read_text()) == counted  # For the report.
     assert counted["decisions"] > 0 and counted["choices"] > 0
     assert counted["departures"] == 0 and counted["share"] == 0.0
     assert [r["layout"] for r in counted["per_layout"]] == LAYOUTS

@@ -37,9 +37,10 @@ The JSON line holds:
   exploration times over the baseline's: mean of per-layout ratios, bootstrap 95 % interval,
   layouts faster and slower, sign test p-value;
 * with ``--departures``: ``departures``, how often the shipped policy (``--weights``,
-  default ``RUN/best.safetensors`` else ``RUN/policy.safetensors``) departs from its prior
-  on the validation layouts (:func:`mjexplore.eval.learning_curve.prior_departures`),
-  also written to ``RUN/departures.json`` (``mjexplore collect-training`` keeps it).
+  default ``RUN/best.safetensors`` else ``RUN/policy.safetensors``; ``trained``: the
+  decisions it was trained) departs from its prior on the validation layouts
+  (:func:`mjexplore.eval.learning_curve.prior_departures`), also written to
+  ``RUN/departures.json`` (``mjexplore collect-training`` keeps it).
 
 Runs before 51c9f13 do not record the machine's cores, nor the wall time of a whole run
 (warm start to end, across resumes): ``wall_s`` is what TensorBoard holds of it.
@@ -171,8 +172,9 @@ def departures(weights: Path, config) -> dict:
     from mjexplore.policies.weights import load_policy
 
     torch.set_num_threads(1)
-    policy = load_policy(weights, expected_kind=config.kind)[0]
-    return {"weights": str(weights), **prior_departures(policy, config)}
+    policy, meta = load_policy(weights, expected_kind=config.kind)
+    return {"weights": str(weights), "trained": meta["provenance"].get("num_timesteps"),
+            **prior_departures(policy, config)}
 
 
 def report(run: Path, baselines: bool = True, recompute: bool = False, workers: int = 1,

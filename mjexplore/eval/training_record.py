@@ -167,7 +167,9 @@ def record_section(record: Path, figures: Path, rel: str) -> list[str]:
             f"({oracle['ci95'][0]:.3f}-{oracle['ci95'][1]:.3f})." if oracle else ""), ""]
     departures = facts.get("departures")
     if departures and departures.get("share") is not None:
-        lines += [f"The kept policy departs from its prior in {departures['departures']} of "
+        trained = departures.get("trained")
+        lines += [("The policy " + (f"trained {trained:,} decisions" if trained else "kept"))
+                  + f" departs from its prior in {departures['departures']} of "
                   f"{departures['decisions']} decisions ({100 * departures['share']:.1f} %) "
                   "on the validation layouts.", ""]
     return lines
