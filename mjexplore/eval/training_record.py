@@ -95,9 +95,11 @@ def _sessions_line(facts: dict[str, Any]) -> str:
     cores = sorted({s["cores"] for s in sessions if s.get("cores")})
     devices = sorted({s["device"] for s in sessions if s.get("device")})
     revisions = list(dict.fromkeys(s["revision"][:7] for s in sessions if s.get("revision")))
-    return (f"{len(sessions)} sessions (start and resumes): {hours:.1f} h of wall time on "
-            f"{' or '.join(map(str, cores))} cores ({', '.join(devices)}), at revisions "
-            f"{', '.join(f'`{r}`' for r in revisions)}.")
+    count = f"{len(sessions)} sessions (start and resumes)" if len(sessions) > 1 else \
+        "1 session"
+    return (f"{count}: {hours:.1f} h of wall time on "
+            f"{' or '.join(map(str, cores))} cores ({', '.join(devices)}), at revision"
+            f"{'s' if len(revisions) > 1 else ''} {', '.join(f'`{r}`' for r in revisions)}.")
 
 
 def _ratio_cells(paired: dict[str, Any] | None) -> list[str]:
@@ -184,12 +186,13 @@ def training_section(data_dir: Path, figures: Path, rel: str) -> list[str]:
     lines = ["## Training runs", "",
              "Kept by `mjexplore collect-training RUN`. Each curve is the mean exploration "
              "time (simulated s) on the run's validation layouts at each evaluation, against "
-             "the decisions trained; the lines are pocket_nearest (the policy's prior alone) "
-             "and the ground-truth oracle on the same layouts with the same settings. Ratios "
-             "are paired per layout: the mean of per-layout ratios with its bootstrap 95 % "
-             "interval, layouts faster and slower, and the sign test. Model selection keeps "
-             "the evaluation marked; final figures belong on test layouts no choice looked "
-             "at, not on these.", ""]
+             "the decisions trained; the lines are pocket_nearest (the policy's prior alone, "
+             "for policies that have one), plain nearest-frontier and the ground-truth oracle "
+             "on the same layouts with the same settings. Ratios are paired per layout: the "
+             "mean of per-layout ratios with its bootstrap 95 % interval, layouts faster and "
+             "slower, and the sign test. Model selection keeps the evaluation marked (every "
+             "layout explored first, then the fastest); final figures belong on test layouts "
+             "no choice looked at, not on these.", ""]
     for record in records:
         lines += record_section(record, figures, rel)
     return lines
