@@ -74,7 +74,7 @@ for e in $EXPERIMENTS; do
     ablation_v3) mj bench --scenes loop_with_corridor,maze \
               --explorers gvn_v3_none,gvn_v3_naive,gvn_v3_unmasked,gvn_v3 --seeds 5 \
               --workers "$W" --out "$OUT/ablation_v3" ;;
-    lobby_real) mj bench --scenes lobby --explorers gvn:gvn_paper,potential,nearest,gvn_v3 --profile real \
+    lobby_real) mj bench --scenes lobby --explorers gvn:gvn_paper,potential,nearest,pocket_nearest,gvn_v3 --profile real \
               --seeds 5 --workers 1 --out "$OUT/lobby_real" ;;
     ariadne)
       for f in "$SHARED"/data/ariadne_test/img_*.png; do
