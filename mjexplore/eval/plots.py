@@ -129,9 +129,10 @@ def draw_learning_curve(ax, points: list[dict], best: dict | None,
     if best is not None:
         ax.plot([best["steps"]], [best["mean_exploration_time_s"]], "*", color="C3",
                 markersize=14, label=f"kept ({best['steps']} decisions)")
+    styles = {"oracle": ":", "nearest": "-.", "pocket_nearest": "--"}
     for name, value in sorted(lines.items()):
-        ax.axhline(value, linestyle=":" if name == "oracle" else "--",
-                   color=COLOURS.get(name, "k"), label=f"{name} {value:.0f} s")
+        ax.axhline(value, linestyle=styles.get(name, "--"), color=COLOURS.get(name, "k"),
+                   label=f"{name} {value:.0f} s")
     ax.set_xlabel("decisions trained")
     ax.set_title("validation exploration time (s, simulated)")
     if points or lines:
