@@ -135,8 +135,8 @@ def record_section(record: Path, figures: Path, rel: str) -> list[str]:
     decisions = facts.get("decisions_trained")
     sessions = facts.get("sessions") or []
     started = sessions[0]["revision"] if sessions else run_revision(record)
-    lines += [f"Started at revision `{(started or 'unknown')[:7]}`; "
-              + (f"{decisions:,} decisions trained so far. " if decisions else "")
+    lines += [f"Started at revision `{(started or 'unknown')[:7]}`"
+              + (f"; {decisions:,} decisions trained so far. " if decisions else ". ")
               + _sessions_line(facts), ""]
     figure = figures / f"training_{name}.png"
     learning_curve_figure(points, {n: m["mean_exploration_time_s"] for n, m in means.items()},
