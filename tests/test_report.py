@@ -59,6 +59,22 @@ def test_collect_keeps_each_runs_metrics_curve_and_kinematics(sweep, tmp_path):
     assert read_summary(path) == json.loads(json.dumps(summary))
 
 
+def test_collect_records_the_weights_of_the_spec_each_label_ran(sweep, tmp_path):
+    from mjexplore.policies.weights import weights_sha256
+
+    copy = tmp_path / "sweep"
+    shutil.copytree(sweep, copy)
+    (copy / "runs" / "train_loop" / "nearest").rename(copy / "runs" / "train_loop" / "gvn")
+    info = json.loads((copy / "sweep.json").read_text())
+    (copy / "sweep.json").write_text(json.dumps({**info, "explorers": ["gvn", "potential"],
+                                                 "specs": ["gvn:gvn_paper", "potential"]}))
+    summary = collect_sweep(copy, "lobby_real")
+    # The label gvn ran the paper's model, not the one --explorer gvn defaults to today.
+    paper = REPO / "models" / "gvn_paper" / "policy.safetensors"
+    assert summary["policies"]["gvn"]["sha256"] == weights_sha256(paper)
+    assert set(summary["policies"]) == {"gvn"}
+
+
 def test_report_has_the_tables_and_figures_of_collected_sweeps(sweep, tmp_path):
     data = tmp_path / "data"
     write_summary(collect_sweep(sweep, "lobby_real", kinematics_series=True), data /

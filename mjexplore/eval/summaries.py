@@ -179,12 +179,15 @@ def collect_sweep(sweep: str | os.PathLike, experiment: str, command: str | None
                      "kinematics": {} if team and keys["robots"] > 1 else
                      _kinematics(folder, kinematics_series)})
     methods = sorted({r["method"] for r in runs})
+    specs = dict(zip(info.get("explorers", []), info.get("specs", []), strict=False))
     summary = {"format": FORMAT, "version": VERSION, "experiment": experiment,
                "command": command or info.get("command"),
                "collected_at_revision": git_revision(),
                "run_revisions": sorted(r for r in revisions if r),
+               # By the spec each label ran (sweep.json): a label such as gvn may have run
+               # another model than the one it names today (gvn:gvn_paper).
                "policies": {m: _policy_record(path) for m in methods
-                            if (path := _policy_file(m)) is not None},
+                            if (path := _policy_file(specs.get(m, m))) is not None},
                # The weights each learned method's runs really used, from their metrics.
                "run_weights": {m: sorted({r["metrics"]["weights_sha256"] for r in runs
                                           if r["method"] == m and "weights_sha256" in r["metrics"]})
