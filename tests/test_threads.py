@@ -36,3 +36,25 @@ def test_a_limited_process_caps_pools_that_were_loaded_before():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.strip()
     assert out == "[('blas_openmp', 1), ('numba', 1), ('torch', 1)]"
+
+
+def _compile_fresh_function() -> int:
+    import numba
+
+    @numba.njit  # Defined here: never in numba's cache, so it compiles in the worker.
+    def increment(x):
+        return x + 1
+
+    return increment(1) + numba.get_num_threads()
+
+
+def test_an_episode_worker_still_compiles_after_its_threads_are_limited():
+    # numba loads (with its default pool size) before the worker's initializer caps it: a
+    # compilation after that once raised "Cannot set NUMBA_NUM_THREADS ..." in every bench
+    # worker that met an explorer not yet in numba's cache.
+    import multiprocessing
+
+    from mjexplore.episode.workers import init_episode_worker
+
+    with multiprocessing.get_context("spawn").Pool(1, initializer=init_episode_worker) as pool:
+        assert pool.apply(_compile_fresh_function) == 2 + 1

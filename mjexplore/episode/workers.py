@@ -114,6 +114,13 @@ def limit_threads() -> None:
     if "torch" in sys.modules:
         sys.modules["torch"].set_num_threads(1)
     if "numba" in sys.modules:
+        if not running:
+            # numba read its pool size when it loaded; read it again before the pool starts,
+            # or its next compilation finds the variable changed under a running pool and
+            # raises (a worker's first JIT compile of an explorer not yet in the cache).
+            from numba.core.config import reload_config
+
+            reload_config()
         sys.modules["numba"].set_num_threads(1)
     from threadpoolctl import threadpool_limits
 
