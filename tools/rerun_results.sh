@@ -4,7 +4,7 @@
 #
 # Usage: tools/rerun_results.sh REV WORKERS [table1 gvn_v2 gvn_v3 explore_bench ariadne
 #        ablation ablation_v2 ablation_v3 lobby_real realistic realistic_truth
-#        realistic_odometry realistic_imu]
+#        realistic_odometry realistic_imu teams]
 # Runs go to runs/rerun_REV/<experiment>; started again, bench skips the finished episodes.
 # Then: mjexplore collect runs/rerun_REV/<experiment> --experiment <experiment> and
 # mjexplore report. Needs ../shared/data (the Explore-Bench and ARiADNE maps), or the folder
@@ -76,6 +76,15 @@ for e in $EXPERIMENTS; do
               --workers "$W" --out "$OUT/ablation_v3" ;;
     lobby_real) mj bench --scenes lobby --explorers gvn:gvn_paper,potential,nearest,pocket_nearest,gvn_v3 --profile real \
               --seeds 5 --workers 1 --out "$OUT/lobby_real" ;;
+    teams)  # Collect: office3 with --experiment teams, then office2 with --merge.
+      mj bench --scenes office --robots 3 --explorers assign_greedy,oracle --seeds 5 --workers 1 \
+        --out "$OUT/teams/office3"
+      mj bench --scenes office --robots 2 --explorers assign_greedy,nearest,oracle --seeds 5 \
+        --workers 1 --out "$OUT/teams/office2"
+      mj bench --scenes office --robots 2 --unknown-starts --explorers assign_greedy --seeds 5 \
+        --workers 1 --out "$OUT/teams/office2"
+      mj bench --scenes loop_with_corridor,maze --robots 2 --explorers assign_greedy,nearest \
+        --seeds 3 --workers 1 --out "$OUT/teams/office2" ;;
     ariadne)
       for f in "$SHARED"/data/ariadne_test/img_*.png; do
         d=$OUT/ariadne_scenes/$(basename "$f" .png)
