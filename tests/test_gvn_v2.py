@@ -763,6 +763,69 @@ def test_residual_scale_multiplies_the_networks_logits_and_round_trips(tmp_path)
         torch.testing.assert_close(actor_logits(loaded, obs), actor_logits(scaled, obs))
 
 
+def test_entropy_relative_to_the_prior_is_minus_the_kl_and_pulls_toward_it():
+    from mjexplore.policies.sb3 import kl_to_prior
+    from mjexplore.policies.weights import actor_logits
+
+    obs, masks = _random_obs(SMALL_V2, 6, np.random.default_rng(9), valid=True)
+    kwargs = {"masking": "iam", "share_features_extractor": False, "prior_temperature": 0.5}
+    plain = _policy(SMALL_V2, **kwargs)
+    with torch.no_grad():  # A residual of a nat or so, not the initial head's 1e-2.
+        plain.mlp_extractor.actor[-1].weight.mul_(100.0)
+    anchored = _policy(SMALL_V2, **kwargs, entropy_reference="prior")
+    anchored.load_state_dict(plain.state_dict())
+    actions = torch.as_tensor([int(np.flatnonzero(m)[0]) for m in masks.numpy()])
+    values, log_prob, entropy = plain.evaluate_actions(obs, actions, masks)
+    a_values, a_log_prob, relative = anchored.evaluate_actions(obs, actions, masks)
+    torch.testing.assert_close(a_values, values)
+    torch.testing.assert_close(a_log_prob, log_prob)
+    # -KL by hand over the valid nodes, the prior renormalised on them.
+    prior = plain.pi_features_extractor.prior_logits(obs)
+    with torch.no_grad():
+        logits = actor_logits(plain, obs)
+    expected = []
+    for row in range(len(masks)):
+        valid = masks[row]
+        log_p = torch.log_softmax(logits[row][valid].double(), 0)
+        log_q = torch.log_softmax(prior[row][valid].double(), 0)
+        expected.append(-(log_p.exp() * (log_p - log_q)).sum())
+    # Rows whose valid nodes are all excluded (logits near -8e4) keep float32's 8e-3 steps.
+    near = torch.stack([prior[r][masks[r]].max() > -100.0 for r in range(len(masks))])
+    assert near.sum() >= 4
+    torch.testing.assert_close(relative.detach().double()[near], torch.stack(expected)[near],
+                               rtol=1e-4, atol=1e-5)
+    assert relative.max() <= 1e-6 and relative.min() < -1e-2  # A residual it measures.
+    assert not torch.allclose(relative, entropy)
+    # The policy equal to its prior: no divergence.
+    log_prior = torch.log_softmax(prior.masked_fill(~masks, -1e8), -1)
+    assert kl_to_prior(log_prior, prior, masks).abs().max() < 1e-5
+    # Its gradient shrinks the residual: one step down the KL brings the policy nearer.
+    optimizer = torch.optim.SGD(anchored.parameters(), lr=1e-2)
+    (-relative.mean()).backward()
+    optimizer.step()
+    after = anchored.evaluate_actions(obs, actions, masks)[2]
+    assert after.mean() > relative.mean()
+    with pytest.raises(ValueError, match="prior_temperature"):
+        _policy(SMALL_V2, masking="iam", entropy_reference="prior")
+    with pytest.raises(ValueError, match="entropy_reference"):
+        _policy(SMALL_V2, **kwargs, entropy_reference="uniformly")
+
+
+def test_prior_kl_takes_the_entropy_bonus_place():
+    from mjexplore.learning.training import load_train_config
+
+    config = load_train_config(REPO / "training" / "gvn_anchor.yaml")
+    assert config.ppo.prior_kl > 0 and config.ppo.ent_coef == 0
+    with pytest.raises(ValueError, match="ent_coef"):
+        dataclasses.replace(config.ppo, ent_coef=0.01)
+    with pytest.raises(ValueError, match="target_kl"):
+        dataclasses.replace(config.ppo, target_kl=0.0)
+    with pytest.raises(ValueError, match="prior_kl needs"):
+        dataclasses.replace(config, policy=dataclasses.replace(config.policy,
+                                                               prior_temperature=None,
+                                                               prior_pocket_m=0.0))
+
+
 def test_prior_needs_the_v2_path_feature():
     from mjexplore.learning.training import load_train_config
 

@@ -83,6 +83,13 @@ class PpoConfig:
     torch threads (None: ``torch_threads``); checkpoints and evaluations still see the
     weights after a completed update, with every decision they count trained on. Checkpoints
     are therefore the same in both modes, and a resumed run may switch ``overlap``.
+
+    ``prior_kl`` (GVN with a prior) puts ``prior_kl * KL(policy || prior)`` in the loss in
+    place of the entropy bonus (:class:`~mjexplore.policies.sb3.GvnPolicy`'s
+    ``entropy_reference: prior``; ``train/entropy_loss`` then logs the mean KL, nats):
+    a residual policy departs from its prior only where the advantages keep asking for it,
+    not by the drift of noisy updates. ``target_kl`` stops an update's epochs once the
+    approximate KL from the collecting policy passes 1.5 times it (SB3's ``target_kl``).
     """
 
     n_steps: int = 256
@@ -99,10 +106,17 @@ class PpoConfig:
     # (mjexplore/learning/rollout_blocks.py: the GVN then encodes about a third of the TERs).
     minibatch_block: int = 1
     overlap: bool = False
+    prior_kl: float = 0.0
+    target_kl: float | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.overlap, bool):
             raise ValueError("ppo.overlap must be true or false")
+        if self.prior_kl < 0 or (self.prior_kl and self.ent_coef):
+            raise ValueError("ppo.prior_kl must be >= 0, and with it ppo.ent_coef 0 (the KL "
+                             "to the prior takes the entropy bonus's place)")
+        if self.target_kl is not None and not self.target_kl > 0:
+            raise ValueError("ppo.target_kl must be > 0 (or absent: no early stop)")
         for name in ("n_steps", "batch_size", "n_epochs", "minibatch_block"):
             if getattr(self, name) < 1:
                 raise ValueError(f"ppo.{name} must be >= 1")
@@ -293,6 +307,9 @@ class TrainConfig:
             raise ValueError("torch_threads and update_threads must be >= 1")
         if self.ppo.minibatch_block > 1 and self.kind != "gvn":
             raise ValueError("ppo.minibatch_block > 1 is for kind gvn (its TER memory)")
+        if self.ppo.prior_kl and self.policy.prior_temperature is None:
+            raise ValueError("ppo.prior_kl needs policy.prior_temperature (the prior it pulls "
+                             "toward)")
 
 
 def load_train_config(path: str | Path, total_steps: int | None = None,
@@ -444,8 +461,9 @@ def make_model(config: TrainConfig, venv, seed: int, tensorboard_log: str | None
     return learner(policy_class(config.kind), venv, n_steps=ppo.n_steps,
                    batch_size=ppo.batch_size, n_epochs=ppo.n_epochs,
                    learning_rate=ppo.learning_rate, gamma=ppo.gamma, gae_lambda=ppo.gae_lambda,
-                   clip_range=ppo.clip_range, ent_coef=ppo.ent_coef, vf_coef=ppo.vf_coef,
-                   max_grad_norm=ppo.max_grad_norm, policy_kwargs=_policy_kwargs(config),
+                   clip_range=ppo.clip_range, ent_coef=ppo.prior_kl or ppo.ent_coef,
+                   vf_coef=ppo.vf_coef, max_grad_norm=ppo.max_grad_norm,
+                   target_kl=ppo.target_kl, policy_kwargs=_policy_kwargs(config),
                    tensorboard_log=tensorboard_log, seed=seed, verbose=0, device=device,
                    **buffer)
 
@@ -602,6 +620,8 @@ def _policy_kwargs(config: TrainConfig) -> dict[str, Any]:
         kwargs["prior_pocket_m"] = p.prior_pocket_m
     if p.residual_scale != 1.0:
         kwargs["residual_scale"] = p.residual_scale
+    if config.ppo.prior_kl:
+        kwargs["entropy_reference"] = "prior"
     return kwargs
 
 

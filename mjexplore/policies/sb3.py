@@ -41,6 +41,7 @@ from mjexplore.envs.observation import POCKET
 from mjexplore.policies.gvn import GVN, GvnConfig, path_prior, tracing
 
 MASKING_MODES = ("iam", "naive", "none")
+ENTROPY_REFERENCES = ("uniform", "prior")
 
 
 class GvnExtractor(BaseFeaturesExtractor):
@@ -186,6 +187,14 @@ class GvnPolicy(MaskableActorCriticPolicy):
             Departures from the v3 prior that the oracle asks for are mostly a pocket's
             weight (median 31 m at 1 m per nat); the head grows to tens of units only over
             many steps, so a residual policy can start on the same scale as its prior.
+        entropy_reference: ``uniform`` (the default): :meth:`evaluate_actions` gives the
+            policy's entropy over the valid actions, as SB3's policies do. ``prior`` (needs
+            ``prior_temperature``): it gives the entropy relative to the prior,
+            ``-KL(policy || prior)`` over the valid actions, so that PPO's entropy bonus
+            ``ent_coef`` becomes a pull toward the prior (KL-regularised RL toward a
+            behaviour prior, as in Tirumala et al. 2019 or RLHF's reference policy): the
+            policy departs from its prior only where the advantages keep asking for it.
+            Only the update reads it.
         Other arguments as ``MaskableActorCriticPolicy``.
     """
 
@@ -195,9 +204,14 @@ class GvnPolicy(MaskableActorCriticPolicy):
                  attention_layers: int = 1, attention_heads: int = 4,
                  actor_gain: float = 0.01, prior_temperature: float | None = None,
                  prior_pocket_m: float = 0.0, residual_scale: float = 1.0,
-                 **kwargs: Any) -> None:
+                 entropy_reference: str = "uniform", **kwargs: Any) -> None:
         if masking not in MASKING_MODES:
             raise ValueError(f"masking must be one of {MASKING_MODES}, not {masking!r}")
+        if entropy_reference not in ENTROPY_REFERENCES:
+            raise ValueError(f"entropy_reference must be one of {ENTROPY_REFERENCES}, not "
+                             f"{entropy_reference!r}")
+        if entropy_reference == "prior" and prior_temperature is None:
+            raise ValueError("entropy_reference 'prior' needs prior_temperature (a prior)")
         self.masking = masking
         self.hidden = hidden
         self.actor_gain = actor_gain
@@ -217,6 +231,9 @@ class GvnPolicy(MaskableActorCriticPolicy):
         if residual_scale != 1.0:  # Stored with the weights only when it differs.
             self._gvn_kwargs["residual_scale"] = residual_scale
         self.residual_scale = residual_scale
+        if entropy_reference != "uniform":
+            self._gvn_kwargs["entropy_reference"] = entropy_reference
+        self.entropy_reference = entropy_reference
         super().__init__(observation_space, action_space, lr_schedule, **kwargs)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
@@ -265,4 +282,36 @@ class GvnPolicy(MaskableActorCriticPolicy):
                          action_masks: torch.Tensor | None = None):
         if self.masking == "naive":
             action_masks = self._real_nodes(obs)
-        return super().evaluate_actions(obs, actions, action_masks)
+        if self.entropy_reference == "uniform":
+            return super().evaluate_actions(obs, actions, action_masks)
+        # The actor's and the critic's passes apart (each its own encoder in the recipes,
+        # so no work is repeated), the prior read off the observation.
+        distribution = self.get_distribution(obs, action_masks)
+        values = self.predict_values(obs)
+        prior = self.pi_features_extractor.prior_logits(obs)
+        relative = -kl_to_prior(distribution.distribution.logits, prior,
+                                distribution.distribution.masks)
+        return values, distribution.log_prob(actions), relative
+
+
+def kl_to_prior(log_probs: torch.Tensor, prior_logits: torch.Tensor,
+                valid: torch.Tensor | None) -> torch.Tensor:
+    """KL(policy || prior) in nats over the valid actions, the prior renormalised on them.
+
+    Args:
+        log_probs: (B, A) the policy's normalised log-probabilities (masked actions at
+            about -1e8, as sb3-contrib's masked distribution holds them).
+        prior_logits: (B, A) the prior's logits.
+        valid: (B, A) bool, the valid actions (None: all).
+
+    Returns:
+        (B,) the divergence, >= 0 (clamped: where every valid logit lies near the excluded
+        nodes' -4e4 / temperature, float32 keeps only steps of about 1e-2 nats and the sum
+        can come out a little below 0).
+    """
+    if valid is None:
+        valid = torch.ones_like(log_probs, dtype=torch.bool)
+    log_prior = torch.log_softmax(prior_logits.masked_fill(~valid, -torch.inf), -1)
+    # Masked before the product: exp(-1e8) * inf would send NaN down the gradient.
+    gap = torch.where(valid, log_probs - log_prior, torch.zeros_like(log_probs))
+    return (log_probs.exp() * gap).sum(-1).clamp_min(0.0)
