@@ -529,6 +529,24 @@ def cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_imitate(args: argparse.Namespace) -> int:
+    from mjexplore.learning.dagger_run import imitate
+    from mjexplore.learning.training import load_train_config
+
+    config = load_train_config(args.config, seed=args.seed)
+    if args.rounds is not None:
+        config = dataclasses.replace(config, imitation=dataclasses.replace(
+            config.imitation, dagger_iterations=args.rounds - 1))
+    check_output_folder(args.out)
+    record = imitate(config, args.out, resume=args.resume)
+    last = record["rounds"][-1]
+    print(json.dumps({"out": str(args.out), "rounds": len(record["rounds"]),
+                      "decisions": record["decisions"],
+                      "agreement_before": last["agreement_before"],
+                      "weights": str(Path(args.out) / "policy.safetensors")}))
+    return 0
+
+
 def cmd_train_pockets(args: argparse.Namespace) -> int:
     from mjexplore.learning.pocket_training import load_pocket_config, train_pockets
 
@@ -877,6 +895,31 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--no-progress", action="store_true",
                     help="no progress bar on a terminal, no progress lines elsewhere")
     tr.set_defaults(func=cmd_train)
+
+    im = sub.add_parser(
+        "imitate", help="DAgger on the ground-truth oracle, round by round into a run folder "
+                        "(resumable)",
+        description="Run the imitation settings of a training YAML (imitation: the expert's "
+                    "episodes, then DAgger rounds of the learner's own, every decision "
+                    "labelled by the oracle) into a run folder: config.yaml, rounds/ (each "
+                    "round's labelled decisions), imitation.json (each round's figures) and "
+                    "policy.safetensors (the weights after the last round; start PPO from it "
+                    "with `mjexplore train --init-weights`). --resume continues after the "
+                    "last finished round.")
+    im.add_argument("--config", type=Path, required=True,
+                    help="training YAML with an imitation section (e.g. "
+                         "training/gvn_dagger_lookahead.yaml)")
+    im.add_argument("--out", type=Path, required=True, help="run folder")
+    im.add_argument("--resume", action="store_true",
+                    help="continue the run in --out after its last finished round")
+    im.add_argument("--rounds", type=_count, default=None, metavar="N",
+                    help="rounds in all, the expert's first (default: the config's "
+                         "1 + imitation.dagger_iterations); may grow on --resume")
+    im.add_argument("--seed", type=_seed, default=None, metavar="N",
+                    help="the run's seed (network initialisation, refits' order; the "
+                         "episodes' layouts follow imitation.seed) (default: the config's "
+                         "seed)")
+    im.set_defaults(func=cmd_imitate)
 
     tp = sub.add_parser(
         "train-pockets", help="train the frontier-pocket predictor the v3 GVN reads",

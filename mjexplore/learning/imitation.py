@@ -41,7 +41,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -417,6 +417,109 @@ def margin_loss(logits, masks: np.ndarray, target, margin: float):
     return torch.relu(margin - gap).mean()
 
 
+@dataclasses.dataclass
+class Aggregate:
+    """Labelled decisions of DAgger's rounds so far: observations stacked per key (float32),
+    (n, A) bool masks, (n,) expert labels."""
+
+    observations: dict[str, np.ndarray]
+    masks: np.ndarray
+    actions: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+    def extended(self, observations: dict[str, np.ndarray], masks: np.ndarray,
+                 actions: np.ndarray) -> Aggregate:
+        """These decisions and the new ones (the new ones' keys must be this one's, or
+        this one empty)."""
+        if not len(actions):
+            return self
+        if not len(self):
+            return Aggregate(observations, masks, actions)
+        return Aggregate({k: np.concatenate([v, observations[k]])
+                          for k, v in self.observations.items()},
+                         np.concatenate([self.masks, masks]),
+                         np.concatenate([self.actions, actions]))
+
+
+@dataclasses.dataclass(frozen=True)
+class DaggerRound:
+    """One finished round of :func:`dagger_rounds`.
+
+    Attributes:
+        iteration: The round (0: the expert's episodes).
+        observations, masks, labels, taken: Its new decisions (see
+            :func:`collect_learner_decisions`).
+        stats: Its figures (as :func:`warm_start`'s ``rounds`` entries).
+    """
+
+    iteration: int
+    observations: dict[str, np.ndarray]
+    masks: np.ndarray
+    labels: np.ndarray
+    taken: np.ndarray
+    stats: dict[str, Any]
+
+
+def prior_keep(policy, config: ImitationConfig) -> tuple[float, float] | None:
+    """The ``keep_prior`` argument of the rounds: (``keep_prior_m``, the policy's prior's
+    ``pocket_m``), or None without ``keep_prior_m``."""
+    if not config.keep_prior_m:
+        return None
+    extractor = getattr(policy, "pi_features_extractor", None) or policy.features_extractor
+    return config.keep_prior_m, float(getattr(extractor, "prior_pocket_m", 0.0))
+
+
+def dagger_rounds(policy, env_config, config: ImitationConfig, seed: int = 0,
+                  rounds: int | None = None, start: int = 0,
+                  aggregate: Aggregate | None = None) -> Iterator[DaggerRound]:
+    """DAgger's rounds ``start`` .. ``rounds - 1`` (see the module docstring), each yielded
+    once its refit is done, ``policy`` fitted in place.
+
+    A run resumed from round ``start`` (``aggregate``: the decisions of rounds 0 ..
+    ``start - 1``, ``policy``: the weights after round ``start - 1``'s refit) goes on as the
+    run that never stopped: every round's episodes, learner and refit depend only on those.
+
+    Args:
+        policy: The policy, fitted in place.
+        env_config: The training env's settings.
+        config: The imitation settings.
+        seed: Seed of the refits' minibatch order (round ``i``'s: ``seed + i``).
+        rounds: Rounds in all (default ``1 + config.dagger_iterations``).
+        start: The first round to run.
+        aggregate: The earlier rounds' decisions (needed when ``start`` > 0).
+    """
+    rounds = 1 + config.dagger_iterations if rounds is None else rounds
+    if start and (aggregate is None or not len(aggregate)):
+        raise ValueError("a DAgger run resumed after round 0 needs the earlier rounds' "
+                         "decisions")
+    aggregate = aggregate or Aggregate({}, np.zeros((0, 0), bool), np.zeros(0, np.int64))
+    keep = prior_keep(policy, config)
+    for i in range(start, rounds):
+        tick = time.perf_counter()
+        learner = policy_learner(policy) if i else None
+        observations, masks, labels, taken, stats = collect_learner_decisions(
+            env_config, learner, config.episodes, config.seed + i * config.episodes,
+            config.beta(i), config.dagger_sample, config.expert, config.workers, keep)
+        before = stats.pop("agreement")
+        if not i:  # The untrained policy on the expert's states.
+            before = agreement(policy, observations, masks, labels)
+        rollout_s = time.perf_counter() - tick
+        aggregate = aggregate.extended(observations, masks, labels)
+        tick = time.perf_counter()
+        fit = clone(policy, aggregate.observations, aggregate.masks, aggregate.actions,
+                    config, seed=seed + i, dagger=True)
+        stats = {"iteration": i, "beta": config.beta(i), **stats, "agreement_before": before,
+                 "aggregate": len(aggregate), "fit_loss": fit["loss"],
+                 "fit_agreement": fit["agreement"], "rollout_s": round(rollout_s, 1),
+                 "fit_s": round(time.perf_counter() - tick, 1)}
+        log.info("imitation round %d (beta %.3g): %d new decisions, learner agreed on %s "
+                 "before the refit, %d aggregated, fit agreement %.3f", i, config.beta(i),
+                 stats["decisions"], before, len(aggregate), fit["agreement"])
+        yield DaggerRound(i, observations, masks, labels, taken, stats)
+
+
 def warm_start(policy, env_config, config: ImitationConfig, seed: int = 0) -> dict[str, Any]:
     """The warm start of ``config``: plain cloning of the expert's episodes, then
     ``config.dagger_iterations`` DAgger rounds (see the module docstring), in this process.
@@ -442,44 +545,17 @@ def warm_start(policy, env_config, config: ImitationConfig, seed: int = 0) -> di
         ``fit_agreement``, and the wall seconds of its ``rollout_s`` and ``fit_s``.
     """
     start = time.perf_counter()
-    extractor = getattr(policy, "pi_features_extractor", None) or policy.features_extractor
-    keep_prior = ((config.keep_prior_m, float(getattr(extractor, "prior_pocket_m", 0.0)))
-                  if config.keep_prior_m else None)
-    observations, masks, actions, stats = collect_expert_decisions(
-        env_config, config.episodes, config.seed, config.expert, config.workers, keep_prior)
     if not config.dagger_iterations:
+        observations, masks, actions, stats = collect_expert_decisions(
+            env_config, config.episodes, config.seed, config.expert, config.workers,
+            prior_keep(policy, config))
         return {**stats, **clone(policy, observations, masks, actions, config, seed=seed)}
-    before = agreement(policy, observations, masks, actions)
-    rollout_s = time.perf_counter() - start
-    rounds = []
-    for i in range(config.dagger_iterations + 1):
-        if i:
-            tick = time.perf_counter()
-            new_obs, new_masks, new_actions, _, stats = collect_learner_decisions(
-                env_config, policy_learner(policy), config.episodes,
-                config.seed + i * config.episodes, config.beta(i), config.dagger_sample,
-                config.expert, config.workers, keep_prior)
-            before = stats.pop("agreement")
-            rollout_s = time.perf_counter() - tick
-            if len(new_actions):  # The aggregate (held once while the refit runs).
-                observations = {k: np.concatenate([v, new_obs[k]])
-                                for k, v in observations.items()}
-                masks = np.concatenate([masks, new_masks])
-                actions = np.concatenate([actions, new_actions])
-            del new_obs, new_masks, new_actions
-        tick = time.perf_counter()
-        fit = clone(policy, observations, masks, actions, config, seed=seed + i, dagger=True)
-        rounds.append({"iteration": i, "beta": config.beta(i), **stats,
-                       "agreement_before": before,
-                       "expert_share": stats.get("expert_share", 1.0),
-                       "aggregate": len(actions), "fit_loss": fit["loss"],
-                       "fit_agreement": fit["agreement"], "rollout_s": round(rollout_s, 1),
-                       "fit_s": round(time.perf_counter() - tick, 1)})
-        log.info("imitation round %d (beta %.3g): %d new decisions, learner agreed on %s "
-                 "before the refit, %d aggregated, fit agreement %.3f", i, config.beta(i),
-                 stats["decisions"], before, len(actions), fit["agreement"])
-    mib = sum(v.nbytes for v in observations.values()) / 2**20
-    return {"decisions": len(actions), "episodes": sum(r["episodes"] for r in rounds),
-            "loss": fit["loss"], "agreement": fit["agreement"],
+    rounds, mib = [], 0.0
+    for done in dagger_rounds(policy, env_config, config, seed):
+        rounds.append(done.stats)
+        mib += sum(v.nbytes for v in done.observations.values()) / 2**20
+    return {"decisions": rounds[-1]["aggregate"],
+            "episodes": sum(r["episodes"] for r in rounds),
+            "loss": rounds[-1]["fit_loss"], "agreement": rounds[-1]["fit_agreement"],
             "observation_mib": round(mib, 1), "wall_s": round(time.perf_counter() - start, 1),
             "rounds": rounds}

@@ -448,6 +448,9 @@ def make_model(config: TrainConfig, venv, seed: int, tensorboard_log: str | None
 
     ppo = config.ppo
     buffer: dict[str, Any] = {}
+    # The update's setting only: weights files keep _policy_kwargs, the network's.
+    policy_kwargs = {**_policy_kwargs(config),
+                     **({"entropy_reference": "prior"} if ppo.prior_kl else {})}
     if ppo.overlap:
         learner = functools.partial(OverlapMaskablePPO, update_threads=(
             config.update_threads or config.torch_threads))
@@ -463,7 +466,7 @@ def make_model(config: TrainConfig, venv, seed: int, tensorboard_log: str | None
                    learning_rate=ppo.learning_rate, gamma=ppo.gamma, gae_lambda=ppo.gae_lambda,
                    clip_range=ppo.clip_range, ent_coef=ppo.prior_kl or ppo.ent_coef,
                    vf_coef=ppo.vf_coef, max_grad_norm=ppo.max_grad_norm,
-                   target_kl=ppo.target_kl, policy_kwargs=_policy_kwargs(config),
+                   target_kl=ppo.target_kl, policy_kwargs=policy_kwargs,
                    tensorboard_log=tensorboard_log, seed=seed, verbose=0, device=device,
                    **buffer)
 
@@ -620,8 +623,6 @@ def _policy_kwargs(config: TrainConfig) -> dict[str, Any]:
         kwargs["prior_pocket_m"] = p.prior_pocket_m
     if p.residual_scale != 1.0:
         kwargs["residual_scale"] = p.residual_scale
-    if config.ppo.prior_kl:
-        kwargs["entropy_reference"] = "prior"
     return kwargs
 
 
