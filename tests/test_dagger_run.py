@@ -77,6 +77,8 @@ def test_a_resumed_run_ends_as_the_run_that_never_stopped(recipe, tmp_path):
     report = warm_start(policy, config.env, config.imitation, config.seed)
     assert report["decisions"] == whole["decisions"]
     assert _distance(policy.state_dict(), theirs) < 0.1 * _distance(theirs, untrained)
+    assert sorted(p.name for p in (tmp_path / "parts" / "weights").iterdir()) == [
+        f"round_{i:03d}.safetensors" for i in range(3)]
     obs, masks, labels, taken = read_round(tmp_path / "whole" / "rounds" / "round_001.npz")
     assert len(labels) == len(taken) == len(masks) == whole["rounds"][1]["decisions"]
     assert masks[np.arange(len(labels)), labels].all() and obs["node_features"].dtype == \

@@ -100,6 +100,40 @@ def test_dagger_aggregates_labelled_decisions_of_the_learners_own_rollouts():
     assert report["observation_mib"] > 0
 
 
+def test_departures_count_where_labels_and_learner_leave_the_prior():
+    from mjexplore.learning.imitation import _probabilities, departures
+    from mjexplore.policies.gvn import path_prior
+
+    obs, masks, labels, _ = collect_expert_decisions(SHORT, 2, seed=5)
+    torch.manual_seed(0)
+    policy = GvnPolicy(observation_space(SMALL), spaces.Discrete(SMALL.max_nodes),
+                       lambda _: 1e-3, hidden=16, prior_temperature=0.5,
+                       share_features_extractor=False)
+    features = torch.as_tensor(obs["node_features"]).reshape(len(masks), SMALL.max_nodes, -1)
+    prior = np.where(masks, path_prior(features, 0.5).numpy(), -np.inf).argmax(1)
+    labels = prior.copy()
+    moved = [i for i in range(len(masks)) if masks[i].sum() > 1][:3]
+    assert len(moved) == 3
+    for i in moved:  # Three labels leave the prior for another valid node.
+        labels[i] = next(a for a in np.flatnonzero(masks[i]) if a != prior[i])
+    # The untrained network is its prior: it departs nowhere, so it takes no departure.
+    stats = departures(policy, obs, masks, labels)
+    assert stats["label_departs"] == pytest.approx(3 / len(labels))
+    assert stats["learner_departs"] == 0.0 and stats["departure_precision"] is None
+    assert stats["departure_recall"] == 0.0
+    # A loud residual departs often; precision and recall as counted by hand.
+    with torch.no_grad():
+        policy.mlp_extractor.actor[-1].weight.mul_(1e4)
+    learner = _probabilities(policy, obs, masks).argmax(1)
+    departs = learner != prior
+    assert departs.any()
+    stats = departures(policy, obs, masks, labels)
+    assert stats["learner_departs"] == pytest.approx(departs.mean())
+    assert stats["departure_precision"] == pytest.approx((learner == labels)[departs].mean())
+    assert stats["departure_recall"] == pytest.approx((learner == labels)[moved].mean())
+    assert departures(_policy(), obs, masks, labels) == {}  # No prior, nothing to leave.
+
+
 def _last_valid(obs, mask):
     """A learner that takes the valid action of the highest index (not the expert's way)."""
     del obs

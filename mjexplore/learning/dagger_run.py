@@ -16,9 +16,12 @@ Run folder::
     config.yaml                    the recipe (and the git revision that started the run)
     rounds/round_000.npz           one round's decisions: observations per key (float32),
                                    masks, expert labels, actions taken (compressed)
-    imitation.json                 each round's figures (as warm_start's ``rounds``), with
-                                   the revision and host that ran it
+    imitation.json                 each round's figures (as warm_start's ``rounds``, with
+                                   :func:`~mjexplore.learning.imitation.departures` on its
+                                   new states before the refit), with the revision and host
+                                   that ran it
     policy_untrained.safetensors   the network before round 0
+    weights/round_NNN.safetensors  the weights after each round's refit (a learning curve)
     policy.safetensors             the weights after the last finished round's refit: start
                                    PPO from it with ``mjexplore train --init-weights``
 
@@ -116,9 +119,11 @@ def imitate(config: TrainConfig, out: str | Path, resume: bool = False) -> dict[
     for done in dagger_rounds(policy, config.env, config.imitation, config.seed, rounds,
                               start=len(record["rounds"]), aggregate=aggregate):
         _write_round(out, done)
-        save_policy_weights(out / "policy.safetensors", policy, *weights,
-                            _provenance(config, revision, done.stats["aggregate"],
-                                        done.iteration + 1))
+        provenance = _provenance(config, revision, done.stats["aggregate"], done.iteration + 1)
+        (out / "weights").mkdir(exist_ok=True)
+        save_policy_weights(out / "weights" / f"round_{done.iteration:03d}.safetensors",
+                            policy, *weights, provenance)
+        save_policy_weights(out / "policy.safetensors", policy, *weights, provenance)
         record["rounds"].append({**done.stats, **session,
                                  "wall_s": round(time.perf_counter() - tick, 1)})
         record["decisions"] = done.stats["aggregate"]

@@ -337,6 +337,39 @@ def agreement(policy, observations: dict[str, np.ndarray], masks: np.ndarray,
     return float((probs.argmax(-1) == actions).mean())
 
 
+def departures(policy, observations: dict[str, np.ndarray], masks: np.ndarray,
+               labels: np.ndarray) -> dict[str, float | None]:
+    """Where the labels and the policy's most probable valid action depart from the
+    policy's prior (its greedy node; a residual policy's base): what a learner must get
+    right to beat its prior, which agreement alone hides when most labels are the prior's.
+
+    Returns:
+        ``label_departs`` (share of labels that are not the prior's node),
+        ``learner_departs`` (share of decisions where the policy's choice is not),
+        ``departure_precision`` (of the policy's departures, the share that take the label;
+        None without any) and ``departure_recall`` (of the labels' departures, the share
+        the policy takes; None without any); nothing for a policy without a prior.
+    """
+    import torch
+
+    extractor = getattr(policy, "pi_features_extractor", None) or policy.features_extractor
+    if getattr(extractor, "prior_temperature", None) is None or not len(labels):
+        return {}
+    with torch.no_grad():
+        prior = extractor.prior_logits(
+            {"node_features": torch.as_tensor(observations["node_features"])}).numpy()
+    prior = np.where(masks, prior, -np.inf).argmax(1)
+    learner = _probabilities(policy, observations, masks).argmax(1)
+    label_departs, learner_departs = labels != prior, learner != prior
+    hit = learner == labels
+    return {"label_departs": float(label_departs.mean()),
+            "learner_departs": float(learner_departs.mean()),
+            "departure_precision": (float(hit[learner_departs].mean())
+                                    if learner_departs.any() else None),
+            "departure_recall": (float(hit[label_departs].mean())
+                                 if label_departs.any() else None)}
+
+
 def clone(policy, observations: dict[str, np.ndarray], masks: np.ndarray,
           actions: np.ndarray, config: ImitationConfig, seed: int = 0, *,
           dagger: bool = False) -> dict[str, Any]:
@@ -505,6 +538,7 @@ def dagger_rounds(policy, env_config, config: ImitationConfig, seed: int = 0,
         before = stats.pop("agreement")
         if not i:  # The untrained policy on the expert's states.
             before = agreement(policy, observations, masks, labels)
+        stats.update(departures(policy, observations, masks, labels))
         rollout_s = time.perf_counter() - tick
         aggregate = aggregate.extended(observations, masks, labels)
         tick = time.perf_counter()
