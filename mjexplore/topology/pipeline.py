@@ -112,6 +112,11 @@ class TopologyTracker:
         the map observed last they come from the frontier cells kept current scan by scan,
         read in the box of the known cells (no free cell lies outside it): the cost grows
         with the explored part and the frontiers, not with the map.
+
+        Args:
+            grid: The map.
+            free: ``grid.free`` if already computed; read only for a map other than the
+                one observed last (the kept frontier cells need no free mask).
         """
         if self._frontiers is None or self._frontiers[0] is not grid.data:
             cfg = self.config
