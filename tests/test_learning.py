@@ -31,7 +31,14 @@ from mjexplore.envs import (
 from mjexplore.envs.observation import observation_space, structured
 from mjexplore.episode import Episode, EpisodeConfig
 from mjexplore.errors import UserInputError
-from mjexplore.learning.training import TrainConfig, load_checkpoint, load_train_config
+from mjexplore.learning.training import (
+    TrainConfig,
+    load_checkpoint,
+    load_train_config,
+    make_model,
+    make_vec_env,
+    train,
+)
 from mjexplore.navigation.navigator import NavigatorConfig
 from mjexplore.policies.gvn import (
     CausalConv,
@@ -839,3 +846,28 @@ def test_model_selection_scores_coverage_up_to_the_target_then_speed():
     overshooting = runs(("explored", 0.992, 301.0), ("explored", 0.995, 401.0))
     short = runs(("explored", 0.99, 100.0), ("time_limit", 0.97, 1800.0))
     assert eval_score(faster) > eval_score(overshooting) > eval_score(short)
+
+
+def test_a_run_anchored_to_its_prior_trains_with_the_kl_in_the_entropys_place(tmp_path):
+    from mjexplore.policies.weights import read_policy_weights
+
+    cfg = tmp_path / "anchored.yaml"
+    cfg.write_text(TINY.format(total=16, n_envs=1).replace(
+        "memory_length: 3}", "memory_length: 3, features: v2}").replace(
+        "{hidden: 16}", "{hidden: 16, prior_temperature: 1.0}").replace(
+        "n_epochs: 1}", "n_epochs: 2, ent_coef: 0.0, prior_kl: 0.05, target_kl: 0.02, "
+        "learning_rate: 0.01}"))
+    config = load_train_config(cfg)
+    venv = make_vec_env(config, seed=0)
+    try:
+        model = make_model(config, venv, seed=0)
+        assert model.ent_coef == 0.05 and model.target_kl == 0.02
+        assert model.policy.entropy_reference == "prior"
+        model.learn(config.total_steps)
+        # SB3 logs -(mean "entropy"): here the mean KL from the prior, >= 0 and moved.
+        assert model.logger.name_to_value["train/entropy_loss"] > 0.0
+    finally:
+        venv.close()
+    train(config, tmp_path / "run", progress=False)
+    _, meta = read_policy_weights(tmp_path / "run" / "policy.safetensors")
+    assert "entropy_reference" not in meta["policy_kwargs"]  # The update's setting only.
