@@ -5,6 +5,7 @@ import dataclasses
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -115,3 +116,29 @@ def test_the_cli_imitates_and_says_where_the_weights_are(recipe, tmp_path):
     assert (out / "policy.safetensors").is_file() and (out / "config.yaml").is_file()
     again = subprocess.run(cmd, capture_output=True, text=True)
     assert again.returncode == 2 and "--resume" in again.stderr
+
+
+def test_dagger_fit_holds_out_whole_episodes_and_reports_departures(recipe, tmp_path):
+    config = _rounds(load_train_config(recipe), 1)
+    config = dataclasses.replace(config, imitation=dataclasses.replace(config.imitation,
+                                                                       episodes=2))
+    record = imitate(config, tmp_path / "run")
+    tool = Path(__file__).resolve().parents[1] / "tools" / "dagger_fit.py"
+    done = subprocess.run([sys.executable, str(tool), str(tmp_path / "run"), "--holdout", "0.5",
+                           "--epochs", "1"], capture_output=True, text=True, check=True)
+    report = json.loads(done.stdout)
+    assert report["episodes"] == 2 and report["held_out_episodes"] == 1
+    sizes = [report["fitted"][s]["decisions"] for s in ("fitted", "held_out")]
+    assert sum(sizes) == record["decisions"] and min(sizes) > 0
+    assert report["fit"]["epochs"] == 1 and report["fit"]["loss"] == config.imitation.loss
+    # The untrained network is near uniform here (no prior): no departures to count, and
+    # its agreement is a share.
+    assert 0.0 <= report["untrained"]["held_out"]["agreement"] <= 1.0
+
+
+def test_episodes_start_where_the_memory_is_empty():
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+    from dagger_fit import episode_ids
+
+    mask = np.array([[0, 0], [0, 1], [1, 1], [0, 0], [0, 1], [0, 0]], np.float32)
+    assert episode_ids(mask).tolist() == [0, 0, 0, 1, 1, 2]
