@@ -142,3 +142,23 @@ def test_episodes_start_where_the_memory_is_empty():
 
     mask = np.array([[0, 0], [0, 1], [1, 1], [0, 0], [0, 1], [0, 0]], np.float32)
     assert episode_ids(mask).tolist() == [0, 0, 0, 1, 1, 2]
+
+
+def test_the_linear_models_terms_measure_each_node_against_the_cheapest_valid_one():
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+    import torch
+    from dagger_fit import node_terms
+
+    from mjexplore.envs.observation import PATH, POCKET
+    from mjexplore.policies.gvn import path_prior
+
+    features = np.zeros((1, 4, 10), np.float32)
+    features[0, :, PATH] = [3.0, 8.0, 20.0, 1.0]
+    features[0, :, POCKET] = [0.0, 0.0, 0.0, 0.5]
+    valid = np.array([[True, True, True, False]])  # The nearest node is not valid.
+    terms, prior = node_terms(features, valid)
+    torch.testing.assert_close(prior, path_prior(torch.as_tensor(features), 1.0, 50.0))
+    beyond = terms[0, :3, 5] * 10  # Metres beyond the cheapest valid node (3 m away).
+    torch.testing.assert_close(beyond, torch.tensor([0.0, 5.0, 17.0]))
+    assert terms[0, :3, 7].tolist() == [1.0, 0.0, 0.0] and terms[0, :3, 8].tolist() == [1.0,
+                                                                                    1.0, 0.0]

@@ -11,6 +11,13 @@ the label), beside the same figures of the untrained network (its prior).
 
 No env runs: a variant of the fit is judged in minutes, before a DAgger run uses it.
 
+``--model linear`` fits, instead of the network, a conditional logit on the prior: each valid
+node's logit is the prior's plus ``w . phi(node)``, with ``phi`` the node's information gain,
+heading difference, distance and flag features, its pocket probability, its cost beyond the
+cheapest valid node's (per 10 m, and whether under 5 m or 15 m), its straight-line distance
+and gain near the robot (:func:`node_terms`); ``w`` by maximum likelihood (L-BFGS). Does any
+per-node signature tell the teacher's departures apart?
+
 Usage: python tools/dagger_fit.py runs/dagger/long [--holdout 0.25] [--loss margin]
     [--epochs 2] [--learning-rate 0.001] [--margin 1.0] [--seed 0]
 """
@@ -32,6 +39,58 @@ def episode_ids(memory_mask: np.ndarray) -> np.ndarray:
     return np.cumsum(memory_mask.sum(1) == 0) - 1
 
 
+def node_terms(node_features, valid):
+    """(n, N, 10) the linear model's terms of each node and the prior's logits (n, N) at
+    1 m per nat, from v3 node features (n, N, 10) and the valid mask (n, N)."""
+    import torch
+
+    from mjexplore.envs.observation import POCKET
+    from mjexplore.policies.gvn import path_prior
+
+    f = torch.as_tensor(node_features)
+    valid = torch.as_tensor(valid)
+    prior = path_prior(f, 1.0, 50.0)  # The v3 recipes' prior: 50 m per unit of pocket.
+    cost = -prior
+    cheapest = torch.where(valid, cost, torch.inf).min(1, keepdim=True).values
+    beyond = torch.clamp(cost - cheapest, max=200.0)
+    near = (beyond < 15).float()
+    terms = torch.stack([f[..., 2], f[..., 3], f[..., 4], f[..., 5], f[..., POCKET],
+                         beyond / 10, torch.hypot(f[..., 0], f[..., 1]) / 10,
+                         (beyond < 5).float(), near, f[..., 2] * near], -1)
+    return terms, prior
+
+
+def _linear_fit(node_features, masks, labels, fitted, seed):
+    """The conditional logit's weights fitted on the rows ``fitted`` (see the docstring), and
+    a function of rows to their most probable valid node."""
+    import torch
+
+    n, a = masks.shape
+    if node_features.shape[1] != a * 10:
+        raise SystemExit("--model linear reads v3 node features (10 a node): this run's "
+                         "recipe has another observation")
+    terms, prior = node_terms(node_features.reshape(n, a, -1), masks)
+    valid = torch.as_tensor(masks)
+    target = torch.as_tensor(labels)
+    torch.manual_seed(seed)
+    w = torch.zeros(terms.shape[-1], requires_grad=True)
+    rows = torch.as_tensor(fitted)
+    optimizer = torch.optim.LBFGS([w], max_iter=200)
+
+    def closure():
+        optimizer.zero_grad()
+        logits = torch.where(valid[rows], prior[rows] + terms[rows] @ w, -1e9)
+        loss = torch.nn.functional.cross_entropy(logits, target[rows]) + 1e-3 * w.square().sum()
+        loss.backward()
+        return loss
+
+    optimizer.step(closure)
+    with torch.no_grad():
+        choice = torch.where(valid, prior + terms @ w, -1e9).argmax(1).numpy()
+        first = torch.where(valid, prior, -torch.inf).argmax(1).numpy()
+    return w.detach().numpy(), choice, first
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run", type=Path, help="DAgger run folder (mjexplore imitate)")
@@ -45,6 +104,9 @@ def main() -> None:
                         help="Adam's step size (default: the run's)")
     parser.add_argument("--margin", type=float, default=None,
                         help="the margin loss's margin, nats (default: the run's)")
+    parser.add_argument("--model", choices=("network", "linear"), default="network",
+                        help="fit the run's network, or a conditional logit on the prior "
+                             "(default: network)")
     parser.add_argument("--seed", type=int, default=0,
                         help="seed of the held-out episodes and the minibatches' order "
                              "(default: 0)")
@@ -90,6 +152,25 @@ def main() -> None:
                          **departures(policy, obs, masks[rows], labels[rows])}
         return out
 
+    if args.model == "linear":
+        w, choice, prior = _linear_fit(observations["node_features"], masks, labels, ~test,
+                                       args.seed)
+        out = {}
+        for name, rows in splits.items():
+            hit, departs, label_departs = (choice == labels)[rows], (choice != prior)[rows], \
+                (labels != prior)[rows]
+            out[name] = {"decisions": int(rows.sum()), "agreement": float(hit.mean()),
+                         "prior_agreement": float((prior == labels)[rows].mean()),
+                         "label_departs": float(label_departs.mean()),
+                         "learner_departs": float(departs.mean()),
+                         "departure_precision": (float(hit[departs].mean())
+                                                 if departs.any() else None),
+                         "departure_recall": (float(hit[label_departs].mean())
+                                              if label_departs.any() else None)}
+        print(json.dumps({"run": str(args.run), "rounds": len(record["rounds"]),
+                          "episodes": count, "held_out_episodes": len(held), "model": "linear",
+                          "weights": [round(float(x), 3) for x in w], "fitted": out}))
+        return
     policy, _ = load_policy(args.run / "policy_untrained.safetensors")
     before = figures(policy)
     tick = time.perf_counter()
