@@ -512,7 +512,8 @@ def dagger_rounds(policy, env_config, config: ImitationConfig, seed: int = 0,
 
     A run resumed from round ``start`` (``aggregate``: the decisions of rounds 0 ..
     ``start - 1``, ``policy``: the weights after round ``start - 1``'s refit) goes on as the
-    run that never stopped: every round's episodes, learner and refit depend only on those.
+    run that never stopped: every round's episodes, learner and refit depend only on those
+    (the refit itself repeats only to rounding: see :mod:`mjexplore.learning.dagger_run`).
 
     Args:
         policy: The policy, fitted in place.
