@@ -116,7 +116,12 @@ def main() -> None:
 
     from mjexplore.config import from_dict
     from mjexplore.learning.dagger_run import read_round
-    from mjexplore.learning.imitation import agreement, clone, departures
+    from mjexplore.learning.imitation import (
+        agreement,
+        clone,
+        departure_figures,
+        departures,
+    )
     from mjexplore.learning.training import TrainConfig
     from mjexplore.policies.weights import load_policy
 
@@ -155,18 +160,11 @@ def main() -> None:
     if args.model == "linear":
         w, choice, prior = _linear_fit(observations["node_features"], masks, labels, ~test,
                                        args.seed)
-        out = {}
-        for name, rows in splits.items():
-            hit, departs, label_departs = (choice == labels)[rows], (choice != prior)[rows], \
-                (labels != prior)[rows]
-            out[name] = {"decisions": int(rows.sum()), "agreement": float(hit.mean()),
-                         "prior_agreement": float((prior == labels)[rows].mean()),
-                         "label_departs": float(label_departs.mean()),
-                         "learner_departs": float(departs.mean()),
-                         "departure_precision": (float(hit[departs].mean())
-                                                 if departs.any() else None),
-                         "departure_recall": (float(hit[label_departs].mean())
-                                              if label_departs.any() else None)}
+        out = {name: {"decisions": int(rows.sum()),
+                      "agreement": float((choice == labels)[rows].mean()),
+                      "prior_agreement": float((prior == labels)[rows].mean()),
+                      **departure_figures(choice[rows], prior[rows], labels[rows])}
+               for name, rows in splits.items()}
         print(json.dumps({"run": str(args.run), "rounds": len(record["rounds"]),
                           "episodes": count, "held_out_episodes": len(held), "model": "linear",
                           "weights": [round(float(x), 3) for x in w], "fitted": out}))

@@ -352,22 +352,33 @@ def departures(policy, observations: dict[str, np.ndarray], masks: np.ndarray,
     """
     import torch
 
-    extractor = getattr(policy, "pi_features_extractor", None) or policy.features_extractor
+    extractor = _actor_extractor(policy)
     if getattr(extractor, "prior_temperature", None) is None or not len(labels):
         return {}
     with torch.no_grad():
         prior = extractor.prior_logits(
             {"node_features": torch.as_tensor(observations["node_features"])}).numpy()
     prior = np.where(masks, prior, -np.inf).argmax(1)
-    learner = _probabilities(policy, observations, masks).argmax(1)
-    label_departs, learner_departs = labels != prior, learner != prior
-    hit = learner == labels
+    return departure_figures(_probabilities(policy, observations, masks).argmax(1), prior,
+                             labels)
+
+
+def departure_figures(choices: np.ndarray, prior: np.ndarray,
+                      labels: np.ndarray) -> dict[str, float | None]:
+    """:func:`departures`' figures from (n,) chosen, prior and label nodes (n > 0)."""
+    label_departs, learner_departs = labels != prior, choices != prior
+    hit = choices == labels
     return {"label_departs": float(label_departs.mean()),
             "learner_departs": float(learner_departs.mean()),
             "departure_precision": (float(hit[learner_departs].mean())
                                     if learner_departs.any() else None),
             "departure_recall": (float(hit[label_departs].mean())
                                  if label_departs.any() else None)}
+
+
+def _actor_extractor(policy):
+    """The features extractor the policy's actor reads (its own, or the shared one)."""
+    return getattr(policy, "pi_features_extractor", None) or policy.features_extractor
 
 
 def clone(policy, observations: dict[str, np.ndarray], masks: np.ndarray,
@@ -500,8 +511,7 @@ def prior_keep(policy, config: ImitationConfig) -> tuple[float, float] | None:
     ``pocket_m``), or None without ``keep_prior_m``."""
     if not config.keep_prior_m:
         return None
-    extractor = getattr(policy, "pi_features_extractor", None) or policy.features_extractor
-    return config.keep_prior_m, float(getattr(extractor, "prior_pocket_m", 0.0))
+    return config.keep_prior_m, float(getattr(_actor_extractor(policy), "prior_pocket_m", 0.0))
 
 
 def dagger_rounds(policy, env_config, config: ImitationConfig, seed: int = 0,
