@@ -1,0 +1,200 @@
+"""Does trial and error find a better rule than the prior? Evolution strategies on a linear
+residual of pocket_nearest's prior, judged by exploration time on paired layouts.
+
+The policy at a decision takes the valid TER node of greatest ``prior + phi(node) . w``:
+``prior`` is gvn_v3's path prior (minus the path cost, 50 m per unit of pocket probability,
+1 nat a metre) and ``phi`` the per-node terms of ``tools/dagger_fit.py``'s linear model
+(:func:`dagger_fit.node_terms`), scaled by ``SCALES`` so that a unit of ``theta`` moves a
+logit by metres that matter (``w = SCALES * theta``). ``theta = 0`` is the prior.
+
+Each iteration draws ``--layouts`` training layouts (the training stream of the recipe's
+env: generator seeds below 2**31, never a validation or test layout; with ``--fixed`` the
+same ones at every iteration, a deterministic objective) and ``--pairs`` antithetic
+perturbations ``+-sigma eps``; every candidate runs every layout (grid world,
+deterministic), and the gradient of the mean log exploration time is estimated from the
+paired differences (the same layouts for both signs: the layout's own difficulty cancels).
+Adam steps ``theta``. The centre and the prior also run the iteration's layouts, so the
+log holds the centre's paired ratio to the prior (without ``--fixed``: on layouts it had
+not seen before the step).
+
+At the end (and with ``--validate`` every k iterations) the centre runs the recipe's 32
+validation layouts beside the prior; ``--test N`` runs N test layouts (seeds from
+TEST_SEED_BASE) once, at the end. One JSON line per iteration goes to ``OUT/log.jsonl``; the
+state (theta, Adam moments, iteration) to ``OUT/state.json`` after each, so ``--resume``
+goes on.
+
+Usage: python tools/es_residual.py --config training/gvn_anchor.yaml --out runs/es/a
+    [--iterations 30] [--pairs 6] [--layouts 6] [--fixed] [--sigma 0.5] [--lr 0.1]
+    [--validate K] [--test N] [--workers 2] [--resume]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+# Metres of logit per unit of theta, per term of dagger_fit.node_terms: gain share,
+# heading difference (rad), TER distance (m), frontier flag, pocket probability, cost beyond
+# the cheapest (per 10 m), straight-line distance (per 10 m), beyond < 5 m, beyond < 15 m,
+# gain when beyond < 15 m.
+SCALES = np.array([20.0, 3.0, 1.0, 5.0, 20.0, 3.0, 3.0, 3.0, 3.0, 20.0], np.float32)
+TERMS = ("gain", "heading", "ter_distance", "flag", "pocket", "beyond_10m", "euclid_10m",
+         "beyond_lt5", "beyond_lt15", "gain_near")
+
+
+class LinearResidualRule:
+    """The greedy node of ``prior + node_terms . (SCALES * theta)``, with SB3's ``predict``."""
+
+    def __init__(self, theta: np.ndarray) -> None:
+        self.w = (SCALES * np.asarray(theta, np.float32)).astype(np.float32)
+
+    def predict(self, obs, deterministic=True, action_masks=None):
+        import torch
+        from dagger_fit import node_terms
+
+        mask = np.asarray(action_masks, bool)
+        features = np.asarray(obs["node_features"], np.float32).reshape(1, len(mask), -1)
+        terms, prior = node_terms(features, mask[None])
+        logits = (prior + terms @ torch.as_tensor(self.w))[0].numpy()
+        return int(np.argmax(np.where(mask, logits, -np.inf))), None
+
+
+_WORKER: dict = {}
+
+
+def _init(config) -> None:
+    from mjexplore.episode.workers import init_episode_worker
+
+    init_episode_worker()
+    _WORKER["config"] = config
+
+
+def _episode(job) -> float:
+    """Exploration time of one (theta, scene) job, seconds; an episode that does not explore
+    counts the time limit plus 1000 s per unit of coverage missing."""
+    from mjexplore.learning.training import _heldout_episode
+
+    theta, scene = job
+    config = _WORKER["config"]
+    m = _heldout_episode(LinearResidualRule(theta), config, scene)
+    if m["end_reason"] == "explored":
+        return float(m["exploration_time_s"])
+    return float(config.eval.episode.max_time + 1000.0 * (1.0 - m["exploration_ratio"]))
+
+
+def paired(times: np.ndarray, base: np.ndarray) -> dict:
+    """Mean times and :func:`~mjexplore.eval.stats.compare_paired`'s figures of per-layout
+    ratios (times / base)."""
+    from mjexplore.eval.stats import compare_paired
+
+    c = compare_paired(times, base)
+    return {"mean": float(np.mean(times)), "base": float(np.mean(base)), "ratio": c.mean,
+            "ci95": [c.low, c.high], "faster": c.faster, "slower": c.slower,
+            "p_value": c.p_value}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--config", required=True, help="training recipe (YAML)")
+    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.add_argument("--iterations", type=int, default=30, help="default: 30")
+    parser.add_argument("--pairs", type=int, default=6, help="default: 6")
+    parser.add_argument("--layouts", type=int, default=6, help="default: 6")
+    parser.add_argument("--sigma", type=float, default=0.5, help="default: 0.5")
+    parser.add_argument("--lr", type=float, default=0.1, help="Adam step (default: 0.1)")
+    parser.add_argument("--workers", type=int, default=2, help="default: 2")
+    parser.add_argument("--validate", type=int, default=0,
+                        help="validate every k iterations (default: 0, at the end only)")
+    parser.add_argument("--test", type=int, default=0, help="test layouts (default: 0)")
+    parser.add_argument("--seed", type=int, default=0, help="default: 0")
+    parser.add_argument("--fixed", action="store_true",
+                        help="the same --layouts training layouts at every iteration (common "
+                             "random numbers: a deterministic objective; default: fresh ones)")
+    parser.add_argument("--resume", action="store_true", help="default: off")
+    args = parser.parse_args()
+
+    from mjexplore.config import load_yaml_config
+    from mjexplore.envs.exploration import procedural_scene
+    from mjexplore.learning.training import TrainConfig
+
+    config = load_yaml_config(TrainConfig, args.config)
+    args.out.mkdir(parents=True, exist_ok=True)
+    state_path = args.out / "state.json"
+    dim = len(SCALES)
+    if args.resume and state_path.is_file():
+        state = json.loads(state_path.read_text())
+    else:
+        state = {"theta": [0.0] * dim, "m": [0.0] * dim, "v": [0.0] * dim, "iteration": 0,
+                 "args": {k: str(v) for k, v in vars(args).items()}}
+    theta = np.array(state["theta"])
+    m, v = np.array(state["m"]), np.array(state["v"])
+    ctx = mp.get_context("spawn")
+    with ctx.Pool(args.workers, initializer=_init, initargs=(config,)) as pool:
+        def run(thetas, scenes):
+            jobs = [(t, s) for t in thetas for s in scenes]
+            out = pool.map(_episode, jobs, chunksize=1)
+            return np.array(out).reshape(len(thetas), len(scenes))
+
+        def validate(tag, scenes):
+            times = run([theta, np.zeros(dim)], scenes)
+            row = {"validate": tag, "iteration": state["iteration"], "theta": theta.tolist(),
+                   "layouts": len(scenes), **paired(times[0], times[1]),
+                   "times": times.tolist()}
+            with open(args.out / "log.jsonl", "a") as f:
+                f.write(json.dumps(row) + "\n")
+            print(json.dumps({k: v for k, v in row.items() if k != "times"}), flush=True)
+
+        while state["iteration"] < args.iterations:
+            it = state["iteration"]
+            rng = np.random.default_rng([args.seed, it, 1])
+            draw = np.random.default_rng([args.seed, 0 if args.fixed else it])
+            scenes = [str(procedural_scene(config.env.procedural, draw))
+                      for _ in range(args.layouts)]
+            eps = rng.standard_normal((args.pairs, dim))
+            thetas = [theta + args.sigma * e for e in eps] + [theta - args.sigma * e for e in eps]
+            cached = args.fixed and "prior_times" in state
+            thetas += [theta] if cached else [theta, np.zeros(dim)]
+            times = run(thetas, scenes)
+            if cached:  # The prior on the same layouts: the same episodes as before.
+                times = np.vstack([times, state["prior_times"]])
+            elif args.fixed:
+                state["prior_times"] = times[-1].tolist()
+            logt = np.log(times)
+            plus, minus = logt[:args.pairs], logt[args.pairs:2 * args.pairs]
+            d = (minus - plus).mean(1) / 2  # > 0: the + side explores faster.
+            grad = (d[:, None] * eps).sum(0) / (args.pairs * args.sigma)
+            m = 0.9 * m + 0.1 * grad
+            v = 0.999 * v + 0.001 * grad ** 2
+            t = it + 1
+            step = args.lr * (m / (1 - 0.9 ** t)) / (np.sqrt(v / (1 - 0.999 ** t)) + 1e-8)
+            row = {"iteration": it, "theta_before": theta.tolist(),
+                   "centre_vs_prior": paired(times[-2], times[-1]),
+                   "pair_spread": float(np.abs(d).mean()), "grad": grad.tolist(),
+                   "times": times.tolist(), "scenes": scenes}
+            theta = theta + step
+            state.update(theta=theta.tolist(), m=m.tolist(), v=v.tolist(), iteration=t)
+            tmp = state_path.with_suffix(".tmp")
+            tmp.write_text(json.dumps(state))
+            os.replace(tmp, state_path)
+            with open(args.out / "log.jsonl", "a") as f:
+                f.write(json.dumps(row) + "\n")
+            print(json.dumps({"iteration": it, "centre_vs_prior": row["centre_vs_prior"],
+                              "pair_spread": row["pair_spread"],
+                              "theta": np.round(theta, 3).tolist()}), flush=True)
+            if args.validate and t % args.validate == 0:
+                validate(t, config.eval.scene_list())
+        validate("final", config.eval.scene_list())
+        if args.test:
+            validate("test", config.eval.test_scenes(args.test))
+
+
+if __name__ == "__main__":
+    main()
