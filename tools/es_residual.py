@@ -126,6 +126,11 @@ def main() -> None:
     from mjexplore.learning.training import TrainConfig
 
     config = load_yaml_config(TrainConfig, args.config)
+    if (config.env.procedural is None or config.env.observation.features != "v3"
+            or config.policy.prior_pocket_m != 50.0):
+        parser.error(f"{args.config}: needs generated training layouts (env.procedural), v3 "
+                     "features and the v3 prior (policy.prior_pocket_m: 50), as "
+                     "training/gvn_anchor.yaml has")
     args.out.mkdir(parents=True, exist_ok=True)
     state_path = args.out / "state.json"
     dim = len(SCALES)
