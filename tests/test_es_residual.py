@@ -80,13 +80,16 @@ def test_an_iteration_logs_the_centre_against_the_prior_and_resumes(tmp_path):
     step, final = rows
     # Before any step the centre is the prior: the same episode, to the decimal.
     times = np.array(step["times"])
-    assert times.shape == (4, 1) and times[2] == pytest.approx(times[3], abs=0)
+    assert times.shape == (4, 1) and times[2, 0] == times[3, 0]
     assert step["centre_vs_prior"]["ratio"] == 1.0
     state = json.loads((out / "state.json").read_text())
     assert state["iteration"] == 1 and state["prior_times"] == times[3].tolist()
     assert final["validate"] == "final" and final["layouts"] == 1
     assert final["theta"] == pytest.approx(state["theta"])
-    # Resumed at its last iteration: no more steps, one more validation.
+    assert state["prior_eval_times"]["validation_1"] == final["times"][1]
+    # Resumed at its last iteration: no more steps, one more validation, against the prior's
+    # kept episodes.
     subprocess.run(cmd + ["--resume"], cwd=REPO, capture_output=True, text=True, check=True)
     rows = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
     assert [r.get("validate") for r in rows] == [None, "final", "final"]
+    assert rows[2]["times"] == rows[1]["times"]

@@ -19,9 +19,10 @@ not seen before the step).
 
 At the end (and with ``--validate`` every k iterations) the centre runs the recipe's 32
 validation layouts beside the prior; ``--test N`` runs N test layouts (seeds from
-TEST_SEED_BASE) once, at the end. One JSON line per iteration goes to ``OUT/log.jsonl``; the
-state (theta, Adam moments, iteration) to ``OUT/state.json`` after each, so ``--resume``
-goes on.
+TEST_SEED_BASE) once, at the end; the prior's episodes there run once and are kept. One
+JSON line per iteration goes to ``OUT/log.jsonl``; the state (theta, Adam moments,
+iteration, the prior's kept times) to ``OUT/state.json`` after each, so ``--resume`` goes
+on.
 
 Usage: python tools/es_residual.py --config training/gvn_anchor.yaml --out runs/es/a
     [--iterations 30] [--pairs 6] [--layouts 6] [--fixed] [--sigma 0.5] [--lr 0.1]
@@ -46,8 +47,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 # the cheapest (per 10 m), straight-line distance (per 10 m), beyond < 5 m, beyond < 15 m,
 # gain when beyond < 15 m.
 SCALES = np.array([20.0, 3.0, 1.0, 5.0, 20.0, 3.0, 3.0, 3.0, 3.0, 20.0], np.float32)
-TERMS = ("gain", "heading", "ter_distance", "flag", "pocket", "beyond_10m", "euclid_10m",
-         "beyond_lt5", "beyond_lt15", "gain_near")
 
 
 class LinearResidualRule:
@@ -148,8 +147,21 @@ def main() -> None:
             out = pool.map(_episode, jobs, chunksize=1)
             return np.array(out).reshape(len(thetas), len(scenes))
 
+        def save():
+            tmp = state_path.with_suffix(".tmp")
+            tmp.write_text(json.dumps(state))
+            os.replace(tmp, state_path)
+
         def validate(tag, scenes):
-            times = run([theta, np.zeros(dim)], scenes)
+            # The prior's episodes are the same at every validation: run once, kept.
+            kept = state.setdefault("prior_eval_times", {})
+            key = f"{'test' if tag == 'test' else 'validation'}_{len(scenes)}"
+            if key in kept:
+                times = np.vstack([run([theta], scenes), kept[key]])
+            else:
+                times = run([theta, np.zeros(dim)], scenes)
+                kept[key] = times[1].tolist()
+                save()
             row = {"validate": tag, "iteration": state["iteration"], "theta": theta.tolist(),
                    "layouts": len(scenes), **paired(times[0], times[1]),
                    "times": times.tolist()}
@@ -186,9 +198,7 @@ def main() -> None:
                    "times": times.tolist(), "scenes": scenes}
             theta = theta + step
             state.update(theta=theta.tolist(), m=m.tolist(), v=v.tolist(), iteration=t)
-            tmp = state_path.with_suffix(".tmp")
-            tmp.write_text(json.dumps(state))
-            os.replace(tmp, state_path)
+            save()
             with open(args.out / "log.jsonl", "a") as f:
                 f.write(json.dumps(row) + "\n")
             print(json.dumps({"iteration": it, "centre_vs_prior": row["centre_vs_prior"],
