@@ -1,5 +1,12 @@
 """Frozen-dataclass configs from YAML: unknown keys, wrong types and bad values are refused
-with a message that names the key and says what is expected."""
+with a message that names the key and says what is expected.
+
+A YAML config may start from another: ``extends: gvn_anchor.yaml`` (a path relative to the
+file's folder) reads that file first, then lays this file's keys over it. Mappings merge key
+by key, at every depth; any other value (a list, a number, ``null``) replaces the base's. A
+recipe then states only what it changes, and the run's saved ``config.yaml`` holds the
+merged result.
+"""
 
 from __future__ import annotations
 
@@ -91,11 +98,27 @@ def to_dict(config: Any) -> Any:
     return config
 
 
-def load_yaml_config(cls: type[T], path: str | Path) -> T:
-    """Reads a YAML file into the dataclass ``cls``.
+EXTENDS = "extends"
+
+
+def merge_mappings(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
+    """``override`` laid over ``base``: mappings merge key by key, recursively; any other
+    value of ``override`` replaces the base's. Neither argument is modified."""
+    merged = dict(base)
+    for key, value in override.items():
+        if isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key] = merge_mappings(merged[key], value)
+        else:
+            merged[key] = value
+    return merged
+
+
+def read_yaml_mapping(path: str | Path, _chain: tuple[Path, ...] = ()) -> dict[str, Any]:
+    """A YAML config file's mapping, with its ``extends`` chain resolved (module docstring).
 
     Raises:
-        UserInputError: missing or unreadable file, YAML syntax error, or bad content.
+        UserInputError: missing or unreadable file, YAML syntax error, content that is not a
+            mapping, or an ``extends`` that is not a file name or leads back to itself.
     """
     path = Path(path)
     try:
@@ -107,4 +130,29 @@ def load_yaml_config(cls: type[T], path: str | Path) -> T:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise UserInputError(f"config {str(path)!r} is not valid YAML: {exc}") from None
-    return from_dict(cls, data, path.name)
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise UserInputError(f"{path.name}: expected a mapping of keys to values, got {data!r}.")
+    if EXTENDS not in data:
+        return data
+    base_name = data.pop(EXTENDS)
+    if not isinstance(base_name, str) or not base_name:
+        raise UserInputError(f"{path.name}: {EXTENDS} must name the YAML file this one starts "
+                             f"from (relative to {str(path.parent)!r}), got {base_name!r}.")
+    chain = (*_chain, path.resolve())
+    base_path = path.parent / base_name
+    if base_path.resolve() in chain:
+        names = " -> ".join(p.name for p in (*chain, base_path))
+        raise UserInputError(f"{path.name}: {EXTENDS} leads back to a file already read "
+                             f"({names}); break the loop.")
+    return merge_mappings(read_yaml_mapping(base_path, chain), data)
+
+
+def load_yaml_config(cls: type[T], path: str | Path) -> T:
+    """Reads a YAML file (and the files it ``extends``) into the dataclass ``cls``.
+
+    Raises:
+        UserInputError: missing or unreadable file, YAML syntax error, or bad content.
+    """
+    return from_dict(cls, read_yaml_mapping(path), Path(path).name)

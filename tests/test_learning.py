@@ -475,6 +475,48 @@ def test_train_config_round_trip_and_errors(tmp_path):
         load_train_config(path)
 
 
+def test_every_shipped_recipe_loads():
+    from mjexplore.learning.pocket_training import PocketTrainingConfig, load_pocket_config
+
+    recipes = sorted((REPO / "training").glob("*.yaml"))
+    assert len(recipes) >= 20
+    for path in recipes:
+        config = (load_pocket_config(path) if path.name == "pockets.yaml"
+                  else load_train_config(path))
+        assert isinstance(config, PocketTrainingConfig if path.name == "pockets.yaml"
+                          else TrainConfig), path.name
+
+
+def test_a_recipe_extends_another_key_by_key(tmp_path):
+    (tmp_path / "base.yaml").write_text(
+        "total_steps: 5000\nppo: {n_steps: 64, learning_rate: 0.001}\n"
+        "imitation: {episodes: 4}\n")
+    (tmp_path / "child.yaml").write_text(
+        "extends: base.yaml\nppo: {n_steps: 32}\nimitation: null\n")
+    base = load_train_config(tmp_path / "base.yaml")
+    child = load_train_config(tmp_path / "child.yaml")
+    assert (child.total_steps, child.ppo.learning_rate) == (5000, 0.001)  # Inherited.
+    assert (base.ppo.n_steps, child.ppo.n_steps) == (64, 32)  # Merged into ppo.
+    assert base.imitation.episodes == 4
+    assert child.imitation == TrainConfig().imitation  # null: the defaults again.
+    nested = tmp_path / "sub"
+    nested.mkdir()
+    (nested / "grandchild.yaml").write_text("extends: ../child.yaml\nseed: 3\n")
+    grandchild = load_train_config(nested / "grandchild.yaml")
+    assert grandchild == dataclasses.replace(child, seed=3)
+
+    (tmp_path / "loop_a.yaml").write_text("extends: loop_b.yaml\n")
+    (tmp_path / "loop_b.yaml").write_text("extends: loop_a.yaml\n")
+    with pytest.raises(UserInputError, match="leads back"):
+        load_train_config(tmp_path / "loop_a.yaml")
+    (tmp_path / "missing.yaml").write_text("extends: nowhere.yaml\n")
+    with pytest.raises(UserInputError, match="cannot read config .*nowhere.yaml"):
+        load_train_config(tmp_path / "missing.yaml")
+    (tmp_path / "bad.yaml").write_text("extends: [base.yaml]\n")
+    with pytest.raises(UserInputError, match="extends must name"):
+        load_train_config(tmp_path / "bad.yaml")
+
+
 @pytest.mark.parametrize("recipe,budget", [("gvn", 27648), ("gvn_v2", 8704)])
 def test_ablation_configs_differ_from_the_shipped_one_only_in_masking(recipe, budget):
     import dataclasses
