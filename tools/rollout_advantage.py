@@ -1,0 +1,304 @@
+"""Trial and error one decision at a time: the exact effect of departing from pocket_nearest at
+a decision, measured by rollouts, and whether what the actor observes predicts it.
+
+On each training layout (the recipe's training stream: generator seeds below 2**31, never a
+validation or test layout) the prior (gvn_v3's path prior: pocket_nearest's rule) drives an
+episode in the grid world, which is deterministic. At a share (``--share``) of its decisions,
+drawn at random among those with more than one valid node, the process forks once per
+alternative: the ``--alternatives`` valid nodes the prior ranks next. The fork takes that
+node, then follows the prior to the end. Its exploration time against the prior's own
+episode is the departure's whole effect on that layout, with nothing else changed:
+``d = log(T_departure / T_prior)`` (> 0: slower; an episode that does not explore counts the
+time limit plus 1000 s per unit of coverage missing).
+
+A learner that beats its prior has to find departures of ``d < 0`` from what it observes.
+``--fit`` reads the collected rows and asks whether the observable per-node terms of
+``tools/dagger_fit.py`` (:func:`dagger_fit.node_terms`; the departure's terms minus the prior
+node's) predict ``d`` on layouts held out (ridge regression, folds by layout): the held-out
+correlation, and how the departures predicted to gain fared. With ``--validate`` it then runs
+the rule that the fit on every layout implies (depart to the node of least predicted ``d``
+where that is below ``-margin``) on the recipe's validation layouts beside the prior.
+
+One JSON line per departure goes to ``OUT/rows.jsonl`` (appended layout by layout, so a run
+that stops keeps what it measured; ``--resume`` skips the layouts done).
+
+Usage: python tools/rollout_advantage.py --config training/gvn_batch.yaml --out runs/rollout/a
+    [--layouts 40] [--share 0.08] [--alternatives 2] [--workers 2] [--resume]
+       python tools/rollout_advantage.py --config ... --out runs/rollout/a --fit
+    [--folds 5] [--ridge 1.0] [--validate] [--margin 0.0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+_WORKER: dict = {}
+
+
+def _init(config) -> None:
+    from mjexplore.episode.workers import init_episode_worker
+
+    init_episode_worker()
+    _WORKER["config"] = config
+
+
+def _terms(obs, mask):
+    """(N, 10) node terms and (N,) prior logits of one observation."""
+    from dagger_fit import node_terms
+
+    features = np.asarray(obs["node_features"], np.float32).reshape(1, len(mask), -1)
+    terms, prior = node_terms(features, np.asarray(mask, bool)[None])
+    return terms[0].numpy(), prior[0].numpy()
+
+
+def _time(metrics, config) -> float:
+    if metrics["end_reason"] == "explored":
+        return float(metrics["exploration_time_s"])
+    return float(config.eval.episode.max_time + 1000.0 * (1.0 - metrics["exploration_ratio"]))
+
+
+def _follow_prior(env, obs, first_action=None):
+    """Steps ``env`` to the episode's end, ``first_action`` first, then the prior's choices;
+    the episode's metrics."""
+    action = first_action
+    while True:
+        mask = env.action_masks()
+        if action is None:
+            _, prior = _terms(obs, mask)
+            action = int(np.argmax(np.where(mask, prior, -np.inf)))
+        obs, _, terminated, truncated, info = env.step(action)
+        action = None
+        if terminated or truncated:
+            return info["episode_metrics"]
+
+
+def _in_fork(run) -> dict:
+    """``run()``'s result (a JSON-able dict) computed in a forked copy of this process: the
+    whole episode state is copied exactly (copy on write), and this process's is untouched."""
+    read, write = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # The child: run, report, leave without running the parent's exit code.
+        os.close(read)
+        code = 1
+        try:
+            os.write(write, json.dumps(run()).encode())
+            code = 0
+        finally:
+            os._exit(code)
+    os.close(write)
+    chunks = []
+    while chunk := os.read(read, 65536):
+        chunks.append(chunk)
+    os.close(read)
+    _, status = os.waitpid(pid, 0)
+    if status != 0:
+        raise RuntimeError(f"a departure's rollout failed (wait status {status})")
+    return json.loads(b"".join(chunks))
+
+
+def _layout(job) -> list[dict]:
+    """Every departure row of one layout (see the module docstring)."""
+    from mjexplore.learning.training import heldout_env
+
+    scene, share, alternatives, seed = job
+    config = _WORKER["config"]
+    env = heldout_env(config, scene)
+    obs, _ = env.reset(seed=config.eval.seed)
+    rng = np.random.default_rng(seed)
+    rows, k = [], 0
+    while True:  # This process drives the prior's own episode.
+        mask = env.action_masks()
+        terms, prior = _terms(obs, mask)
+        logits = np.where(mask, prior, -np.inf)
+        order = np.argsort(-logits)
+        choice = int(order[0])
+        if rng.random() < share and mask.sum() > 1:
+            # Rank 0, once a layout, is the prior's own node: its fork must run the prior's
+            # episode to the same time (the check that a fork copies the episode exactly).
+            for rank in range(0 if not rows else 1, 1 + alternatives):
+                a = int(order[rank])
+                if not mask[a]:
+                    break
+                branch = _in_fork(lambda a=a, obs=obs: _follow_prior(env, obs, a))
+                rows.append({"scene": scene, "decision": k, "rank": rank,
+                             "valid": int(mask.sum()), "t": _time(branch, config),
+                             "logit_gap": float(logits[choice] - logits[a]),
+                             "terms": (terms[a] - terms[choice]).tolist()})
+        obs, _, terminated, truncated, info = env.step(choice)
+        k += 1
+        if terminated or truncated:
+            break
+    t_prior = _time(info["episode_metrics"], config)
+    for row in rows:
+        row.update(t_prior=t_prior, d=float(np.log(row["t"] / t_prior)))
+    if rows and rows[0]["t"] != t_prior:
+        raise RuntimeError(f"{scene}: the prior's own node, run in a fork, took {rows[0]['t']} "
+                           f"s against the episode's {t_prior} s: forks do not copy the "
+                           "episode exactly, and no row of this layout can be trusted")
+    return rows
+
+
+def _collect(args, config) -> None:
+    from mjexplore.envs.exploration import procedural_scene
+
+    rows_path = args.out / "rows.jsonl"
+    done = set()
+    if args.resume and rows_path.is_file():
+        done = {json.loads(line)["scene"] for line in rows_path.read_text().splitlines()}
+    draw = np.random.default_rng([args.seed, 0])
+    scenes = [str(procedural_scene(config.env.procedural, draw)) for _ in range(args.layouts)]
+    jobs = [(s, args.share, args.alternatives, [args.seed, i])
+            for i, s in enumerate(scenes) if s not in done]
+    ctx = mp.get_context("spawn")
+    with ctx.Pool(args.workers, initializer=_init, initargs=(config,)) as pool:
+        for rows in pool.imap_unordered(_layout, jobs):
+            with open(rows_path, "a") as f:
+                f.writelines(json.dumps(r) + "\n" for r in rows)
+            if rows:
+                d = np.array([r["d"] for r in rows if r["rank"] > 0])
+                print(json.dumps({"scene": rows[0]["scene"], "departures": len(d),
+                                  "t_prior": rows[0]["t_prior"], "mean_d": float(d.mean()),
+                                  "gained": int((d < 0).sum()), "equal": int((d == 0).sum())}),
+                      flush=True)
+
+
+def _ridge(x: np.ndarray, y: np.ndarray, ridge: float) -> np.ndarray:
+    """Weights (with an intercept last) of a ridge regression of y on standardised x."""
+    mean, scale = x.mean(0), x.std(0) + 1e-9
+    z = np.column_stack([(x - mean) / scale, np.ones(len(x))])
+    penalty = ridge * np.eye(z.shape[1])
+    penalty[-1, -1] = 0.0
+    beta = np.linalg.solve(z.T @ z + penalty, z.T @ y)
+    return np.r_[beta[:-1] / scale, beta[-1] - (beta[:-1] / scale) @ mean]
+
+
+def _features(rows) -> np.ndarray:
+    return np.array([r["terms"] + [r["logit_gap"]] for r in rows])
+
+
+def _fit(args) -> dict:
+    rows = [json.loads(line) for line in (args.out / "rows.jsonl").read_text().splitlines()]
+    rows = [r for r in rows if r["rank"] > 0]
+    scenes = sorted({r["scene"] for r in rows})
+    x, y = _features(rows), np.array([r["d"] for r in rows])
+    rng = np.random.default_rng(args.seed)
+    fold_of = dict(zip(scenes, rng.permutation(len(scenes)) % args.folds))
+    fold = np.array([fold_of[r["scene"]] for r in rows])
+    predicted = np.empty_like(y)
+    for f in range(args.folds):
+        w = _ridge(x[fold != f], y[fold != f], args.ridge)
+        predicted[fold == f] = x[fold == f] @ w[:-1] + w[-1]
+    gain = predicted < -args.margin
+    w = _ridge(x, y, args.ridge)
+    return {"departures": len(rows), "layouts": len(scenes), "mean_d": float(y.mean()),
+            "share_gained": float((y < 0).mean()), "sd_d": float(y.std()),
+            "heldout_corr": float(np.corrcoef(predicted, y)[0, 1]),
+            "predicted_gain": int(gain.sum()),
+            "their_mean_d": float(y[gain].mean()) if gain.any() else None,
+            "their_share_gained": float((y[gain] < 0).mean()) if gain.any() else None,
+            "weights": w.tolist()}
+
+
+class PredictedDepartureRule:
+    """The prior's node unless a valid node's predicted ``d`` (the fit's weights over its
+    terms minus the prior node's, and the logit gap) is below ``-margin``: then the node of
+    least predicted ``d``. SB3's ``predict``."""
+
+    def __init__(self, weights, margin: float) -> None:
+        self.w = np.asarray(weights[:-1], np.float64)
+        self.b = float(weights[-1])
+        self.margin = margin
+
+    def predict(self, obs, deterministic=True, action_masks=None):
+        mask = np.asarray(action_masks, bool)
+        terms, prior = _terms(obs, mask)
+        logits = np.where(mask, prior, -np.inf)
+        choice = int(np.argmax(logits))
+        valid = np.flatnonzero(mask & (np.arange(len(mask)) != choice))
+        if not len(valid):
+            return choice, None
+        x = np.column_stack([terms[valid] - terms[choice], logits[choice] - logits[valid]])
+        d = x @ self.w + self.b
+        best = int(np.argmin(d))
+        return (int(valid[best]) if d[best] < -self.margin else choice), None
+
+
+def _episode(job) -> float:
+    from mjexplore.learning.training import NearestNodeRule, heldout_env
+
+    weights, margin, scene = job
+    config = _WORKER["config"]
+    policy = NearestNodeRule(50.0) if weights is None else PredictedDepartureRule(weights, margin)
+    env = heldout_env(config, scene)
+    obs, _ = env.reset(seed=config.eval.seed)
+    while True:
+        action, _ = policy.predict(obs, action_masks=env.action_masks())
+        obs, _, terminated, truncated, info = env.step(int(action))
+        if terminated or truncated:
+            return _time(info["episode_metrics"], config)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--config", required=True, help="training recipe (YAML)")
+    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.add_argument("--layouts", type=int, default=40, help="default: 40")
+    parser.add_argument("--share", type=float, default=0.08,
+                        help="chance that a decision is departed from (default: 0.08, some "
+                             "6 a layout)")
+    parser.add_argument("--alternatives", type=int, default=2,
+                        help="departures per decision: the nodes the prior ranks next "
+                             "(default: 2)")
+    parser.add_argument("--workers", type=int, default=2, help="default: 2")
+    parser.add_argument("--seed", type=int, default=0, help="default: 0")
+    parser.add_argument("--resume", action="store_true", help="skip the layouts done "
+                        "(default: off)")
+    parser.add_argument("--fit", action="store_true",
+                        help="fit the collected rows instead of collecting (default: off)")
+    parser.add_argument("--folds", type=int, default=5, help="default: 5")
+    parser.add_argument("--ridge", type=float, default=1.0, help="default: 1.0")
+    parser.add_argument("--margin", type=float, default=0.0,
+                        help="predicted log-ratio gain a departure needs (default: 0.0)")
+    parser.add_argument("--validate", action="store_true",
+                        help="with --fit: run the fitted rule on the validation layouts "
+                             "(default: off)")
+    args = parser.parse_args()
+
+    from mjexplore.config import load_yaml_config
+    from mjexplore.learning.training import TrainConfig
+
+    config = load_yaml_config(TrainConfig, args.config)
+    if (config.env.procedural is None or config.env.observation.features != "v3"
+            or config.policy.prior_pocket_m != 50.0):
+        parser.error(f"{args.config}: needs generated training layouts (env.procedural), v3 "
+                     "features and the v3 prior (policy.prior_pocket_m: 50), as "
+                     "training/gvn_batch.yaml has")
+    args.out.mkdir(parents=True, exist_ok=True)
+    if not args.fit:
+        _collect(args, config)
+        return
+    result = _fit(args)
+    print(json.dumps(result), flush=True)
+    if args.validate:
+        from es_residual import paired
+
+        scenes = config.eval.scene_list()
+        ctx = mp.get_context("spawn")
+        with ctx.Pool(args.workers, initializer=_init, initargs=(config,)) as pool:
+            jobs = [(w, args.margin, s) for w in (result["weights"], None) for s in scenes]
+            times = np.array(pool.map(_episode, jobs, chunksize=1)).reshape(2, len(scenes))
+        print(json.dumps({"validate": len(scenes), **paired(times[0], times[1]),
+                          "times": times.tolist()}), flush=True)
+
+
+if __name__ == "__main__":
+    main()
