@@ -77,16 +77,20 @@ def _init(config) -> None:
 
 
 def _episode(job) -> float:
-    """Exploration time of one (theta, scene) job, seconds; an episode that does not explore
-    counts the time limit plus 1000 s per unit of coverage missing."""
-    from mjexplore.learning.training import _heldout_episode
+    """Exploration time of one (theta, scene) job, seconds (:func:`penalised_time`)."""
+    from mjexplore.learning.training import heldout_episode
 
     theta, scene = job
     config = _WORKER["config"]
-    m = _heldout_episode(LinearResidualRule(theta), config, scene)
-    if m["end_reason"] == "explored":
-        return float(m["exploration_time_s"])
-    return float(config.eval.episode.max_time + 1000.0 * (1.0 - m["exploration_ratio"]))
+    return penalised_time(heldout_episode(LinearResidualRule(theta), config, scene), config)
+
+
+def penalised_time(metrics: dict, config) -> float:
+    """An episode's exploration time, seconds; one that does not explore counts the
+    evaluation's time limit plus 1000 s per unit of coverage missing."""
+    if metrics["end_reason"] == "explored":
+        return float(metrics["exploration_time_s"])
+    return float(config.eval.episode.max_time + 1000.0 * (1.0 - metrics["exploration_ratio"]))
 
 
 def paired(times: np.ndarray, base: np.ndarray) -> dict:

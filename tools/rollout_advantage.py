@@ -41,6 +41,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from es_residual import paired, penalised_time  # noqa: E402
+
 _WORKER: dict = {}
 
 
@@ -58,12 +60,6 @@ def _terms(obs, mask):
     features = np.asarray(obs["node_features"], np.float32).reshape(1, len(mask), -1)
     terms, prior = node_terms(features, np.asarray(mask, bool)[None])
     return terms[0].numpy(), prior[0].numpy()
-
-
-def _time(metrics, config) -> float:
-    if metrics["end_reason"] == "explored":
-        return float(metrics["exploration_time_s"])
-    return float(config.eval.episode.max_time + 1000.0 * (1.0 - metrics["exploration_ratio"]))
 
 
 def _follow_prior(env, obs, first_action=None):
@@ -130,14 +126,14 @@ def _layout(job) -> list[dict]:
                     break
                 branch = _in_fork(lambda a=a, obs=obs: _follow_prior(env, obs, a))
                 rows.append({"scene": scene, "decision": k, "rank": rank,
-                             "valid": int(mask.sum()), "t": _time(branch, config),
+                             "valid": int(mask.sum()), "t": penalised_time(branch, config),
                              "logit_gap": float(logits[choice] - logits[a]),
                              "terms": (terms[a] - terms[choice]).tolist()})
         obs, _, terminated, truncated, info = env.step(choice)
         k += 1
         if terminated or truncated:
             break
-    t_prior = _time(info["episode_metrics"], config)
+    t_prior = penalised_time(info["episode_metrics"], config)
     for row in rows:
         row.update(t_prior=t_prior, d=float(np.log(row["t"] / t_prior)))
     if rows and rows[0]["t"] != t_prior:
@@ -233,18 +229,12 @@ class PredictedDepartureRule:
 
 
 def _episode(job) -> float:
-    from mjexplore.learning.training import NearestNodeRule, heldout_env
+    from mjexplore.learning.training import NearestNodeRule, heldout_episode
 
     weights, margin, scene = job
     config = _WORKER["config"]
     policy = NearestNodeRule(50.0) if weights is None else PredictedDepartureRule(weights, margin)
-    env = heldout_env(config, scene)
-    obs, _ = env.reset(seed=config.eval.seed)
-    while True:
-        action, _ = policy.predict(obs, action_masks=env.action_masks())
-        obs, _, terminated, truncated, info = env.step(int(action))
-        if terminated or truncated:
-            return _time(info["episode_metrics"], config)
+    return penalised_time(heldout_episode(policy, config, scene), config)
 
 
 def main() -> None:
@@ -289,8 +279,6 @@ def main() -> None:
     result = _fit(args)
     print(json.dumps(result), flush=True)
     if args.validate:
-        from es_residual import paired
-
         scenes = config.eval.scene_list()
         ctx = mp.get_context("spawn")
         with ctx.Pool(args.workers, initializer=_init, initargs=(config,)) as pool:

@@ -668,7 +668,7 @@ def evaluate_policy_episodes(policy, config: TrainConfig, scenes: tuple[str, ...
     """
     scenes = config.eval.scene_list() if scenes is None else tuple(scenes)
     if workers <= 1 or len(scenes) <= 1:
-        return [_heldout_episode(policy, config, scene) for scene in scenes]
+        return [heldout_episode(policy, config, scene) for scene in scenes]
     if isinstance(policy, torch.nn.Module):  # Its weights: rebuilt on the CPU there.
         portable = {k: v.detach().cpu() for k, v in policy.state_dict().items()}
     else:
@@ -679,7 +679,10 @@ def evaluate_policy_episodes(policy, config: TrainConfig, scenes: tuple[str, ...
         return pool.map(_eval_worker_episode, scenes, chunksize=1)
 
 
-def _heldout_episode(policy, config: TrainConfig, scene: str) -> dict[str, Any]:
+def heldout_episode(policy, config: TrainConfig, scene: str) -> dict[str, Any]:
+    """One episode of ``policy`` (SB3's ``predict``, deterministic, with the action mask) on
+    a held-out ``scene`` with the evaluation's settings, in this process: the scene and the
+    episode's metrics (simulated time)."""
     env = heldout_env(config, scene)
     obs, _ = env.reset(seed=config.eval.seed)
     while True:
@@ -711,7 +714,7 @@ def _eval_worker_init(config: TrainConfig, portable) -> None:
 def _eval_worker_episode(scene: str) -> dict[str, Any]:
     if "error" in _EVAL_WORKER:
         raise _EVAL_WORKER["error"]
-    return _heldout_episode(_EVAL_WORKER["policy"], _EVAL_WORKER["config"], scene)
+    return heldout_episode(_EVAL_WORKER["policy"], _EVAL_WORKER["config"], scene)
 
 
 class NearestNodeRule:
