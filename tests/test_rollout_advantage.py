@@ -67,3 +67,13 @@ def test_forked_departures_are_measured_and_fitted(tmp_path):
     result = json.loads(fit.stdout.strip().splitlines()[-1])
     assert result["layouts"] == 2 and result["departures"] == len(rows) - 2
     assert len(result["weights"]) == 12
+
+
+@pytest.mark.parametrize("tool", ["rollout_advantage.py", "es_residual.py"])
+def test_a_recipe_without_the_v3_prior_is_refused(tool, tmp_path):
+    result = subprocess.run([sys.executable, str(REPO / "tools" / tool), "--config",
+                             str(REPO / "training" / "gvn.yaml"), "--out", str(tmp_path / "o")],
+                            cwd=REPO, capture_output=True, text=True)
+    assert result.returncode == 2
+    assert "needs generated training layouts" in result.stderr
+    assert not (tmp_path / "o").exists()

@@ -104,6 +104,21 @@ def paired(times: np.ndarray, base: np.ndarray) -> dict:
             "p_value": c.p_value}
 
 
+def load_v3_recipe(parser: argparse.ArgumentParser, path: str):
+    """The training recipe at ``path``; ``parser.error`` (exit 2) unless it has what the
+    prior's rule needs: generated training layouts, v3 features and the v3 prior."""
+    from mjexplore.config import load_yaml_config
+    from mjexplore.learning.training import TrainConfig
+
+    config = load_yaml_config(TrainConfig, path)
+    if (config.env.procedural is None or config.env.observation.features != "v3"
+            or config.policy.prior_pocket_m != 50.0):
+        parser.error(f"{path}: needs generated training layouts (env.procedural), v3 "
+                     "features and the v3 prior (policy.prior_pocket_m: 50), as "
+                     "training/gvn_batch.yaml has")
+    return config
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", required=True, help="training recipe (YAML)")
@@ -124,16 +139,9 @@ def main() -> None:
     parser.add_argument("--resume", action="store_true", help="default: off")
     args = parser.parse_args()
 
-    from mjexplore.config import load_yaml_config
     from mjexplore.envs.exploration import procedural_scene
-    from mjexplore.learning.training import TrainConfig
 
-    config = load_yaml_config(TrainConfig, args.config)
-    if (config.env.procedural is None or config.env.observation.features != "v3"
-            or config.policy.prior_pocket_m != 50.0):
-        parser.error(f"{args.config}: needs generated training layouts (env.procedural), v3 "
-                     "features and the v3 prior (policy.prior_pocket_m: 50), as "
-                     "training/gvn_anchor.yaml has")
+    config = load_v3_recipe(parser, args.config)
     args.out.mkdir(parents=True, exist_ok=True)
     state_path = args.out / "state.json"
     dim = len(SCALES)

@@ -41,7 +41,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from es_residual import paired, penalised_time  # noqa: E402
+from es_residual import load_v3_recipe, paired, penalised_time  # noqa: E402
 
 _WORKER: dict = {}
 
@@ -263,15 +263,7 @@ def main() -> None:
                              "(default: off)")
     args = parser.parse_args()
 
-    from mjexplore.config import load_yaml_config
-    from mjexplore.learning.training import TrainConfig
-
-    config = load_yaml_config(TrainConfig, args.config)
-    if (config.env.procedural is None or config.env.observation.features != "v3"
-            or config.policy.prior_pocket_m != 50.0):
-        parser.error(f"{args.config}: needs generated training layouts (env.procedural), v3 "
-                     "features and the v3 prior (policy.prior_pocket_m: 50), as "
-                     "training/gvn_batch.yaml has")
+    config = load_v3_recipe(parser, args.config)
     args.out.mkdir(parents=True, exist_ok=True)
     if not args.fit:
         _collect(args, config)
