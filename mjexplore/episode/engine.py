@@ -223,6 +223,18 @@ class Episode:
                 ExplorationState(gt, self.sim.pose, 0.0, [], self._costmap, np.zeros((0, 2)),
                                  ground_truth=gt))
         explorer.reset(np.random.default_rng(seed))
+        self._start_deciding()
+        self.curve: list[tuple[float, float]] = []
+        self.goals: list[tuple[float, float, float]] = []
+        self.visited: list[np.ndarray] = []
+        self.end_reason: str | None = None
+        self._integrate(self.sim.latest_scan)
+
+    # ------------------------------------------------------------------ internals
+
+    def _start_deciding(self) -> None:
+        """The decision and navigation state of a fresh episode: no goal, no blacklist, no
+        strikes (the engine's and each team robot's)."""
         self.goal: np.ndarray | None = None
         self._goal_window: tuple[tuple, tuple[slice, slice]] | None = None  # (goal, cells)
         self._decision_due = False
@@ -233,18 +245,11 @@ class Episode:
         self._fallback = NearestFrontier()
         self.fallbacks = 0
         self.reoffers = 0
-        self.blacklist = GoalBlacklist(cfg.blacklist)
+        self.blacklist = GoalBlacklist(self.config.blacklist)
         self._linger_strikes = 0
         self._stuck = 0  # Control periods since the robot got stuck (0: it is not).
         self._stuck_at = np.zeros(2)
         self._strike_at: np.ndarray | None = None
-        self.curve: list[tuple[float, float]] = []
-        self.goals: list[tuple[float, float, float]] = []
-        self.visited: list[np.ndarray] = []
-        self.end_reason: str | None = None
-        self._integrate(self.sim.latest_scan)
-
-    # ------------------------------------------------------------------ internals
 
     def _jittered_start(self, scene: SceneFiles, gt: GridMap,
                         rng: np.random.Generator) -> tuple[float, float, float]:

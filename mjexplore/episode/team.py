@@ -76,14 +76,12 @@ from mjexplore.episode.engine import (
 )
 from mjexplore.episode.explorer import ExplorationState, Explorer
 from mjexplore.episode.metrics import KnownCounter, first_time_at
-from mjexplore.episode.nearest import NearestFrontier
 from mjexplore.errors import UserInputError
 from mjexplore.mapping.map_merging import MapMergeConfig, merge_maps
 from mjexplore.mapping.metrics import iou, observable_ground_truth
 from mjexplore.mapping.occupancy import MapperConfig, OccupancyMapper
 from mjexplore.mapping.scan_matching import ScanMatcherConfig, match_scan, scan_points
 from mjexplore.maps import OCCUPIED, GridMap
-from mjexplore.navigation.blacklist import GoalBlacklist
 from mjexplore.navigation.navigator import Navigator, NavStatus
 from mjexplore.navigation.teammates import TeamCostmap
 from mjexplore.scenes.scene import SceneFiles
@@ -230,21 +228,7 @@ class RobotAgent(Episode):
         self.use_map(*team.map_of(index))
         self._static_costmap = None
         explorer.reset(rng)
-        self.goal: np.ndarray | None = None
-        self._goal_window = None
-        self._decision_due = False
-        self._best_distance = math.inf
-        self._best_time = 0.0
-        self._route_restarts = 0
-        self._decided_at = 0.0
-        self._fallback = NearestFrontier()
-        self.fallbacks = 0
-        self.reoffers = 0
-        self.blacklist = GoalBlacklist(cfg.blacklist)
-        self._linger_strikes = 0
-        self._stuck = 0
-        self._stuck_at = np.zeros(2)
-        self._strike_at: np.ndarray | None = None
+        self._start_deciding()
         self.curve = team.curve
         self.goals: list[tuple[float, float, float]] = []
         self.visited: list[np.ndarray] = []

@@ -148,6 +148,7 @@ class TeammateBody:
 
     _in_contact: bool
     _teammate_contact: bool
+    _team: TeamSimulator
 
     @property
     def in_collision(self) -> bool:
@@ -159,6 +160,20 @@ class TeammateBody:
         """Centre of the body's bounding circle (radius ``BODY_RADIUS``), ``map`` frame."""
         x, y, yaw = self.pose
         return x + BODY_CENTRE_X * math.cos(yaw), y + BODY_CENTRE_X * math.sin(yaw)
+
+    def _moved_into_teammate(self, centre_before: tuple[float, float]) -> bool:
+        """Whether the move just made, from a body centre at ``centre_before``, brought the
+        body into a teammate's (bounding circles overlapping, and nearer than before)."""
+        after = self.body_centre
+        for other in self._team.robots:
+            if other is self:
+                continue
+            ox, oy = other.body_centre
+            d = math.hypot(after[0] - ox, after[1] - oy)
+            if d < 2 * BODY_RADIUS and d < math.hypot(centre_before[0] - ox,
+                                                      centre_before[1] - oy):
+                return True
+        return False
 
 
 class TeamRobot(TeammateBody, Simulator):
@@ -253,18 +268,10 @@ class TeamRobot(TeammateBody, Simulator):
         before = q[i:i + 7].copy(), q[self._wheel_qpos].copy()
         centre = self.body_centre
         super()._move_kinematic(stop)
-        after = self.body_centre
-        self._kinematic_teammate = False
-        for other in self._team.robots:
-            if other is self:
-                continue
-            ox, oy = other.body_centre
-            d = math.hypot(after[0] - ox, after[1] - oy)
-            if d < 2 * BODY_RADIUS and d < math.hypot(centre[0] - ox, centre[1] - oy):
-                q[i:i + 7], q[self._wheel_qpos] = before
-                self.data.qvel[self._qvel0:self._qvel0 + 6] = 0.0
-                self._kinematic_teammate = True
-                break
+        self._kinematic_teammate = self._moved_into_teammate(centre)
+        if self._kinematic_teammate:
+            q[i:i + 7], q[self._wheel_qpos] = before
+            self.data.qvel[self._qvel0:self._qvel0 + 6] = 0.0
 
 
 class TeamSimulator:

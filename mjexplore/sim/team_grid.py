@@ -97,18 +97,10 @@ class TeamGridRobot(TeammateBody, GridWorld):
         before = self._pose, self._wheels
         centre = self.body_centre
         super()._move(stop)
-        after = self.body_centre
-        self._refused_by_teammate = False
-        for other in self._team.robots:
-            if other is self:
-                continue
-            ox, oy = other.body_centre
-            d = math.hypot(after[0] - ox, after[1] - oy)
-            if d < 2 * BODY_RADIUS and d < math.hypot(centre[0] - ox, centre[1] - oy):
-                self._pose, self._wheels = before
-                self._twist = (0.0, 0.0)
-                self._refused_by_teammate = True
-                break
+        self._refused_by_teammate = self._moved_into_teammate(centre)
+        if self._refused_by_teammate:
+            self._pose, self._wheels = before
+            self._twist = (0.0, 0.0)
 
     def _note_teammate(self, touching: bool) -> None:
         t = self.time
