@@ -15,9 +15,10 @@ A learner that beats its prior has to find departures of ``d < 0`` from what it 
 ``--fit`` reads the collected rows and asks whether the observable per-node terms of
 ``tools/dagger_fit.py`` (:func:`dagger_fit.node_terms`; the departure's terms minus the prior
 node's) predict ``d`` on layouts held out (ridge regression, folds by layout): the held-out
-correlation, and how the departures predicted to gain fared. With ``--validate`` it then runs
-the rule that the fit on every layout implies (depart to the node of least predicted ``d``
-where that is below ``-margin``) on the recipe's validation layouts beside the prior.
+correlation, and how the departures predicted to gain, and the tenth predicted best, fared.
+With ``--validate`` it then runs the rule that the fit on every layout implies (depart to the
+node of least predicted ``d`` where that is below ``-margin``) on the recipe's validation
+layouts beside the prior.
 
 One JSON line per departure goes to ``OUT/rows.jsonl`` (appended layout by layout, so a run
 that stops keeps what it measured; ``--resume`` skips the layouts done).
@@ -194,6 +195,8 @@ def _fit(args) -> dict:
         w = _ridge(x[fold != f], y[fold != f], args.ridge)
         predicted[fold == f] = x[fold == f] @ w[:-1] + w[-1]
     gain = predicted < -args.margin
+    # The tenth of the departures the held-out fits rank best: is any signal there at all?
+    best = np.argsort(predicted)[:max(1, len(y) // 10)]
     w = _ridge(x, y, args.ridge)
     return {"departures": len(rows), "layouts": len(scenes), "mean_d": float(y.mean()),
             "share_gained": float((y < 0).mean()), "sd_d": float(y.std()),
@@ -201,6 +204,8 @@ def _fit(args) -> dict:
             "predicted_gain": int(gain.sum()),
             "their_mean_d": float(y[gain].mean()) if gain.any() else None,
             "their_share_gained": float((y[gain] < 0).mean()) if gain.any() else None,
+            "best_tenth_mean_d": float(y[best].mean()),
+            "best_tenth_share_gained": float((y[best] < 0).mean()),
             "weights": w.tolist()}
 
 
