@@ -62,6 +62,8 @@ def test_forked_departures_are_measured_and_fitted(tmp_path):
         assert all(r["rank"] == 1 and r["logit_gap"] >= 0 for r in mine[1:])
         assert len(mine) > 2
     assert any(r["d"] != 0 for r in rows)
+    session, = [json.loads(line) for line in (out / "sessions.jsonl").read_text().splitlines()]
+    assert session["revision"] and session["args"]["share"] == "1.0"
     fit = subprocess.run(tool + ["--fit", "--folds", "2"], cwd=REPO, capture_output=True,
                          text=True, check=True)
     result = json.loads(fit.stdout.strip().splitlines()[-1])

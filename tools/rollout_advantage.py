@@ -21,7 +21,8 @@ node of least predicted ``d`` where that is below ``-margin``) on the recipe's v
 layouts beside the prior.
 
 One JSON line per departure goes to ``OUT/rows.jsonl`` (appended layout by layout, so a run
-that stops keeps what it measured; ``--resume`` skips the layouts done).
+that stops keeps what it measured; ``--resume`` skips the layouts done), and one per start,
+with the git revision and the arguments, to ``OUT/sessions.jsonl``.
 
 Usage: python tools/rollout_advantage.py --config training/gvn_batch.yaml --out runs/rollout/a
     [--layouts 40] [--share 0.08] [--alternatives 2] [--workers 2] [--resume]
@@ -146,7 +147,11 @@ def _layout(job) -> list[dict]:
 
 def _collect(args, config) -> None:
     from mjexplore.envs.exploration import procedural_scene
+    from mjexplore.io.provenance import git_revision
 
+    with open(args.out / "sessions.jsonl", "a") as f:  # Which code measured which rows.
+        f.write(json.dumps({"revision": git_revision(), "args": {
+            k: str(v) for k, v in vars(args).items()}}) + "\n")
     rows_path = args.out / "rows.jsonl"
     done = set()
     if args.resume and rows_path.is_file():
