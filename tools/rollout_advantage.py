@@ -64,19 +64,18 @@ def _terms(obs, mask):
     return terms[0].numpy(), prior[0].numpy()
 
 
-def _follow_prior(env, obs, first_action=None):
-    """Steps ``env`` to the episode's end, ``first_action`` first, then the prior's choices;
-    the episode's metrics."""
-    action = first_action
+def _follow_prior(env, obs, first_action: int) -> dict:
+    """Steps ``env`` to the episode's end, ``first_action`` first, then pocket_nearest's
+    choices (:class:`~mjexplore.learning.training.NearestNodeRule`, 50 m a unit of pocket
+    probability: the prior's greedy node); the episode's metrics."""
+    from mjexplore.learning.training import NearestNodeRule
+
+    prior, action = NearestNodeRule(50.0), first_action
     while True:
-        mask = env.action_masks()
-        if action is None:
-            _, prior = _terms(obs, mask)
-            action = int(np.argmax(np.where(mask, prior, -np.inf)))
         obs, _, terminated, truncated, info = env.step(action)
-        action = None
         if terminated or truncated:
             return info["episode_metrics"]
+        action = prior.predict(obs, action_masks=env.action_masks())[0]
 
 
 def _in_fork(run) -> dict:
@@ -165,8 +164,8 @@ def _collect(args, config) -> None:
         for rows in pool.imap_unordered(_layout, jobs):
             with open(rows_path, "a") as f:
                 f.writelines(json.dumps(r) + "\n" for r in rows)
-            if rows:
-                d = np.array([r["d"] for r in rows if r["rank"] > 0])
+            d = np.array([r["d"] for r in rows if r["rank"] > 0])
+            if len(d):
                 print(json.dumps({"scene": rows[0]["scene"], "departures": len(d),
                                   "t_prior": rows[0]["t_prior"], "mean_d": float(d.mean()),
                                   "gained": int((d < 0).sum()), "equal": int((d == 0).sum())}),
