@@ -11,6 +11,7 @@ merged result.
 from __future__ import annotations
 
 import dataclasses
+import re
 import types
 import typing
 from pathlib import Path
@@ -113,14 +114,14 @@ def merge_mappings(base: dict[str, Any], override: dict[str, Any]) -> dict[str, 
     return merged
 
 
-def read_yaml_mapping(path: str | Path, _chain: tuple[Path, ...] = ()) -> dict[str, Any]:
-    """A YAML config file's mapping, with its ``extends`` chain resolved (module docstring).
+def _read_layers(path: Path, chain: tuple[Path, ...] = ()) -> list[tuple[str, dict[str, Any]]]:
+    """(file name, its own mapping) of ``path`` and of every file it ``extends``, the file
+    itself first (module docstring).
 
     Raises:
         UserInputError: missing or unreadable file, YAML syntax error, content that is not a
             mapping, or an ``extends`` that is not a file name or leads back to itself.
     """
-    path = Path(path)
     try:
         text = path.read_text()
     except OSError as exc:
@@ -135,18 +136,43 @@ def read_yaml_mapping(path: str | Path, _chain: tuple[Path, ...] = ()) -> dict[s
     if not isinstance(data, dict):
         raise UserInputError(f"{path.name}: expected a mapping of keys to values, got {data!r}.")
     if EXTENDS not in data:
-        return data
+        return [(path.name, data)]
     base_name = data.pop(EXTENDS)
     if not isinstance(base_name, str) or not base_name:
         raise UserInputError(f"{path.name}: {EXTENDS} must name the YAML file this one starts "
                              f"from (relative to {str(path.parent)!r}), got {base_name!r}.")
-    chain = (*_chain, path.resolve())
+    chain = (*chain, path.resolve())
     base_path = path.parent / base_name
     if base_path.resolve() in chain:
         names = " -> ".join(p.name for p in (*chain, base_path))
         raise UserInputError(f"{path.name}: {EXTENDS} leads back to a file already read "
                              f"({names}); break the loop.")
-    return merge_mappings(read_yaml_mapping(base_path, chain), data)
+    return [(path.name, data), *_read_layers(base_path, chain)]
+
+
+def _merge_layers(layers: list[tuple[str, dict[str, Any]]]) -> dict[str, Any]:
+    merged: dict[str, Any] = {}
+    for _, data in reversed(layers):
+        merged = merge_mappings(merged, data)
+    return merged
+
+
+def _where_set(message: str, name: str, layers: list[tuple[str, dict[str, Any]]]) -> str:
+    """The files of an ``extends`` chain that set the key a :func:`from_dict` error
+    ``message`` (about the merged config named ``name``) is about, child first."""
+    where = message[len(name):].split(": ", 1)[0] if message.startswith(name) else ""
+    keys = [k for k in re.split(r"\.|\[\d+\]", where) if k]
+    unknown = re.search(r"unknown key\(s\) (.*?); valid keys", message)
+    leaves = [[*keys, k] for k in unknown.group(1).split(", ")] if unknown else [keys]
+
+    def sets(data: Any, path: list[str]) -> bool:
+        for key in path:
+            if not isinstance(data, dict) or key not in data:
+                return False
+            data = data[key]
+        return True
+
+    return ", ".join(n for n, data in layers if any(sets(data, leaf) for leaf in leaves))
 
 
 def load_yaml_config(cls: type[T], path: str | Path) -> T:
@@ -155,4 +181,13 @@ def load_yaml_config(cls: type[T], path: str | Path) -> T:
     Raises:
         UserInputError: missing or unreadable file, YAML syntax error, or bad content.
     """
-    return from_dict(cls, read_yaml_mapping(path), Path(path).name)
+    layers = _read_layers(Path(path))
+    name = Path(path).name
+    try:
+        return from_dict(cls, _merge_layers(layers), name)
+    except UserInputError as exc:
+        if len(layers) == 1:
+            raise
+        files = _where_set(str(exc), name, layers) or "none of them alone"
+        chain = " -> ".join(n for n, _ in layers)
+        raise UserInputError(f"{exc} (the config merges {chain}; set in: {files})") from None

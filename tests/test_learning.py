@@ -517,6 +517,22 @@ def test_a_recipe_extends_another_key_by_key(tmp_path):
         load_train_config(tmp_path / "bad.yaml")
 
 
+def test_an_error_in_a_merged_recipe_names_the_file_that_set_the_key(tmp_path):
+    (tmp_path / "base.yaml").write_text("ppo: {learning_rate: fast, n_stepz: 3}\n")
+    (tmp_path / "child.yaml").write_text("extends: base.yaml\nseed: 3\n")
+    (tmp_path / "grandchild.yaml").write_text("extends: child.yaml\nppo: {n_steps: 32}\n")
+    with pytest.raises(UserInputError, match=r"grandchild.yaml.ppo: unknown key\(s\) n_stepz.*"
+                       r"merges grandchild.yaml -> child.yaml -> base.yaml; set in: base.yaml\)"):
+        load_train_config(tmp_path / "grandchild.yaml")
+    (tmp_path / "base.yaml").write_text("ppo: {learning_rate: fast}\n")
+    with pytest.raises(UserInputError, match=r"ppo.learning_rate: expected a number.*"
+                       r"set in: base.yaml\)"):
+        load_train_config(tmp_path / "grandchild.yaml")
+    (tmp_path / "child.yaml").write_text("extends: base.yaml\nppo: {learning_rate: slow}\n")
+    with pytest.raises(UserInputError, match=r"set in: child.yaml, base.yaml\)"):
+        load_train_config(tmp_path / "grandchild.yaml")
+
+
 @pytest.mark.parametrize("recipe,budget", [("gvn", 27648), ("gvn_v2", 8704)])
 def test_ablation_configs_differ_from_the_shipped_one_only_in_masking(recipe, budget):
     import dataclasses
