@@ -15,7 +15,7 @@ from mjexplore.learning.training import NearestNodeRule
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tools"))
 
-from rollout_advantage import PredictedDepartureRule, _ridge  # noqa: E402
+from rollout_advantage import CONTEXT, PAIRWISE, PredictedDepartureRule, _ridge  # noqa: E402
 
 
 def test_a_fit_predicting_no_gain_is_the_prior_and_one_predicting_gain_departs():
@@ -69,6 +69,21 @@ def test_forked_departures_are_measured_and_fitted(tmp_path):
     result = json.loads(fit.stdout.strip().splitlines()[-1])
     assert result["layouts"] == 2 and result["departures"] == len(rows) - 2
     assert len(result["weights"]) == 12
+    # Each departure's map context, measured in the collection, is measured again by
+    # replaying the prior's episode (--observe, for rows collected without it): the same.
+    width = len(CONTEXT) + len(PAIRWISE)
+    assert all(len(r["context"]) == width for r in rows if r["rank"])
+    (out / "rows.jsonl").write_text("".join(
+        json.dumps({k: v for k, v in r.items() if k != "context"}) + "\n" for r in rows))
+    subprocess.run(tool + ["--observe", "--workers", "1"], cwd=REPO, capture_output=True,
+                   text=True, check=True)
+    replayed = {(c["scene"], c["decision"], c["rank"]): c["context"] for c in map(
+        json.loads, (out / "context.jsonl").read_text().splitlines())}
+    assert replayed == {(r["scene"], r["decision"], r["rank"]): r["context"]
+                        for r in rows if r["rank"]}
+    fit = subprocess.run(tool + ["--fit", "--context", "--folds", "2"], cwd=REPO,
+                         capture_output=True, text=True, check=True)
+    assert len(json.loads(fit.stdout.strip().splitlines()[-1])["weights"]) == 12 + width
 
 
 @pytest.mark.parametrize("tool", ["rollout_advantage.py", "es_residual.py"])

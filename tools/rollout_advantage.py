@@ -20,6 +20,16 @@ With ``--validate`` it then runs the rule that the fit on every layout implies (
 node of least predicted ``d`` where that is below ``-margin``) on the recipe's validation
 layouts beside the prior.
 
+The actor's terms describe each node alone. Each row also carries the departure's map
+context (``context``, :data:`CONTEXT` of the departed node minus the prior node's, then
+:data:`PAIRWISE`): the unknown and occupied shares of the map within 1, 2 and 4 m of the
+node, its path cost to the nearest other valid node and the mean to them all, the valid nodes
+within 5 m of path, its bearing from the robot's heading; the path between the two nodes, the
+detour of passing the departed node on the way to the prior's, the valid nodes and the known
+share of the map. ``--fit --context`` fits the terms and the context together; ``--observe``
+measures the context of rows collected without it into ``OUT/context.jsonl`` by replaying the
+prior's episode.
+
 One JSON line per departure goes to ``OUT/rows.jsonl`` (appended layout by layout, so a run
 that stops keeps what it measured; ``--resume`` skips the layouts done), and one per start,
 with the git revision and the arguments, to ``OUT/sessions.jsonl``.
@@ -27,7 +37,8 @@ with the git revision and the arguments, to ``OUT/sessions.jsonl``.
 Usage: python tools/rollout_advantage.py --config training/gvn_batch.yaml --out runs/rollout/a
     [--layouts 40] [--share 0.08] [--alternatives 2] [--workers 2] [--resume]
        python tools/rollout_advantage.py --config ... --out runs/rollout/a --fit
-    [--folds 5] [--ridge 1.0] [--validate] [--margin 0.0]
+    [--context] [--folds 5] [--ridge 1.0] [--validate] [--margin 0.0]
+       python tools/rollout_advantage.py --config ... --out runs/rollout/a --observe
 """
 
 from __future__ import annotations
@@ -119,6 +130,8 @@ def _layout(job) -> list[dict]:
         order = np.argsort(-logits)
         choice = int(order[0])
         if rng.random() < share and mask.sum() > 1:
+            departures = [int(a) for a in order[1:1 + alternatives] if mask[a]]
+            context = _in_fork(lambda c=choice, n=departures: _decision_context(env, c, n))
             # Rank 0, once a layout, is the prior's own node: its fork must run the prior's
             # episode to the same time (the check that a fork copies the episode exactly).
             for rank in range(0 if not rows else 1, 1 + alternatives):
@@ -129,7 +142,8 @@ def _layout(job) -> list[dict]:
                 rows.append({"scene": scene, "decision": k, "rank": rank,
                              "valid": int(mask.sum()), "t": penalised_time(branch, config),
                              "logit_gap": float(logits[choice] - logits[a]),
-                             "terms": (terms[a] - terms[choice]).tolist()})
+                             "terms": (terms[a] - terms[choice]).tolist(),
+                             **({"context": context[str(a)]} if rank else {})})
         obs, _, terminated, truncated, info = env.step(choice)
         k += 1
         if terminated or truncated:
@@ -142,6 +156,120 @@ def _layout(job) -> list[dict]:
                            f"s against the episode's {t_prior} s: forks do not copy the "
                            "episode exactly, and no row of this layout can be trusted")
     return rows
+
+
+# The map around a node and its place among the other valid nodes: what the actor's terms
+# leave out, measured for the prior's node and each departure (``--observe``).
+RADII = (1.0, 2.0, 4.0)  # metres
+CONTEXT = tuple(f"{kind}_{r:g}" for r in RADII for kind in ("unknown", "occupied")) + (
+    "isolation", "mean_path", "nodes_5m", "bearing")
+PAIRWISE = ("between", "detour", "valid", "known_share")
+
+
+def _node_context(state, positions, valid, x) -> tuple[np.ndarray, np.ndarray]:
+    """The :data:`CONTEXT` features of node ``x`` (a valid node index), and its path costs to
+    every node (metres, inf where unreachable or not valid)."""
+    grid, pos = state.grid, positions[x]
+    out = []
+    for r in RADII:
+        half = int(np.ceil(r / grid.resolution))
+        row, col = grid.world_to_cell(pos)
+        rows = np.arange(row - half, row + half + 1)[:, None]
+        cols = np.arange(col - half, col + half + 1)[None, :]
+        disc = (rows - row) ** 2 + (cols - col) ** 2 <= half ** 2
+        inside = (rows >= 0) & (rows < grid.shape[0]) & (cols >= 0) & (cols < grid.shape[1])
+        cells = grid.data[np.clip(rows, 0, grid.shape[0] - 1), np.clip(cols, 0, grid.shape[1] - 1)]
+        counted = disc & inside
+        n = max(int(counted.sum()), 1)
+        out += [float(((cells < 0) & counted).sum()) / n,
+                float(((cells >= 50) & counted).sum()) / n]
+    cells = np.clip(grid.world_to_cell(positions), 0, np.array(grid.shape) - 1)
+    half = int(round(0.5 / grid.resolution))
+    path = state.costmap.distances_near(pos, cells, half)
+    path[~valid] = np.inf
+    others = path.copy()
+    others[x] = np.inf
+    finite = others[np.isfinite(others)]
+    heading = np.arctan2(pos[1] - state.pose[1], pos[0] - state.pose[0])
+    out += [float(finite.min()) if len(finite) else 100.0,
+            float(np.minimum(finite, 100.0).mean()) if len(finite) else 100.0,
+            float((finite < 5.0).sum()),
+            float(np.cos(heading - state.pose[2]))]
+    return np.array(out), path
+
+
+def _decision_context(env, choice: int, departures: list[int]) -> dict:
+    """For each departure: its :data:`CONTEXT` minus the prior node's, and :data:`PAIRWISE`
+    (path between the two nodes, the detour of passing the departure on the way to the prior's
+    node, metres; valid nodes; known share of the map)."""
+    state = env.episode.decision_state()
+    positions = env.decisions.padded.node_positions
+    valid = env.action_masks()
+    prior, path_p = _node_context(state, positions, valid, choice)
+    robot = state.costmap.distances_near(
+        state.pose[:2], np.clip(state.grid.world_to_cell(positions), 0,
+                                np.array(state.grid.shape) - 1),
+        int(round(0.5 / state.grid.resolution)))
+    known = float((state.grid.data >= 0).mean())
+    out = {}
+    for a in departures:
+        mine, _ = _node_context(state, positions, valid, a)
+        between = min(float(path_p[a]), 100.0)
+        out[str(a)] = (mine - prior).tolist() + [
+            between, min(float(robot[a] + between - robot[choice]), 100.0),
+            float(valid.sum()), known]
+    return out
+
+
+def _observe(job) -> list[dict]:
+    """The context rows of one layout's departures: the prior's episode replayed (the
+    grid world is deterministic) and, at each departed decision, :func:`_decision_context`
+    measured in a fork (so that its searches cannot touch the episode)."""
+    from mjexplore.learning.training import heldout_env
+
+    scene, wanted, t_prior = job  # wanted: {decision: [ranks]}
+    config = _WORKER["config"]
+    env = heldout_env(config, scene)
+    obs, _ = env.reset(seed=config.eval.seed)
+    rows, k = [], 0
+    while True:
+        mask = env.action_masks()
+        _, prior = _terms(obs, mask)
+        order = np.argsort(-np.where(mask, prior, -np.inf))
+        choice = int(order[0])
+        if k in wanted:
+            nodes = [int(order[rank]) for rank in wanted[k]]
+            context = _in_fork(lambda c=choice, n=nodes: _decision_context(env, c, n))
+            rows += [{"scene": scene, "decision": k, "rank": rank, "context": context[str(a)]}
+                     for rank, a in zip(wanted[k], nodes)]
+        obs, _, terminated, truncated, info = env.step(choice)
+        k += 1
+        if terminated or truncated:
+            break
+    if penalised_time(info["episode_metrics"], config) != t_prior:
+        raise RuntimeError(f"{scene}: the replayed prior took another time than the rows' "
+                           f"{t_prior} s: its context rows would describe other states")
+    return rows
+
+
+def _observe_all(args, config) -> None:
+    """``OUT/context.jsonl``: :func:`_observe` on every layout of ``OUT/rows.jsonl``."""
+    rows = [json.loads(line) for line in (args.out / "rows.jsonl").read_text().splitlines()]
+    path = args.out / "context.jsonl"
+    done = set()
+    if path.is_file():
+        done = {json.loads(line)["scene"] for line in path.read_text().splitlines()}
+    jobs = {}
+    for r in rows:
+        if r["rank"] > 0 and r["scene"] not in done and "context" not in r:
+            wanted = jobs.setdefault(r["scene"], ({}, r["t_prior"]))[0]
+            wanted.setdefault(r["decision"], []).append(r["rank"])
+    ctx = mp.get_context("spawn")
+    with ctx.Pool(args.workers, initializer=_init, initargs=(config,)) as pool:
+        for out in pool.imap_unordered(_observe, [(s, *v) for s, v in jobs.items()]):
+            with open(path, "a") as f:
+                f.writelines(json.dumps(r) + "\n" for r in out)
+            print(json.dumps({"scene": out[0]["scene"], "rows": len(out)}), flush=True)
 
 
 def _collect(args, config) -> None:
@@ -189,8 +317,19 @@ def _features(rows) -> np.ndarray:
 def _fit(args) -> dict:
     rows = [json.loads(line) for line in (args.out / "rows.jsonl").read_text().splitlines()]
     rows = [r for r in rows if r["rank"] > 0]
+    x = _features(rows)
+    if args.context:  # Only the departures whose context was measured, the terms beside it.
+        path = args.out / "context.jsonl"  # Rows collected before rows carried it.
+        lines = path.read_text().splitlines() if path.is_file() else []
+        context = {(c["scene"], c["decision"], c["rank"]): c["context"]
+                   for c in (*map(json.loads, lines), *(r for r in rows if "context" in r))}
+        keep = [i for i, r in enumerate(rows)
+                if (r["scene"], r["decision"], r["rank"]) in context]
+        rows = [rows[i] for i in keep]
+        x = np.column_stack([x[keep], [context[r["scene"], r["decision"], r["rank"]]
+                                       for r in rows]])
     scenes = sorted({r["scene"] for r in rows})
-    x, y = _features(rows), np.array([r["d"] for r in rows])
+    y = np.array([r["d"] for r in rows])
     rng = np.random.default_rng(args.seed)
     fold_of = dict(zip(scenes, rng.permutation(len(scenes)) % args.folds))
     fold = np.array([fold_of[r["scene"]] for r in rows])
@@ -263,6 +402,12 @@ def main() -> None:
                         "(default: off)")
     parser.add_argument("--fit", action="store_true",
                         help="fit the collected rows instead of collecting (default: off)")
+    parser.add_argument("--observe", action="store_true",
+                        help="measure the map context of the collected departures into "
+                             "OUT/context.jsonl (default: off)")
+    parser.add_argument("--context", action="store_true",
+                        help="with --fit: the measured map context beside the terms "
+                             "(default: off)")
     parser.add_argument("--folds", type=int, default=5, help="default: 5")
     parser.add_argument("--ridge", type=float, default=1.0, help="default: 1.0")
     parser.add_argument("--margin", type=float, default=0.0,
@@ -272,8 +417,13 @@ def main() -> None:
                              "(default: off)")
     args = parser.parse_args()
 
+    if args.validate and args.context:
+        parser.error("--validate runs a rule of the terms alone: leave out --context")
     config = load_v3_recipe(parser, args.config)
     args.out.mkdir(parents=True, exist_ok=True)
+    if args.observe:
+        _observe_all(args, config)
+        return
     if not args.fit:
         _collect(args, config)
         return
