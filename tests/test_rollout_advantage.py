@@ -81,9 +81,13 @@ def test_forked_departures_are_measured_and_fitted(tmp_path):
         json.loads, (out / "context.jsonl").read_text().splitlines())}
     assert replayed == {(r["scene"], r["decision"], r["rank"]): r["context"]
                         for r in rows if r["rank"]}
-    fit = subprocess.run(tool + ["--fit", "--context", "--folds", "2"], cwd=REPO,
-                         capture_output=True, text=True, check=True)
-    assert len(json.loads(fit.stdout.strip().splitlines()[-1])["weights"]) == 12 + width
+    fit = subprocess.run(tool + ["--fit", "--context", "--folds", "2", "--validate",
+                                 "--workers", "1"], cwd=REPO, capture_output=True, text=True,
+                         check=True)
+    result, validation = map(json.loads, fit.stdout.strip().splitlines()[-2:])
+    assert len(result["weights"]) == 12 + width
+    # The fitted rule, its context measured at each decision, and the prior on the layout.
+    assert validation["validate"] == 1 and np.isfinite(validation["times"]).all()
 
 
 @pytest.mark.parametrize("tool", ["rollout_advantage.py", "es_residual.py"])

@@ -354,13 +354,21 @@ def _fit(args) -> dict:
 
 class PredictedDepartureRule:
     """The prior's node unless a valid node's predicted ``d`` (the fit's weights over its
-    terms minus the prior node's, and the logit gap) is below ``-margin``: then the node of
-    least predicted ``d``. SB3's ``predict``."""
+    terms minus the prior node's, the logit gap and, with ``env``, its map context) is below
+    ``-margin``: then the node of least predicted ``d``. SB3's ``predict``.
 
-    def __init__(self, weights, margin: float) -> None:
+    Args:
+        weights: The fit's weights, the intercept last.
+        margin: Predicted log-ratio gain a departure needs.
+        env: The episode's env, for a fit with ``--context`` (its context is measured in a
+            fork at each decision); None for a fit of the terms alone.
+    """
+
+    def __init__(self, weights, margin: float, env=None) -> None:
         self.w = np.asarray(weights[:-1], np.float64)
         self.b = float(weights[-1])
         self.margin = margin
+        self.env = env
 
     def predict(self, obs, deterministic=True, action_masks=None):
         mask = np.asarray(action_masks, bool)
@@ -371,18 +379,24 @@ class PredictedDepartureRule:
         if not len(valid):
             return choice, None
         x = np.column_stack([terms[valid] - terms[choice], logits[choice] - logits[valid]])
+        if self.env is not None:
+            nodes = valid.tolist()
+            context = _in_fork(lambda: _decision_context(self.env, choice, nodes))
+            x = np.column_stack([x, [context[str(a)] for a in nodes]])
         d = x @ self.w + self.b
         best = int(np.argmin(d))
         return (int(valid[best]) if d[best] < -self.margin else choice), None
 
 
 def _episode(job) -> float:
-    from mjexplore.learning.training import NearestNodeRule, heldout_episode
+    from mjexplore.learning.training import NearestNodeRule, heldout_env, heldout_episode
 
-    weights, margin, scene = job
+    weights, margin, context, scene = job
     config = _WORKER["config"]
-    policy = NearestNodeRule(50.0) if weights is None else PredictedDepartureRule(weights, margin)
-    return penalised_time(heldout_episode(policy, config, scene), config)
+    env = heldout_env(config, scene)
+    policy = (NearestNodeRule(50.0) if weights is None
+              else PredictedDepartureRule(weights, margin, env if context else None))
+    return penalised_time(heldout_episode(policy, config, scene, env), config)
 
 
 def main() -> None:
@@ -417,8 +431,6 @@ def main() -> None:
                              "(default: off)")
     args = parser.parse_args()
 
-    if args.validate and args.context:
-        parser.error("--validate runs a rule of the terms alone: leave out --context")
     config = load_v3_recipe(parser, args.config)
     args.out.mkdir(parents=True, exist_ok=True)
     if args.observe:
@@ -433,7 +445,8 @@ def main() -> None:
         scenes = config.eval.scene_list()
         ctx = mp.get_context("spawn")
         with ctx.Pool(args.workers, initializer=_init, initargs=(config,)) as pool:
-            jobs = [(w, args.margin, s) for w in (result["weights"], None) for s in scenes]
+            jobs = [(w, args.margin, args.context, s)
+                    for w in (result["weights"], None) for s in scenes]
             times = np.array(pool.map(_episode, jobs, chunksize=1)).reshape(2, len(scenes))
         print(json.dumps({"validate": len(scenes), **paired(times[0], times[1]),
                           "times": times.tolist()}), flush=True)

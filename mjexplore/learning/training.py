@@ -679,11 +679,13 @@ def evaluate_policy_episodes(policy, config: TrainConfig, scenes: tuple[str, ...
         return pool.map(_eval_worker_episode, scenes, chunksize=1)
 
 
-def heldout_episode(policy, config: TrainConfig, scene: str) -> dict[str, Any]:
+def heldout_episode(policy, config: TrainConfig, scene: str,
+                    env: ExplorationEnv | None = None) -> dict[str, Any]:
     """One episode of ``policy`` (SB3's ``predict``, deterministic, with the action mask) on
     a held-out ``scene`` with the evaluation's settings, in this process: the scene and the
-    episode's metrics (simulated time)."""
-    env = heldout_env(config, scene)
+    episode's metrics (simulated time). ``env``: ``heldout_env(config, scene)`` made already
+    (default: made here), for a policy that reads more of the episode than its observation."""
+    env = heldout_env(config, scene) if env is None else env
     obs, _ = env.reset(seed=config.eval.seed)
     while True:
         action, _ = policy.predict(obs, deterministic=True, action_masks=env.action_masks())
