@@ -15,7 +15,13 @@ from mjexplore.learning.training import NearestNodeRule
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tools"))
 
-from rollout_advantage import CONTEXT, PAIRWISE, PredictedDepartureRule, _ridge  # noqa: E402
+from rollout_advantage import (  # noqa: E402
+    CONTEXT,
+    PAIRWISE,
+    PRIVILEGED,
+    PredictedDepartureRule,
+    _ridge,
+)
 
 
 def test_a_fit_predicting_no_gain_is_the_prior_and_one_predicting_gain_departs():
@@ -72,15 +78,21 @@ def test_forked_departures_are_measured_and_fitted(tmp_path):
     # Each departure's map context, measured in the collection, is measured again by
     # replaying the prior's episode (--observe, for rows collected without it): the same.
     width = len(CONTEXT) + len(PAIRWISE)
-    assert all(len(r["context"]) == width for r in rows if r["rank"])
-    (out / "rows.jsonl").write_text("".join(
-        json.dumps({k: v for k, v in r.items() if k != "context"}) + "\n" for r in rows))
+    assert all(len(r["context"]) == width and len(r["privileged"]) == len(PRIVILEGED)
+               for r in rows if r["rank"])
+    assert any(r["privileged"][-1] > 0 for r in rows if r["rank"])  # Unseen area is left.
+    (out / "rows.jsonl").write_text("".join(json.dumps(
+        {k: v for k, v in r.items() if k not in ("context", "privileged")}) + "\n"
+        for r in rows))
     subprocess.run(tool + ["--observe", "--workers", "1"], cwd=REPO, capture_output=True,
                    text=True, check=True)
-    replayed = {(c["scene"], c["decision"], c["rank"]): c["context"] for c in map(
-        json.loads, (out / "context.jsonl").read_text().splitlines())}
-    assert replayed == {(r["scene"], r["decision"], r["rank"]): r["context"]
+    replayed = {(c["scene"], c["decision"], c["rank"]): (c["context"], c["privileged"])
+                for c in map(json.loads, (out / "context.jsonl").read_text().splitlines())}
+    assert replayed == {(r["scene"], r["decision"], r["rank"]): (r["context"], r["privileged"])
                         for r in rows if r["rank"]}
+    fit = subprocess.run(tool + ["--fit", "--context", "--privileged", "--folds", "2"],
+                         cwd=REPO, capture_output=True, text=True, check=True)
+    assert len(json.loads(fit.stdout)["weights"]) == 12 + width + len(PRIVILEGED)
     fit = subprocess.run(tool + ["--fit", "--context", "--folds", "2", "--validate",
                                  "--workers", "1"], cwd=REPO, capture_output=True, text=True,
                          check=True)

@@ -26,9 +26,11 @@ context (``context``, :data:`CONTEXT` of the departed node minus the prior node'
 node, its path cost to the nearest other valid node and the mean to them all, the valid nodes
 within 5 m of path, its bearing from the robot's heading; the path between the two nodes, the
 detour of passing the departed node on the way to the prior's, the valid nodes and the known
-share of the map. ``--fit --context`` fits the terms and the context together; ``--observe``
-measures the context of rows collected without it into ``OUT/context.jsonl`` by replaying the
-prior's episode.
+share of the map. ``privileged`` holds what only the ground truth tells (:data:`PRIVILEGED`):
+the free area not yet seen around each node. ``--fit --context`` fits the terms and the
+context together, ``--privileged`` the ground truth's terms too (never in a rule: an upper
+bound on what a predictor of the unseen map could add); ``--observe`` measures both for rows
+collected without them into ``OUT/context.jsonl`` by replaying the prior's episode.
 
 One JSON line per departure goes to ``OUT/rows.jsonl`` (appended layout by layout, so a run
 that stops keeps what it measured; ``--resume`` skips the layouts done), and one per start,
@@ -37,7 +39,7 @@ with the git revision and the arguments, to ``OUT/sessions.jsonl``.
 Usage: python tools/rollout_advantage.py --config training/gvn_batch.yaml --out runs/rollout/a
     [--layouts 40] [--share 0.08] [--alternatives 2] [--workers 2] [--resume]
        python tools/rollout_advantage.py --config ... --out runs/rollout/a --fit
-    [--context] [--folds 5] [--ridge 1.0] [--validate] [--margin 0.0]
+    [--context] [--privileged] [--folds 5] [--ridge 1.0] [--validate] [--margin 0.0]
        python tools/rollout_advantage.py --config ... --out runs/rollout/a --observe
 """
 
@@ -143,7 +145,7 @@ def _layout(job) -> list[dict]:
                              "valid": int(mask.sum()), "t": penalised_time(branch, config),
                              "logit_gap": float(logits[choice] - logits[a]),
                              "terms": (terms[a] - terms[choice]).tolist(),
-                             **({"context": context[str(a)]} if rank else {})})
+                             **(context[str(a)] if rank else {})})
         obs, _, terminated, truncated, info = env.step(choice)
         k += 1
         if terminated or truncated:
@@ -164,6 +166,24 @@ RADII = (1.0, 2.0, 4.0)  # metres
 CONTEXT = tuple(f"{kind}_{r:g}" for r in RADII for kind in ("unknown", "occupied")) + (
     "isolation", "mean_path", "nodes_5m", "bearing")
 PAIRWISE = ("between", "detour", "valid", "known_share")
+# What only the ground truth tells (never the actor's): the free area not yet seen within 2,
+# 4 and 8 m of the node and in the unseen free regions that touch it, tens of m^2 (departed
+# node minus the prior's), and all of it on the map, hundreds of m^2. An upper bound on what
+# a predictor of the unseen map could add to the observation.
+PRIVILEGED_RADII = (2.0, 4.0, 8.0)  # metres
+PRIVILEGED = tuple(f"unseen_free_{r:g}" for r in PRIVILEGED_RADII) + ("behind", "unseen_total")
+
+
+def _disc(grid, pos, radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rows, cols) index arrays of the cells within ``radius`` (metres) of ``pos``, clipped
+    to the grid, and the mask of those inside the disc and the grid."""
+    half = int(np.ceil(radius / grid.resolution))
+    row, col = grid.world_to_cell(pos)
+    rows = np.arange(row - half, row + half + 1)[:, None]
+    cols = np.arange(col - half, col + half + 1)[None, :]
+    counted = (((rows - row) ** 2 + (cols - col) ** 2 <= half ** 2)
+               & (rows >= 0) & (rows < grid.shape[0]) & (cols >= 0) & (cols < grid.shape[1]))
+    return (np.clip(rows, 0, grid.shape[0] - 1), np.clip(cols, 0, grid.shape[1] - 1), counted)
 
 
 def _node_context(state, positions, valid, x) -> tuple[np.ndarray, np.ndarray]:
@@ -172,14 +192,8 @@ def _node_context(state, positions, valid, x) -> tuple[np.ndarray, np.ndarray]:
     grid, pos = state.grid, positions[x]
     out = []
     for r in RADII:
-        half = int(np.ceil(r / grid.resolution))
-        row, col = grid.world_to_cell(pos)
-        rows = np.arange(row - half, row + half + 1)[:, None]
-        cols = np.arange(col - half, col + half + 1)[None, :]
-        disc = (rows - row) ** 2 + (cols - col) ** 2 <= half ** 2
-        inside = (rows >= 0) & (rows < grid.shape[0]) & (cols >= 0) & (cols < grid.shape[1])
-        cells = grid.data[np.clip(rows, 0, grid.shape[0] - 1), np.clip(cols, 0, grid.shape[1] - 1)]
-        counted = disc & inside
+        rows, cols, counted = _disc(grid, pos, r)
+        cells = grid.data[rows, cols]
         n = max(int(counted.sum()), 1)
         out += [float(((cells < 0) & counted).sum()) / n,
                 float(((cells >= 50) & counted).sum()) / n]
@@ -198,10 +212,26 @@ def _node_context(state, positions, valid, x) -> tuple[np.ndarray, np.ndarray]:
     return np.array(out), path
 
 
+def _node_privileged(state, unseen, regions, sizes, pos) -> np.ndarray:
+    """The per-node :data:`PRIVILEGED` features (the first four) of a node at ``pos``."""
+    cell_area = state.grid.resolution ** 2
+    out = []
+    for r in PRIVILEGED_RADII:
+        rows, cols, counted = _disc(state.grid, pos, r)
+        out.append(float((unseen[rows, cols] & counted).sum()) * cell_area / 10.0)
+    rows, cols, counted = _disc(state.grid, pos, 0.5)
+    touching = np.unique(regions[rows, cols][counted])
+    out.append(float(sizes[touching[touching > 0]].sum()) * cell_area / 10.0)
+    return np.array(out)
+
+
 def _decision_context(env, choice: int, departures: list[int]) -> dict:
-    """For each departure: its :data:`CONTEXT` minus the prior node's, and :data:`PAIRWISE`
-    (path between the two nodes, the detour of passing the departure on the way to the prior's
-    node, metres; valid nodes; known share of the map)."""
+    """For each departure: ``context``, its :data:`CONTEXT` minus the prior node's, then
+    :data:`PAIRWISE` (path between the two nodes, the detour of passing the departure on the
+    way to the prior's node, metres; valid nodes; known share of the map); and
+    ``privileged``, :data:`PRIVILEGED` the same way."""
+    from scipy import ndimage
+
     state = env.episode.decision_state()
     positions = env.decisions.padded.node_positions
     valid = env.action_masks()
@@ -211,13 +241,22 @@ def _decision_context(env, choice: int, departures: list[int]) -> dict:
                                 np.array(state.grid.shape) - 1),
         int(round(0.5 / state.grid.resolution)))
     known = float((state.grid.data >= 0).mean())
+    truth = state.ground_truth
+    if truth is None or truth.shape != state.grid.shape:
+        raise RuntimeError("the privileged context needs the ground truth on the map's grid")
+    unseen = (state.grid.data < 0) & truth.free
+    regions, _ = ndimage.label(unseen)
+    sizes = np.bincount(regions.reshape(-1))
+    total = float(unseen.sum()) * state.grid.resolution ** 2 / 100.0
+    seen_prior = _node_privileged(state, unseen, regions, sizes, positions[choice])
     out = {}
     for a in departures:
         mine, _ = _node_context(state, positions, valid, a)
         between = min(float(path_p[a]), 100.0)
-        out[str(a)] = (mine - prior).tolist() + [
+        privileged = _node_privileged(state, unseen, regions, sizes, positions[a]) - seen_prior
+        out[str(a)] = {"context": (mine - prior).tolist() + [
             between, min(float(robot[a] + between - robot[choice]), 100.0),
-            float(valid.sum()), known]
+            float(valid.sum()), known], "privileged": privileged.tolist() + [total]}
     return out
 
 
@@ -240,7 +279,7 @@ def _observe(job) -> list[dict]:
         if k in wanted:
             nodes = [int(order[rank]) for rank in wanted[k]]
             context = _in_fork(lambda c=choice, n=nodes: _decision_context(env, c, n))
-            rows += [{"scene": scene, "decision": k, "rank": rank, "context": context[str(a)]}
+            rows += [{"scene": scene, "decision": k, "rank": rank, **context[str(a)]}
                      for rank, a in zip(wanted[k], nodes)]
         obs, _, terminated, truncated, info = env.step(choice)
         k += 1
@@ -256,12 +295,13 @@ def _observe_all(args, config) -> None:
     """``OUT/context.jsonl``: :func:`_observe` on every layout of ``OUT/rows.jsonl``."""
     rows = [json.loads(line) for line in (args.out / "rows.jsonl").read_text().splitlines()]
     path = args.out / "context.jsonl"
-    done = set()
+    done = set()  # Layouts measured whole (lines without "privileged" predate it).
     if path.is_file():
-        done = {json.loads(line)["scene"] for line in path.read_text().splitlines()}
+        done = {c["scene"] for c in map(json.loads, path.read_text().splitlines())
+                if "privileged" in c}
     jobs = {}
     for r in rows:
-        if r["rank"] > 0 and r["scene"] not in done and "context" not in r:
+        if r["rank"] > 0 and r["scene"] not in done and "privileged" not in r:
             wanted = jobs.setdefault(r["scene"], ({}, r["t_prior"]))[0]
             wanted.setdefault(r["decision"], []).append(r["rank"])
     ctx = mp.get_context("spawn")
@@ -318,11 +358,12 @@ def _fit(args) -> dict:
     rows = [json.loads(line) for line in (args.out / "rows.jsonl").read_text().splitlines()]
     rows = [r for r in rows if r["rank"] > 0]
     x = _features(rows)
-    if args.context:  # Only the departures whose context was measured, the terms beside it.
+    keys = ("context",) * args.context + ("privileged",) * args.privileged
+    if keys:  # Only the departures whose context was measured, the terms beside it.
         path = args.out / "context.jsonl"  # Rows collected before rows carried it.
         lines = path.read_text().splitlines() if path.is_file() else []
-        context = {(c["scene"], c["decision"], c["rank"]): c["context"]
-                   for c in (*map(json.loads, lines), *(r for r in rows if "context" in r))}
+        context = {(c["scene"], c["decision"], c["rank"]): sum((c[k] for k in keys), [])
+                   for c in (*map(json.loads, lines), *rows) if all(k in c for k in keys)}
         keep = [i for i, r in enumerate(rows)
                 if (r["scene"], r["decision"], r["rank"]) in context]
         rows = [rows[i] for i in keep]
@@ -382,7 +423,7 @@ class PredictedDepartureRule:
         if self.env is not None:
             nodes = valid.tolist()
             context = _in_fork(lambda: _decision_context(self.env, choice, nodes))
-            x = np.column_stack([x, [context[str(a)] for a in nodes]])
+            x = np.column_stack([x, [context[str(a)]["context"] for a in nodes]])
         d = x @ self.w + self.b
         best = int(np.argmin(d))
         return (int(valid[best]) if d[best] < -self.margin else choice), None
@@ -422,6 +463,10 @@ def main() -> None:
     parser.add_argument("--context", action="store_true",
                         help="with --fit: the measured map context beside the terms "
                              "(default: off)")
+    parser.add_argument("--privileged", action="store_true",
+                        help="with --fit: the ground truth's unseen free area around the "
+                             "nodes beside the terms, an upper bound on what a predictor of "
+                             "the unseen map could add (default: off)")
     parser.add_argument("--folds", type=int, default=5, help="default: 5")
     parser.add_argument("--ridge", type=float, default=1.0, help="default: 1.0")
     parser.add_argument("--margin", type=float, default=0.0,
@@ -431,6 +476,9 @@ def main() -> None:
                              "(default: off)")
     args = parser.parse_args()
 
+    if args.validate and args.privileged:
+        parser.error("--validate runs a rule of what the actor may see: leave out "
+                     "--privileged")
     config = load_v3_recipe(parser, args.config)
     args.out.mkdir(parents=True, exist_ok=True)
     if args.observe:
