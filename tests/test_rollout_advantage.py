@@ -58,9 +58,12 @@ def test_forked_departures_are_measured_and_fitted(tmp_path):
     tool = [sys.executable, str(REPO / "tools" / "rollout_advantage.py"), "--config",
             str(recipe), "--out", str(out)]
     subprocess.run(tool + ["--layouts", "2", "--share", "1.0", "--alternatives", "1",
-                           "--workers", "1"], cwd=REPO, capture_output=True, text=True,
-                   check=True)
+                           "--nudge", "0.001", "--workers", "1"], cwd=REPO,
+                   capture_output=True, text=True, check=True)
     rows = [json.loads(line) for line in (out / "rows.jsonl").read_text().splitlines()]
+    nudged = [r for r in rows if r["rank"] == -1]  # The prior's node, the robot 1 mm away.
+    assert nudged and all(abs(np.hypot(*r["nudge"]) - 0.001) < 1e-9 for r in nudged)
+    rows = [r for r in rows if r["rank"] >= 0]
     for scene in {r["scene"] for r in rows}:
         mine = [r for r in rows if r["scene"] == scene]
         # The prior's own node in a fork runs the prior's episode (the tool's own check).

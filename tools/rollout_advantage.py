@@ -11,6 +11,11 @@ episode is the departure's whole effect on that layout, with nothing else change
 ``d = log(T_departure / T_prior)`` (> 0: slower; an episode that does not explore counts the
 time limit plus 1000 s per unit of coverage missing).
 
+With ``--nudge M`` each departed decision gets one more fork, a row of rank -1: the prior's
+own node with the robot first moved M metres (1 mm, say) in a random direction. Its ``d`` is
+the noise floor: how much of a departure's effect the episode's sensitivity to any change at
+all would give.
+
 A learner that beats its prior has to find departures of ``d < 0`` from what it observes.
 ``--fit`` reads the collected rows and asks whether the observable per-node terms of
 ``tools/dagger_fit.py`` (:func:`dagger_fit.node_terms`; the departure's terms minus the prior
@@ -37,7 +42,7 @@ that stops keeps what it measured; ``--resume`` skips the layouts done), and one
 with the git revision and the arguments, to ``OUT/sessions.jsonl``.
 
 Usage: python tools/rollout_advantage.py --config training/gvn_batch.yaml --out runs/rollout/a
-    [--layouts 40] [--share 0.08] [--alternatives 2] [--workers 2] [--resume]
+    [--layouts 40] [--share 0.08] [--alternatives 2] [--nudge 0.0] [--workers 2] [--resume]
        python tools/rollout_advantage.py --config ... --out runs/rollout/a --fit
     [--context] [--privileged] [--folds 5] [--ridge 1.0] [--validate] [--margin 0.0]
        python tools/rollout_advantage.py --config ... --out runs/rollout/a --observe
@@ -91,6 +96,16 @@ def _follow_prior(env, obs, first_action: int) -> dict:
         action = prior.predict(obs, action_masks=env.action_masks())[0]
 
 
+def _follow_prior_nudged(env, obs, action: int, offset: np.ndarray) -> dict:
+    """:func:`_follow_prior` with the robot first moved by ``offset`` (x, y, metres, the
+    ``map`` frame): how far the episode's time moves for a change that no explorer could
+    mean, the noise floor under every departure's ``d``."""
+    sim = env.episode.sim
+    x, y, yaw = sim.pose
+    sim._pose = (float(x + offset[0]), float(y + offset[1]), float(yaw))
+    return _follow_prior(env, obs, action)
+
+
 def _in_fork(run) -> dict:
     """``run()``'s result (a JSON-able dict) computed in a forked copy of this process: the
     whole episode state is copied exactly (copy on write), and this process's is untouched."""
@@ -119,11 +134,12 @@ def _layout(job) -> list[dict]:
     """Every departure row of one layout (see the module docstring)."""
     from mjexplore.learning.training import heldout_env
 
-    scene, share, alternatives, seed = job
+    scene, share, alternatives, nudge, seed = job
     config = _WORKER["config"]
     env = heldout_env(config, scene)
     obs, _ = env.reset(seed=config.eval.seed)
     rng = np.random.default_rng(seed)
+    nudges = np.random.default_rng([*seed, 1])  # Apart, so that --nudge moves no draw.
     rows, k = [], 0
     while True:  # This process drives the prior's own episode.
         mask = env.action_masks()
@@ -146,6 +162,14 @@ def _layout(job) -> list[dict]:
                              "logit_gap": float(logits[choice] - logits[a]),
                              "terms": (terms[a] - terms[choice]).tolist(),
                              **(context[str(a)] if rank else {})})
+            if nudge > 0:
+                heading = nudges.uniform(-np.pi, np.pi)
+                offset = nudge * np.array([np.cos(heading), np.sin(heading)])
+                branch = _in_fork(lambda o=offset, obs=obs, c=choice: _follow_prior_nudged(
+                    env, obs, c, o))
+                rows.append({"scene": scene, "decision": k, "rank": -1,
+                             "valid": int(mask.sum()), "t": penalised_time(branch, config),
+                             "nudge": offset.tolist()})
         obs, _, terminated, truncated, info = env.step(choice)
         k += 1
         if terminated or truncated:
@@ -325,7 +349,7 @@ def _collect(args, config) -> None:
         done = {json.loads(line)["scene"] for line in rows_path.read_text().splitlines()}
     draw = np.random.default_rng([args.seed, 0])
     scenes = [str(procedural_scene(config.env.procedural, draw)) for _ in range(args.layouts)]
-    jobs = [(s, args.share, args.alternatives, [args.seed, i])
+    jobs = [(s, args.share, args.alternatives, args.nudge, [args.seed, i])
             for i, s in enumerate(scenes) if s not in done]
     ctx = mp.get_context("spawn")
     with ctx.Pool(args.workers, initializer=_init, initargs=(config,)) as pool:
@@ -451,6 +475,10 @@ def main() -> None:
     parser.add_argument("--alternatives", type=int, default=2,
                         help="departures per decision: the nodes the prior ranks next "
                              "(default: 2)")
+    parser.add_argument("--nudge", type=float, default=0.0,
+                        help="at each departed decision, one more fork: the prior's own node "
+                             "with the robot first moved this far (metres; a row of rank -1), "
+                             "the noise floor of d (default: 0, none)")
     parser.add_argument("--workers", type=int, default=2, help="default: 2")
     parser.add_argument("--seed", type=int, default=0, help="default: 0")
     parser.add_argument("--resume", action="store_true", help="skip the layouts done "
