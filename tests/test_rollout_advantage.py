@@ -1,6 +1,7 @@
 """tools/rollout_advantage.py: the exact effect of departing from the prior, by forked
 rollouts, and a fit of it on what the actor observes."""
 
+import itertools
 import json
 import subprocess
 import sys
@@ -21,6 +22,7 @@ from rollout_advantage import (  # noqa: E402
     PRIVILEGED,
     PredictedDepartureRule,
     _ridge,
+    _tour,
 )
 
 
@@ -48,6 +50,24 @@ def test_ridge_recovers_a_linear_effect():
     x = rng.normal(3.0, 2.0, (400, 3))
     y = x @ np.array([0.5, -1.0, 0.0]) + 0.2 + rng.normal(0.0, 0.01, 400)
     np.testing.assert_allclose(_ridge(x, y, ridge=1e-6), [0.5, -1.0, 0.0, 0.2], atol=0.01)
+
+
+def test_a_tour_is_no_longer_than_nearest_neighbour_and_no_shorter_than_the_best():
+    rng = np.random.default_rng(3)
+    shorter = 0
+    for _ in range(20):
+        xy = rng.uniform(0.0, 10.0, (7, 2))
+        costs = np.linalg.norm(xy[:, None] - xy[None], axis=2)
+        order, left = [0], list(range(1, 7))
+        while left:  # Nearest neighbour from node 0.
+            order.append(min(left, key=lambda n: costs[order[-1], n]))
+            left.remove(order[-1])
+        greedy = costs[order[:-1], order[1:]].sum()
+        best = min(costs[(0, *p)[:-1], p].sum() for p in itertools.permutations(range(1, 7)))
+        tour = _tour(0, costs, np.arange(7))
+        assert best - 1e-9 <= tour <= greedy + 1e-9
+        shorter += tour < greedy - 1e-9
+    assert shorter > 0  # 2-opt mends some greedy tours.
 
 
 @pytest.mark.slow

@@ -189,7 +189,7 @@ def _layout(job) -> list[dict]:
 RADII = (1.0, 2.0, 4.0)  # metres
 CONTEXT = tuple(f"{kind}_{r:g}" for r in RADII for kind in ("unknown", "occupied")) + (
     "isolation", "mean_path", "nodes_5m", "bearing")
-PAIRWISE = ("between", "detour", "valid", "known_share")
+PAIRWISE = ("between", "detour", "tour", "valid", "known_share")
 # What only the ground truth tells (never the actor's): the free area not yet seen within 2,
 # 4 and 8 m of the node and in the unseen free regions that touch it, tens of m^2 (departed
 # node minus the prior's), and all of it on the map, hundreds of m^2. An upper bound on what
@@ -236,6 +236,32 @@ def _node_context(state, positions, valid, x) -> tuple[np.ndarray, np.ndarray]:
     return np.array(out), path
 
 
+def _tour(first: int, costs: np.ndarray, nodes: np.ndarray) -> float:
+    """Length (metres) of a short open tour of ``nodes`` that starts at ``first``: nearest
+    neighbour, then 2-opt moves while one shortens it. ``costs``: (N, N) path costs between
+    nodes, capped (unreachable = the cap)."""
+    order, left = [first], [n for n in nodes if n != first]
+    while left:
+        nearest = min(left, key=lambda n: costs[order[-1], n])
+        order.append(nearest)
+        left.remove(nearest)
+    order = np.array(order)
+    improved = True
+    while improved and len(order) > 3:
+        improved = False
+        for i in range(1, len(order) - 1):
+            a, b = order[i - 1], order[i]
+            c, d = order[i:], np.r_[order[i + 1:], -1]
+            # Reversing order[i:j + 1]: edge (a, b) and (c_j, d_j) become (a, c_j), (b, d_j).
+            gain = costs[a, b] - costs[a, c] + np.where(
+                d >= 0, costs[c, np.maximum(d, 0)] - costs[b, np.maximum(d, 0)], 0.0)
+            j = int(np.argmax(gain))
+            if gain[j] > 1e-6:
+                order[i:i + j + 1] = order[i:i + j + 1][::-1]
+                improved = True
+    return float(costs[order[:-1], order[1:]].sum())
+
+
 def _node_privileged(state, unseen, regions, sizes, pos) -> np.ndarray:
     """The per-node :data:`PRIVILEGED` features (the first four) of a node at ``pos``."""
     cell_area = state.grid.resolution ** 2
@@ -252,14 +278,22 @@ def _node_privileged(state, unseen, regions, sizes, pos) -> np.ndarray:
 def _decision_context(env, choice: int, departures: list[int]) -> dict:
     """For each departure: ``context``, its :data:`CONTEXT` minus the prior node's, then
     :data:`PAIRWISE` (path between the two nodes, the detour of passing the departure on the
-    way to the prior's node, metres; valid nodes; known share of the map); and
+    way to the prior's node, how much longer a short tour of every valid node is from the
+    robot through the departure first than through the prior's node first, metres; valid
+    nodes; known share of the map); and
     ``privileged``, :data:`PRIVILEGED` the same way."""
     from scipy import ndimage
 
     state = env.episode.decision_state()
     positions = env.decisions.padded.node_positions
     valid = env.action_masks()
-    prior, path_p = _node_context(state, positions, valid, choice)
+    nodes = np.flatnonzero(valid)
+    costs = np.full((len(valid), len(valid)), 100.0)
+    paths = {}
+    for x in nodes:  # Every valid node's context and path costs, for the tours.
+        paths[x] = _node_context(state, positions, valid, x)
+        costs[x] = np.minimum(paths[x][1], 100.0)
+    prior, path_p = paths[choice]
     robot = state.costmap.distances_near(
         state.pose[:2], np.clip(state.grid.world_to_cell(positions), 0,
                                 np.array(state.grid.shape) - 1),
@@ -274,12 +308,15 @@ def _decision_context(env, choice: int, departures: list[int]) -> dict:
     total = float(unseen.sum()) * state.grid.resolution ** 2 / 100.0
     seen_prior = _node_privileged(state, unseen, regions, sizes, positions[choice])
     out = {}
+    robot = np.minimum(robot, 100.0)
+    tour_prior = robot[choice] + _tour(choice, costs, nodes)
     for a in departures:
-        mine, _ = _node_context(state, positions, valid, a)
+        mine = paths[a][0]
         between = min(float(path_p[a]), 100.0)
         privileged = _node_privileged(state, unseen, regions, sizes, positions[a]) - seen_prior
         out[str(a)] = {"context": (mine - prior).tolist() + [
             between, min(float(robot[a] + between - robot[choice]), 100.0),
+            float(robot[a] + _tour(a, costs, nodes) - tour_prior),
             float(valid.sum()), known], "privileged": privileged.tolist() + [total]}
     return out
 
