@@ -239,7 +239,7 @@ def _node_context(state, positions, valid, x) -> tuple[np.ndarray, np.ndarray]:
 def _tour(first: int, costs: np.ndarray, nodes: np.ndarray) -> float:
     """Length (metres) of a short open tour of ``nodes`` that starts at ``first``: nearest
     neighbour, then 2-opt moves while one shortens it. ``costs``: (N, N) path costs between
-    nodes, capped (unreachable = the cap)."""
+    nodes, symmetric, capped (unreachable = the cap)."""
     order, left = [first], [n for n in nodes if n != first]
     while left:
         nearest = min(left, key=lambda n: costs[order[-1], n])
@@ -293,6 +293,9 @@ def _decision_context(env, choice: int, departures: list[int]) -> dict:
     for x in nodes:  # Every valid node's context and path costs, for the tours.
         paths[x] = _node_context(state, positions, valid, x)
         costs[x] = np.minimum(paths[x][1], 100.0)
+    # Symmetric, as 2-opt's reversals assume (and need to end): the path searches read the
+    # least cost within 0.5 m of each node, which differs slightly by direction.
+    costs = np.minimum(costs, costs.T)
     prior, path_p = paths[choice]
     robot = state.costmap.distances_near(
         state.pose[:2], np.clip(state.grid.world_to_cell(positions), 0,
