@@ -39,7 +39,7 @@ collected without them into ``OUT/context.jsonl`` by replaying the prior's episo
 
 One JSON line per departure goes to ``OUT/rows.jsonl`` (appended layout by layout, so a run
 that stops keeps what it measured; ``--resume`` skips the layouts done), and one per start,
-with the git revision and the arguments, to ``OUT/sessions.jsonl``.
+with the git revision and the arguments, to ``OUT/sessions.jsonl`` (``--observe`` too).
 
 Usage: python tools/rollout_advantage.py --config training/gvn_batch.yaml --out runs/rollout/a
     [--layouts 40] [--share 0.08] [--alternatives 2] [--nudge 0.0] [--workers 2] [--resume]
@@ -378,11 +378,7 @@ def _observe_all(args, config) -> None:
 
 def _collect(args, config) -> None:
     from mjexplore.envs.exploration import procedural_scene
-    from mjexplore.io.provenance import git_revision
 
-    with open(args.out / "sessions.jsonl", "a") as f:  # Which code measured which rows.
-        f.write(json.dumps({"revision": git_revision(), "args": {
-            k: str(v) for k, v in vars(args).items()}}) + "\n")
     rows_path = args.out / "rows.jsonl"
     done = set()
     if args.resume and rows_path.is_file():
@@ -549,6 +545,12 @@ def main() -> None:
                      "--privileged")
     config = load_v3_recipe(parser, args.config)
     args.out.mkdir(parents=True, exist_ok=True)
+    if not args.fit:  # Which code measured which rows (and contexts).
+        from mjexplore.io.provenance import git_revision
+
+        with open(args.out / "sessions.jsonl", "a") as f:
+            f.write(json.dumps({"revision": git_revision(), "args": {
+                k: str(v) for k, v in vars(args).items()}}) + "\n")
     if args.observe:
         _observe_all(args, config)
         return
