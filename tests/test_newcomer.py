@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_learning import TINY
 
 from mjexplore.cli import build_parser, main
 from mjexplore.errors import UserInputError
@@ -22,27 +23,10 @@ from mjexplore.scenes.map_server import write_map
 
 REPO = Path(__file__).resolve().parents[1]
 
-TINY = """
-kind: gvn
-total_steps: {total}
-n_envs: {n_envs}
-checkpoint_every: 8
-env:
-  scenes: [train_loop]
-  max_decisions: 12
-  observation: {{max_nodes: 64, max_neighbours: 4, memory_length: 3{observation}}}
-  episode:
-    sim: {{dynamics: kinematic}}
-    navigator: {{replan_rate_hz: 0.5, replan_when_blocked: true}}
-policy: {{hidden: 16}}
-ppo: {{n_steps: 8, batch_size: 8, n_epochs: 1}}
-eval: {{every: 0}}
-"""
-
-
 def tiny_config(folder: Path, total: int = 16, n_envs: int = 1, observation: str = "") -> Path:
     path = folder / "tiny.yaml"
-    path.write_text(TINY.format(total=total, n_envs=n_envs, observation=observation))
+    path.write_text(TINY.format(total=total, n_envs=n_envs).replace(
+        "memory_length: 3}", f"memory_length: 3{observation}}}"))
     return path
 
 

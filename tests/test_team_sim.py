@@ -21,10 +21,10 @@ from mjexplore.scenes.team import (
     parse_starts,
     team_spec,
 )
-from mjexplore.sim.grid_world import GridWorld
-from mjexplore.sim.simulator import SimConfig, Simulator
+from mjexplore.sim.simulator import SimConfig
 from mjexplore.sim.team import TeamSimulator, ray_boxes, robot_seed
 from mjexplore.sim.team_grid import TeamGridWorld, make_team_world
+from mjexplore.sim.world import make_world
 
 
 @pytest.fixture(scope="module")
@@ -91,11 +91,12 @@ def test_robots_collide_with_each_other(office, open_spot, dynamics):
     assert team.warnings() == {}
 
 
-@pytest.mark.parametrize("dynamics", ["physics", "kinematic"])
+@pytest.mark.parametrize("dynamics", ["physics", "kinematic", "grid"])
 def test_team_of_one_is_the_single_robot(office, dynamics):
     config = SimConfig(dynamics=dynamics, seed=3)
-    single = Simulator(office, config)
-    team = TeamSimulator(office, [office.start], config)
+    single = make_world(office, config)
+    team = make_team_world(office, [office.start], config)
+    assert isinstance(team, TeamGridWorld if dynamics == "grid" else TeamSimulator)
     robot = team.robots[0]
     rng = np.random.default_rng(0)
     for _ in range(100):
@@ -103,8 +104,9 @@ def test_team_of_one_is_the_single_robot(office, dynamics):
         single.command(v, w)
         robot.command(v, w)
         a, b = single.step(0.1), team.step(0.1)[0]
-    np.testing.assert_allclose(robot.pose, single.pose, atol=1e-9)
-    np.testing.assert_allclose(robot.odom_pose, single.odom_pose, atol=1e-9)
+    tolerance = 0.0 if dynamics == "grid" else 1e-9  # The grid world's pose is exact.
+    np.testing.assert_allclose(robot.pose, single.pose, rtol=0.0, atol=tolerance)
+    np.testing.assert_allclose(robot.odom_pose, single.odom_pose, rtol=0.0, atol=tolerance)
     np.testing.assert_array_equal(a[-1].ranges, b[-1].ranges)
     assert len(robot.kinematics_rows) == len(single.kinematics_rows)
 
@@ -231,21 +233,6 @@ def test_silhouette_rays_match_mujoco(office, open_spot):
             assert ids[which[k]] == geomid[0]
             np.testing.assert_allclose(normal[k], n, atol=1e-9)
     assert hits > 20
-
-
-def test_grid_team_of_one_is_the_grid_world(office):
-    config = SimConfig(dynamics="grid", seed=3)
-    single = GridWorld(office, config)
-    team = TeamGridWorld(office, [office.start], config)
-    robot = team.robots[0]
-    rng = np.random.default_rng(0)
-    for _ in range(100):
-        v, w = rng.uniform(-0.2, 0.5), rng.uniform(-1.0, 1.0)
-        single.command(v, w)
-        robot.command(v, w)
-        a, b = single.step(0.1), team.step(0.1)[0]
-    np.testing.assert_array_equal(robot.pose, single.pose)
-    np.testing.assert_array_equal(a[-1].ranges, b[-1].ranges)
 
 
 def test_grid_team_sees_and_blocks_teammates(office, open_spot):
