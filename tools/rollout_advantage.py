@@ -31,8 +31,9 @@ context (``context``, :data:`CONTEXT` of the departed node minus the prior node'
 node, its path cost to the nearest other valid node and the mean to them all, the valid nodes
 within 5 m of path, its bearing from the robot's heading; the path between the two nodes, the
 detour of passing the departed node on the way to the prior's, how much longer a short tour
-of every valid node is when it starts there, the valid nodes and the known share of the map. ``privileged`` holds what only the ground truth tells (:data:`PRIVILEGED`):
-the free area not yet seen around each node. ``--fit --context`` fits the terms and the
+of every valid node is when it starts there, the valid nodes and the known share of the map.
+``privileged`` holds what only the ground truth tells (:data:`PRIVILEGED`): the free area not
+yet seen around each node. ``--fit --context`` fits the terms and the
 context together, ``--privileged`` the ground truth's terms too (never in a rule: an upper
 bound on what a predictor of the unseen map could add); ``--observe`` measures both for rows
 collected without them into ``OUT/context.jsonl`` by replaying the prior's episode.
