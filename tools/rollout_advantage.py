@@ -211,6 +211,14 @@ def _disc(grid, pos, radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     return (np.clip(rows, 0, grid.shape[0] - 1), np.clip(cols, 0, grid.shape[1] - 1), counted)
 
 
+def _path_costs(state, start, positions) -> np.ndarray:
+    """Path costs (metres; inf where unreachable) from ``start`` (x, y) to within 0.5 m of
+    each of ``positions`` (n, 2), as the v2 features read a node's path."""
+    grid = state.grid
+    cells = np.clip(grid.world_to_cell(positions), 0, np.array(grid.shape) - 1)
+    return state.costmap.distances_near(start, cells, int(round(0.5 / grid.resolution)))
+
+
 def _node_context(state, positions, valid, x) -> tuple[np.ndarray, np.ndarray]:
     """The :data:`CONTEXT` features of node ``x`` (a valid node index), and its path costs to
     every node (metres, inf where unreachable or not valid)."""
@@ -222,9 +230,7 @@ def _node_context(state, positions, valid, x) -> tuple[np.ndarray, np.ndarray]:
         n = max(int(counted.sum()), 1)
         out += [float(((cells < 0) & counted).sum()) / n,
                 float(((cells >= 50) & counted).sum()) / n]
-    cells = np.clip(grid.world_to_cell(positions), 0, np.array(grid.shape) - 1)
-    half = int(round(0.5 / grid.resolution))
-    path = state.costmap.distances_near(pos, cells, half)
+    path = _path_costs(state, pos, positions)
     path[~valid] = np.inf
     others = path.copy()
     others[x] = np.inf
@@ -298,10 +304,7 @@ def _decision_context(env, choice: int, departures: list[int]) -> dict:
     # least cost within 0.5 m of each node, which differs slightly by direction.
     costs = np.minimum(costs, costs.T)
     prior, path_p = paths[choice]
-    robot = state.costmap.distances_near(
-        state.pose[:2], np.clip(state.grid.world_to_cell(positions), 0,
-                                np.array(state.grid.shape) - 1),
-        int(round(0.5 / state.grid.resolution)))
+    robot = np.minimum(_path_costs(state, state.pose[:2], positions), 100.0)
     known = float((state.grid.data >= 0).mean())
     truth = state.ground_truth
     if truth is None or truth.shape != state.grid.shape:
@@ -312,7 +315,6 @@ def _decision_context(env, choice: int, departures: list[int]) -> dict:
     total = float(unseen.sum()) * state.grid.resolution ** 2 / 100.0
     seen_prior = _node_privileged(state, unseen, regions, sizes, positions[choice])
     out = {}
-    robot = np.minimum(robot, 100.0)
     tour_prior = robot[choice] + _tour(choice, costs, nodes)
     for a in departures:
         mine = paths[a][0]
