@@ -33,10 +33,10 @@ within 5 m of path, its bearing from the robot's heading; the path between the t
 detour of passing the departed node on the way to the prior's, how much longer a short tour
 of every valid node is when it starts there, the valid nodes and the known share of the map.
 ``privileged`` holds what only the ground truth tells (:data:`PRIVILEGED`): the free area not
-yet seen around each node. ``--fit --context`` fits the terms and the
-context together, ``--privileged`` the ground truth's terms too (never in a rule: an upper
-bound on what a predictor of the unseen map could add); ``--observe`` measures both for rows
-collected without them into ``OUT/context.jsonl`` by replaying the prior's episode.
+yet seen around each node. ``--fit --context`` fits the terms and the context together,
+``--privileged`` the ground truth's terms too (never in a rule: an upper bound on what a
+predictor of the unseen map could add); ``--observe`` measures both for rows collected
+without them into ``OUT/context.jsonl`` by replaying the prior's episode.
 
 One JSON line per departure goes to ``OUT/rows.jsonl`` (appended layout by layout, so a run
 that stops keeps what it measured; ``--resume`` skips the layouts done), and one per start,
@@ -150,7 +150,8 @@ def _layout(job) -> list[dict]:
         choice = int(order[0])
         if rng.random() < share and mask.sum() > 1:
             departures = [int(a) for a in order[1:1 + alternatives] if mask[a]]
-            context = _in_fork(lambda c=choice, n=departures: _decision_context(env, c, n))
+            context = _in_fork(lambda c=choice, n=departures: _decision_context(
+                env, c, n)) if departures else {}
             # Rank 0, once a layout, is the prior's own node: its fork must run the prior's
             # episode to the same time (the check that a fork copies the episode exactly).
             for rank in range(0 if not rows else 1, 1 + alternatives):
@@ -244,29 +245,14 @@ def _node_context(state, positions, valid, x) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _tour(first: int, costs: np.ndarray, nodes: np.ndarray) -> float:
-    """Length (metres) of a short open tour of ``nodes`` that starts at ``first``: nearest
-    neighbour, then 2-opt moves while one shortens it. ``costs``: (N, N) path costs between
-    nodes, symmetric, capped (unreachable = the cap)."""
-    order, left = [first], [n for n in nodes if n != first]
-    while left:
-        nearest = min(left, key=lambda n: costs[order[-1], n])
-        order.append(nearest)
-        left.remove(nearest)
-    order = np.array(order)
-    improved = True
-    while improved and len(order) > 3:
-        improved = False
-        for i in range(1, len(order) - 1):
-            a, b = order[i - 1], order[i]
-            c, d = order[i:], np.r_[order[i + 1:], -1]
-            # Reversing order[i:j + 1]: edge (a, b) and (c_j, d_j) become (a, c_j), (b, d_j).
-            gain = costs[a, b] - costs[a, c] + np.where(
-                d >= 0, costs[c, np.maximum(d, 0)] - costs[b, np.maximum(d, 0)], 0.0)
-            j = int(np.argmax(gain))
-            if gain[j] > 1e-6:
-                order[i:i + j + 1] = order[i:i + j + 1][::-1]
-                improved = True
-    return float(costs[order[:-1], order[1:]].sum())
+    """Length (metres) of a short open tour of ``nodes`` that starts at ``first``
+    (:func:`~mjexplore.navigation.tour.open_tour`, the frontier-TSP explorer's solver).
+    ``costs``: (N, N) path costs between nodes, capped (unreachable = the cap)."""
+    from mjexplore.navigation.tour import open_tour, tour_length
+
+    places = [first, *(n for n in nodes if n != first)]
+    distance = costs[np.ix_(places, places)]
+    return tour_length(distance, open_tour(distance))
 
 
 def _node_privileged(state, unseen, regions, sizes, pos) -> np.ndarray:
@@ -300,9 +286,6 @@ def _decision_context(env, choice: int, departures: list[int]) -> dict:
     for x in nodes:  # Every valid node's context and path costs, for the tours.
         paths[x] = _node_context(state, positions, valid, x)
         costs[x] = np.minimum(paths[x][1], 100.0)
-    # Symmetric, as 2-opt's reversals assume (and need to end): the path searches read the
-    # least cost within 0.5 m of each node, which differs slightly by direction.
-    costs = np.minimum(costs, costs.T)
     prior, path_p = paths[choice]
     robot = np.minimum(_path_costs(state, state.pose[:2], positions), 100.0)
     known = float((state.grid.data >= 0).mean())
