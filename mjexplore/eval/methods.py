@@ -35,6 +35,13 @@ METHODS: dict[str, str] = {
     "rrt": "rrt_exploration (RRT frontier detection, information-gain utility)",
     "potential": "MMPF potential field",
     "oracle": "the ground-truth bound: coverage viewpoints and an OR-Tools tour",
+    "distance_advantage": "the TER frontier nearest the robot and farthest from the others "
+                          "(Ericson et al. 2025)",
+    "pocket_advantage": "distance_advantage on pocket_nearest's prior (+ 50 m P(small pocket))",
+    "pocket_truth": "pocket_nearest's rule with the true pockets (privileged bound)",
+    "oracle_2m": "the oracle's planner given the truth within 2 m of the mapped cells",
+    "oracle_5m": "the oracle's planner given the truth within 5 m of the mapped cells",
+    "oracle_10m": "the oracle's planner given the truth within 10 m of the mapped cells",
     "gvn": "the learned GVN policy on the TER (--policy picks the model; default gvn_v3)",
     "cnn": "the 'Naive Exp' CNN on the map image (--policy picks the model; default cnn_paper)",
 }

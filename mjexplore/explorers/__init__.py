@@ -12,16 +12,23 @@ import importlib
 from mjexplore.episode.explorer import ExplorationState, Explorer
 from mjexplore.errors import UserInputError
 
-# name -> (module, class); modules are imported on first use (the oracle's and the tour
-# planner's solvers are heavy to import).
-CLASSIC: dict[str, tuple[str, str]] = {
+# name -> (module, class[, constructor keyword arguments]); modules are imported on first
+# use (the oracle's and the tour planner's solvers are heavy to import).
+CLASSIC: dict[str, tuple] = {
     "nearest": ("mjexplore.episode.nearest", "NearestFrontier"),
     "pocket_nearest": ("mjexplore.explorers.pocket_nearest", "PocketNearest"),
+    "distance_advantage": ("mjexplore.explorers.distance_advantage", "DistanceAdvantage"),
+    "pocket_advantage": ("mjexplore.explorers.distance_advantage", "DistanceAdvantage",
+                         {"pocket_m": 50.0}),
     "explore_lite": ("mjexplore.explorers.explore_lite", "ExploreLite"),
     "frontier_tsp": ("mjexplore.explorers.frontier_tsp", "FrontierTsp"),
     "rrt": ("mjexplore.explorers.rrt", "RRTExplorer"),
     "potential": ("mjexplore.explorers.potential", "PotentialField"),
     "oracle": ("mjexplore.explorers.oracle", "OracleExplorer"),
+    "pocket_truth": ("mjexplore.explorers.pocket_nearest", "TruePocketNearest"),
+    "oracle_2m": ("mjexplore.explorers.horizon_oracle", "HorizonOracle", {"horizon": 2.0}),
+    "oracle_5m": ("mjexplore.explorers.horizon_oracle", "HorizonOracle", {"horizon": 5.0}),
+    "oracle_10m": ("mjexplore.explorers.horizon_oracle", "HorizonOracle", {"horizon": 10.0}),
 }
 
 
@@ -33,7 +40,7 @@ def explorer_class(name: str) -> type:
     """
     if name not in CLASSIC:
         raise UserInputError(f"unknown explorer {name!r}: use one of {', '.join(CLASSIC)}.")
-    module, cls = CLASSIC[name]
+    module, cls = CLASSIC[name][:2]
     return getattr(importlib.import_module(module), cls)
 
 
@@ -43,7 +50,8 @@ def make_explorer(name: str, **kwargs) -> Explorer:
     Raises:
         UserInputError: unknown name.
     """
-    return explorer_class(name)(**kwargs)
+    preset = CLASSIC[name][2] if name in CLASSIC and len(CLASSIC[name]) > 2 else {}
+    return explorer_class(name)(**{**preset, **kwargs})
 
 
 __all__ = ["CLASSIC", "ExplorationState", "Explorer", "explorer_class", "make_explorer"]

@@ -283,37 +283,58 @@ class OracleExplorer:
         if state.ground_truth is None:
             raise ValueError("the oracle needs the ground truth (ExplorationState.ground_truth)")
         gt = state.ground_truth
-        res = gt.resolution
         costmap = self.ground_truth_costmap(state)
-        traversable = costmap.traversable
-        self.graph = CoarseGraph(gt, traversable)
-        reachable = costmap.distances_from(state.pose[:2]) < np.inf
-        clear = np.sqrt(costmap._dist2.reshape(gt.shape)) * res
-        step = max(1, int(round(self.spacing / res)))
-        lattice = np.zeros(gt.shape, bool)
-        lattice[::step, ::step] = True
-        cand = np.argwhere(reachable & (clear >= self.clearance) & lattice)
+        self.graph = CoarseGraph(gt, costmap.traversable)
         observable = observable_ground_truth(gt).known.reshape(-1)
-        opaque = ~gt.free
-        reach = state.sensor_range / res
-        stamp = np.zeros(gt.data.size, np.int64)
-        buf = np.empty(gt.data.size, np.int64)
+        cand = np.argwhere(self.viewpoint_cells(costmap, state.pose))
+        self.set_views(gt, cand, observable, observable, state.sensor_range)
+
+    def viewpoint_cells(self, costmap: Costmap, pose: np.ndarray) -> np.ndarray:
+        """(rows, cols) bool: the ``spacing`` lattice's cells of ``costmap`` that a path
+        from ``pose`` reaches and that lie at least ``clearance`` from its walls."""
+        grid = costmap.grid
+        reachable = (costmap.distances_from(pose[:2]) < np.inf).reshape(grid.shape)
+        clear = np.sqrt(costmap._dist2.reshape(grid.shape)) * grid.resolution
+        step = max(1, int(round(self.spacing / grid.resolution)))
+        lattice = np.zeros(grid.shape, bool)
+        lattice[::step, ::step] = True
+        return reachable & (clear >= self.clearance) & lattice
+
+    def set_views(self, plan_map, cand: np.ndarray, observable: np.ndarray,
+                  wanted: np.ndarray, sensor_range: float) -> None:
+        """Ray casts what each candidate viewpoint sees on ``plan_map`` and sets up the
+        plan's bookkeeping (``self.graph`` must be the path graph of the same map).
+
+        Args:
+            plan_map: The map planned on (its non-free cells block the view).
+            cand: (n, 2) int (row, col) cells of the candidate viewpoints.
+            observable: (cells,) bool, the cells the plan must see (or leave within the
+                target's slack).
+            wanted: (cells,) bool, the cells listed in the views (a subset of
+                ``observable`` holding every cell that may still be needed).
+            sensor_range: The lidar's range, metres.
+        """
+        res = plan_map.resolution
+        opaque = ~plan_map.free
+        reach = sensor_range / res
+        stamp = np.zeros(plan_map.data.size, np.int64)
+        buf = np.empty(plan_map.data.size, np.int64)
         seen = []
         for i, (r, c) in enumerate(cand):
-            n = _visible_cells(opaque, observable, r, c, reach, self.rays, stamp, i + 1, buf)
+            n = _visible_cells(opaque, wanted, r, c, reach, self.rays, stamp, i + 1, buf)
             seen.append(buf[:n].copy())
         ptr = np.zeros(len(seen) + 1, np.int64)
         ptr[1:] = np.cumsum([len(s) for s in seen])
         idx = (np.concatenate(seen) if seen else np.zeros(0, np.int64)).astype(np.int32)
-        self.views = _Views(gt.cell_to_world(cand).reshape(-1, 2), ptr, idx, observable)
+        self.views = _Views(plan_map.cell_to_world(cand).reshape(-1, 2), ptr, idx, observable)
         # Each viewpoint's count of needed cells, kept up to date cell by cell as the map
         # fills in (through the transposed lists): the cover's upper bounds without a pass
         # over every list at every decision.
-        self._viewer_ptr, self._viewer_idx = _viewers(ptr, idx, gt.data.size)
+        self._viewer_ptr, self._viewer_idx = _viewers(ptr, idx, plan_map.data.size)
         self._need_count = np.diff(ptr)
-        self._needed = observable.copy()
-        self._stamp, self._stamp_id = np.zeros(gt.data.size, np.int64), 0
-        self._listed = int(observable.sum())  # Unknown cells when the lists were last cut.
+        self._needed = wanted.copy()
+        self._stamp, self._stamp_id = np.zeros(plan_map.data.size, np.int64), 0
+        self._listed = int(wanted.sum())  # Unknown cells when the lists were last cut.
         # The viewpoint standing for each node of the path graph (the nearest within one
         # lattice step; -1 if none): what the robot sees while it drives through the node.
         self._view_tree = cKDTree(self.views.points) if len(cand) else None
@@ -342,8 +363,12 @@ class OracleExplorer:
         if 4 * unseen <= 3 * self._listed:
             views.ptr, views.idx = _keep_needed(views.ptr, views.idx, need)
             self._listed = unseen
-        required = math.ceil((state.target_ratio + self.margin) * total) - (total - unseen)
-        return need, max(1, min(required, unseen))
+        return need, max(1, min(self.required(state, total, unseen), unseen))
+
+    def required(self, state: ExplorationState, total: int, unseen: int) -> int:
+        """How many of the ``unseen`` needed cells the plan must see: enough for the target
+        ratio plus ``margin`` of the ``total`` observable cells."""
+        return math.ceil((state.target_ratio + self.margin) * total) - (total - unseen)
 
     def replan(self, state: ExplorationState) -> list[int]:
         """Re-solves the plan for the state; returns the viewpoints in tour order."""

@@ -37,7 +37,12 @@ import numpy as np
 from mjexplore.episode.explorer import ExplorationState
 from mjexplore.topology.frontiers import Frontier
 from mjexplore.topology.pipeline import TopologyConfig, TopologyTracker
-from mjexplore.topology.pockets import PocketPredictor, pocket_predictor
+from mjexplore.topology.pockets import (
+    PocketPredictor,
+    node_frontiers,
+    pocket_areas,
+    pocket_predictor,
+)
 from mjexplore.topology.ter import PaddedTer
 
 # gvn_v3's settings (its weights file's stored layout and policy arguments).
@@ -63,7 +68,7 @@ class PocketNearest:
             (``gvn_v3``'s ``prior_pocket_m``, 50 m; 0: nearest TER frontier node).
         pockets: The pocket predictor's weights file (``mjexplore train-pockets``); a
             relative path is looked up from the working directory, then from the
-            repository root.
+            repository root. None: no predictor (a subclass supplies the pockets).
         pockets_sha256: If set, the first 16 hex digits of that file's sha256 (another
             file is refused); None accepts any file. The default pins ``gvn_v3``'s.
         path_radius: A node's path cost is the least over the cells within this distance
@@ -80,7 +85,7 @@ class PocketNearest:
     name = "pocket_nearest"
 
     def __init__(self, pocket_m: float = GVN_V3_POCKET_M,
-                 pockets: str | os.PathLike = GVN_V3_POCKETS,
+                 pockets: str | os.PathLike | None = GVN_V3_POCKETS,
                  pockets_sha256: str | None = GVN_V3_POCKETS_SHA256,
                  path_radius: float = GVN_V3_PATH_RADIUS,
                  topology: TopologyConfig | None = GVN_V3_TOPOLOGY,
@@ -96,8 +101,8 @@ class PocketNearest:
         ter = (topology or GVN_V3_TOPOLOGY).ter
         self.ter_config = dataclasses.replace(ter, max_nodes=max_nodes,
                                               max_neighbours=max_neighbours)
-        self.pockets: PocketPredictor | None = (pocket_predictor(pockets, pockets_sha256)
-                                                if self.pocket_m else None)
+        self.pockets: PocketPredictor | None = (
+            pocket_predictor(pockets, pockets_sha256) if self.pocket_m and pockets else None)
         self._tracker: TopologyTracker | None = None
         self.reset(np.random.default_rng(0))
 
@@ -163,9 +168,42 @@ class PocketNearest:
         unreachable[mask] = ~reachable
         path = np.clip(path, -FEATURE_BOUND, FEATURE_BOUND)
         cost = path + np.float32(EXCLUDED_M) * unreachable
-        if self.pockets is not None and frontiers:
-            pocket = self.pockets.node_probability(padded, grid, frontiers,
-                                                   self.pocket_memo)
+        if self.pocket_m and frontiers:
+            pocket = self.pocket_probability(padded, state, frontiers)
             cost = cost + np.float32(self.pocket_m) * np.clip(pocket, -FEATURE_BOUND,
                                                               FEATURE_BOUND)
         return cost.astype(np.float32)
+
+    def pocket_probability(self, padded: PaddedTer, state: ExplorationState,
+                           frontiers: list[Frontier]) -> np.ndarray:
+        """(N_max,) float32: each frontier node's probability that its pocket is small, by
+        the pocket predictor (0 for the other nodes)."""
+        return self.pockets.node_probability(padded, state.grid, frontiers, self.pocket_memo)
+
+
+class TruePocketNearest(PocketNearest):
+    """``pocket_nearest``'s rule with the *true* pockets in place of the predicted ones: a
+    frontier node counts ``pocket_m`` metres farther when the ground truth's unseen free
+    space behind its frontier (:func:`~mjexplore.topology.pockets.pocket_areas`) is below
+    ``small_area_m2``. Privileged (it reads the ground truth): the bound on what a perfect
+    pocket predictor is worth to the rule.
+
+    Args:
+        small_area_m2: A pocket below this area counts as small, m^2 (the predictor's).
+        **kwargs: :class:`PocketNearest`'s (but ``pockets``).
+    """
+
+    name = "pocket_truth"
+
+    def __init__(self, small_area_m2: float = 0.5, **kwargs) -> None:
+        self.small_area_m2 = float(small_area_m2)
+        super().__init__(pockets=None, pockets_sha256=None, **kwargs)
+
+    def pocket_probability(self, padded: PaddedTer, state: ExplorationState,
+                           frontiers: list[Frontier]) -> np.ndarray:
+        out = np.zeros(len(padded.node_mask), np.float32)
+        nodes, which = node_frontiers(padded, state.grid, frontiers)
+        if len(nodes):
+            area = pocket_areas(state.grid, state.ground_truth, [frontiers[i] for i in which])
+            out[nodes] = area < self.small_area_m2
+        return out

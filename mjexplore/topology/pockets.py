@@ -118,6 +118,23 @@ def pocket_areas(grid: GridMap, ground_truth: GridMap, frontiers: list[Frontier]
     return information_gain(grid, ground_truth, frontiers) * total
 
 
+def node_frontiers(padded: PaddedTer, grid: GridMap,
+                   frontiers: list[Frontier]) -> tuple[np.ndarray, np.ndarray]:
+    """The TER's frontier nodes and the frontier each stands for (a node sits at its
+    frontier's goal cell; the first frontier of a shared goal cell).
+
+    Returns:
+        (k,) node indices of ``padded`` and (k,) indices into ``frontiers``.
+    """
+    nodes = np.flatnonzero((padded.node_mask > 0) & (padded.node_features[:, 5] == FRONTIER_FLAG))
+    index = {tuple(f.goal_cell): i for i, f in reversed(list(enumerate(frontiers)))}
+    cells = grid.world_to_cell(padded.node_positions[nodes].astype(float))
+    matched = [(n, index.get((int(r), int(c)))) for n, (r, c) in zip(nodes, cells)]
+    matched = [(n, i) for n, i in matched if i is not None]
+    return (np.array([n for n, _ in matched], np.int64),
+            np.array([i for _, i in matched], np.int64))
+
+
 class PocketNet(nn.Module):
     """Patch and frontier length -> logit that the frontier's pocket is small.
 
@@ -203,17 +220,9 @@ class PocketPredictor:
             memo: The episode's predictions so far (see :meth:`small_probability`).
         """
         out = np.zeros(len(padded.node_mask), np.float32)
-        nodes = np.flatnonzero((padded.node_mask > 0)
-                               & (padded.node_features[:, 5] == FRONTIER_FLAG))
-        if len(nodes) == 0:
-            return out
-        index = {tuple(f.goal_cell): i for i, f in reversed(list(enumerate(frontiers)))}
-        cells = grid.world_to_cell(padded.node_positions[nodes].astype(float))
-        matched = [(n, index.get((int(r), int(c)))) for n, (r, c) in zip(nodes, cells)]
-        matched = [(n, i) for n, i in matched if i is not None]
-        if matched:
-            out[[n for n, _ in matched]] = self.small_probability(
-                grid, [frontiers[i] for _, i in matched], memo)
+        nodes, which = node_frontiers(padded, grid, frontiers)
+        if len(nodes):
+            out[nodes] = self.small_probability(grid, [frontiers[i] for i in which], memo)
         return out
 
     def small_probability(self, grid: GridMap, frontiers: list[Frontier],
