@@ -559,6 +559,20 @@ def cmd_train_pockets(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_train_predictor(args: argparse.Namespace) -> int:
+    from mjexplore.learning.predictor_training import load_predictor_config, train_predictor
+
+    config = load_predictor_config(args.config)
+    check_output_folder(args.out)
+    if args.episodes is not None:
+        config = dataclasses.replace(config, episodes=args.episodes)
+    if args.epochs is not None:
+        config = dataclasses.replace(config, epochs=args.epochs)
+    print(json.dumps(train_predictor(config, args.out, workers=args.workers,
+                                     progress=not args.no_progress)))
+    return 0
+
+
 def cmd_collect(args: argparse.Namespace) -> int:
     from mjexplore.eval.summaries import collect_sweep, merge_summaries, read_summary, write_summary
 
@@ -934,6 +948,24 @@ def build_parser() -> argparse.ArgumentParser:
     tp.add_argument("--no-progress", action="store_true",
                     help="no progress bar on a terminal, no progress lines elsewhere")
     tp.set_defaults(func=cmd_train_pockets)
+
+    tr = sub.add_parser(
+        "train-predictor", help="train the map predictor (the unseen map from the partial one)",
+        description="Record partial maps at the decisions of episodes on generated layouts, "
+                    "fit the map predictor to their ground truth (see training/predictor.yaml) "
+                    "and write the model folder --out: predictor.safetensors, README.md (its "
+                    "card, with its quality beside inpainting and unknown-as-free/occupied), "
+                    "quality.json, config.yaml. Run it again with the same --out to resume.")
+    tr.add_argument("--config", type=Path, required=True, help="predictor-training YAML")
+    tr.add_argument("--out", type=Path, required=True, help="model folder")
+    tr.add_argument("--workers", type=_count, default=2, help="collection processes")
+    tr.add_argument("--episodes", type=_count, default=None, metavar="N",
+                    help="collection episodes (default: the config's)")
+    tr.add_argument("--epochs", type=_count, default=None, metavar="N",
+                    help="passes over the training maps (default: the config's)")
+    tr.add_argument("--no-progress", action="store_true",
+                    help="no progress bar on a terminal, no progress lines elsewhere")
+    tr.set_defaults(func=cmd_train_predictor)
 
     co = sub.add_parser(
         "collect", help="summarise a bench sweep for the results report",

@@ -134,28 +134,34 @@ def nearest_goal(state: ExplorationState, distance: np.ndarray, area: np.ndarray
     return state.frontiers[int(np.argmin(distance))].goal
 
 
+def episode_layout(env: EnvConfig, seed: int):
+    """The scene, simulator seed and episode settings of the training env's episode ``seed``
+    (its generated layout, start and settings; the env's observation is not built)."""
+    from mjexplore.envs import ExplorationEnv
+
+    observation = dataclasses.replace(env.observation, features="v1", pockets=None,
+                                      pockets_sha256=None)
+    made = ExplorationEnv(dataclasses.replace(env, observation=observation))
+    made.reset(seed=seed)
+    episode = made.episode
+    made.close()
+    return episode.scene, episode.sim.config.seed, episode.config
+
+
 def collect_episode(config: PocketTrainingConfig, index: int) -> dict[str, np.ndarray]:
     """Patches (uint8 (n, 3, S, S)), lengths (m) and true pocket areas (m^2) of episode
     ``index``."""
     import torch
 
-    from mjexplore.envs import ExplorationEnv
     from mjexplore.episode import Episode
     from mjexplore.topology.pockets import PATCH_CELLS, PATCH_CHANNELS
 
     torch.set_num_threads(1)
-    seed = config.seed + index
-    # The env only lays out the episode (scene, start, settings); its observation is unused.
-    observation = dataclasses.replace(config.env.observation, features="v1", pockets=None,
-                                      pockets_sha256=None)
-    env = ExplorationEnv(dataclasses.replace(config.env, observation=observation))
-    env.reset(seed=seed)
-    episode = env.episode
+    scene, sim_seed, episode = episode_layout(config.env, config.seed + index)
     rng = np.random.default_rng([config.seed, index])
     skip = bool(rng.random() < config.skip_share)
     recorder = _Recorder(rng, config.frontier_share, config.small_area_m2, skip)
-    Episode(episode.scene, recorder, episode.sim.config.seed, episode.config).run()
-    env.close()
+    Episode(scene, recorder, sim_seed, episode).run()
     empty = np.zeros((0, len(PATCH_CHANNELS), PATCH_CELLS, PATCH_CELLS), np.uint8)
     return {"patches": np.concatenate(recorder.patches) if recorder.patches else empty,
             "lengths": np.concatenate(recorder.lengths) if recorder.lengths else np.zeros(0),

@@ -1,0 +1,129 @@
+"""The map predictor: its input and target, the non-learned predictors, the quality scores,
+its weights file, and train-predictor end to end (collect, fit, resume, refuse)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from safetensors.torch import load_file
+
+from mjexplore.cli import main
+from mjexplore.errors import UserInputError
+from mjexplore.mapping.prediction import (
+    MapPredictor,
+    MapPredictorNet,
+    coarse_channels,
+    coarse_truth,
+    inpainted,
+    prediction_quality,
+    save_map_predictor,
+    unknown_as_free,
+    unknown_as_occupied,
+    unknown_cells,
+)
+from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
+
+
+def _corridor() -> tuple[GridMap, GridMap]:
+    """A 4 x 2 m map (0.05 m cells) of wall with a 0.8 m corridor across it (rows 14-29),
+    and the same map with its middle metre unknown."""
+    data = np.full((40, 80), OCCUPIED, np.int8)
+    data[14:30, :] = FREE
+    truth = GridMap(data, 0.05)
+    partial = data.copy()
+    partial[:, 30:50] = UNKNOWN
+    return truth, GridMap(partial, 0.05)
+
+
+def test_coarse_channels_and_truth_are_block_shares():
+    truth, partial = _corridor()
+    channels = coarse_channels(partial)
+    assert channels.shape == (3, 10, 20) and channels.dtype == np.uint8
+    assert channels[0, 4, 0] == 255 and channels[1, 0, 0] == 255  # Free corridor, wall.
+    assert channels[0, 3, 0] == 128 and channels[1, 3, 0] == 128  # Rows 12-15: half wall.
+    assert (channels[:2, :, 8:12] == 0).all() and (channels[2] == 255).all()
+    target = coarse_truth(truth)
+    assert target.shape == (10, 20) and (target[4:7, 10] == 255).all() and target[3, 10] == 128
+    assert unknown_cells(channels)[:, 8:12].all() and not unknown_cells(channels)[:, :7].any()
+
+
+def test_coarse_cells_need_a_resolution_that_divides_them():
+    grid = GridMap(np.zeros((30, 30), np.int8), 0.03)
+    with pytest.raises(UserInputError, match="resolution"):
+        coarse_channels(grid)
+
+
+def test_baselines_and_the_quality_scores():
+    truth, partial = _corridor()
+    channels, target = coarse_channels(partial), coarse_truth(truth)
+    perfect = np.where(target >= 128, 1.0, 0.0)
+    best = prediction_quality([(perfect, channels, target)])
+    assert best["accuracy"] == 1.0 and best["iou_free"] == 1.0 and best["bce"] < 1e-3
+    assert best["ece"] < 1e-3 and best["cells"] == 40
+    free = prediction_quality([(unknown_as_free(channels), channels, target)])
+    assert free["accuracy"] == pytest.approx(free["free_share"])
+    none = prediction_quality([(unknown_as_occupied(channels), channels, target)])
+    assert none["iou_free"] == 0.0 and none["accuracy"] == pytest.approx(1 - none["free_share"])
+    # Inpainting carries the corridor on through the gap and the walls beside it.
+    filled = inpainted(channels)
+    assert (filled[4:6, 8:12] > 0.5).all() and (filled[0, 8:12] < 0.5).all()
+    assert prediction_quality([(filled, channels, target)])["accuracy"] > free["accuracy"]
+
+
+def test_weights_round_trip_and_monte_carlo_dropout(tmp_path):
+    torch.manual_seed(0)
+    net = MapPredictorNet(width=4, dropout=0.3)
+    save_map_predictor(tmp_path / "p.safetensors", net, provenance={"test": 1})
+    predictor = MapPredictor(tmp_path / "p.safetensors")
+    _, partial = _corridor()
+    channels = coarse_channels(partial)
+    p, spread = predictor.predict_channels(channels)
+    net.eval()
+    with torch.no_grad():
+        x = torch.zeros((1, 3, 16, 24), dtype=torch.uint8)
+        x[0, :, :10, :20] = torch.from_numpy(channels)
+        expected = torch.sigmoid(net(x))[0, :10, :20].numpy()
+    np.testing.assert_allclose(p, expected, atol=1e-6)
+    assert p.shape == (10, 20) and not spread.any()
+    mean, std = predictor.predict_channels(channels, samples=8, seed=3)
+    again, _ = predictor.predict_channels(channels, samples=8, seed=3)
+    np.testing.assert_array_equal(mean, again)
+    assert std.max() > 0
+    (tmp_path / "bad.safetensors").write_bytes(b"not a tensor file")
+    with pytest.raises(UserInputError):
+        MapPredictor(tmp_path / "bad.safetensors")
+
+
+@pytest.mark.slow
+def test_train_predictor_collects_fits_resumes_and_refuses(tmp_path):
+    config = tmp_path / "predictor.yaml"
+    config.write_text(
+        "episodes: 2\nvalidation_every: 2\nepochs: 1\nwidth: 4\ncrop: 32\nbatch_size: 4\n"
+        "record_share: 0.5\nexplorers: [nearest]\nthreads: 1\n"
+        "env:\n  procedural: {families: [rooms], width: [12.0, 12.0], height: [10.0, 10.0]}\n"
+        "  episode:\n    max_time: 300.0\n    sim: {dynamics: grid}\n")
+    out = tmp_path / "model"
+    assert main(["train-predictor", "--config", str(config), "--out", str(out),
+                 "--workers", "1", "--no-progress"]) == 0
+    for name in ("predictor.safetensors", "README.md", "quality.json", "config.yaml",
+                 "checkpoint.pt", "data/episode_00000.npz", "data/episode_00001.npz"):
+        assert (out / name).exists(), name
+    quality = json.loads((out / "quality.json").read_text())["quality"]
+    assert set(quality) == {"learned", "unknown_as_free", "unknown_as_occupied", "inpainting"}
+    assert "inpainting" in (out / "README.md").read_text()
+    weights = load_file(out / "predictor.safetensors")
+    shard = (out / "data/episode_00001.npz").stat().st_mtime_ns
+    # Resumed with the same settings: the shards are kept and the finished fit is not redone.
+    assert main(["train-predictor", "--config", str(config), "--out", str(out),
+                 "--workers", "1", "--no-progress"]) == 0
+    assert (out / "data/episode_00001.npz").stat().st_mtime_ns == shard
+    again = load_file(out / "predictor.safetensors")
+    assert all(torch.equal(again[k], v) for k, v in weights.items())
+    # Other settings into the same folder: refused, nothing changed.
+    assert main(["train-predictor", "--config", str(config), "--out", str(out),
+                 "--epochs", "2", "--workers", "1", "--no-progress"]) == 2
+    assert all(torch.equal(load_file(out / "predictor.safetensors")[k], v)
+               for k, v in weights.items())
