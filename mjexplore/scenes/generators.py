@@ -1,4 +1,5 @@
-"""Seeded floor-plan generators: office, maze, loop, corridor, rooms, hall, labmaze, combinations.
+"""Seeded floor-plan generators: office, maze, loop, corridor, rooms, hall, labmaze, dungeon,
+and combinations.
 
 Every generator carves free space out of a solid grid (``True`` = wall). A generator owns a
 region (an axis-aligned rectangle in metres) and keeps a solid margin of half the wall
@@ -17,6 +18,10 @@ Families:
     hall: one open room with pillars and furniture-sized blocks (the real-robot lobby).
     labmaze: DeepMind Lab's random mazes (the ``labmaze`` package: rooms joined by
         corridors), see :mod:`mjexplore.scenes.labmaze_family`.
+    dungeon: a roguelike dungeon: rectangular rooms of 3-10 m a side scattered without
+        overlap, joined by straight or L-shaped corridors along a spanning tree of the rooms
+        plus a few extra ones (loops). Written from the public description of the
+        generator behind ARiADNE's (Cao et al., ICRA 2023) training and test maps.
     Combinations, e.g. ``loop+rooms``: the area is split along its long side into one part
     per family, and neighbouring parts are joined by passages.
 """
@@ -48,12 +53,15 @@ class GeneratorConfig:
     Attributes:
         wall_thickness: Thickness of interior and outer walls.
         door_width: (min, max) width of doors between rooms.
-        room_size: (min, max) side length of rooms in ``office`` and ``rooms``.
+        room_size: (min, max) side length of rooms in ``office`` and ``rooms``; the min is
+            also the smallest ``dungeon`` room side.
         office_corridor_width: (min, max) width of office corridors.
-        loop_corridor_width: (min, max) width of the ``loop`` ring and its corridors.
+        loop_corridor_width: (min, max) width of the ``loop`` ring and its corridors, and of
+            ``dungeon`` corridors.
         narrow_corridor_width: (min, max) width of ``corridor`` passages.
         maze_cell: Side of a maze cell (passage width plus one wall).
-        extra_door_probability: Chance that a pair of neighbouring rooms gets a second door.
+        extra_door_probability: Chance that a pair of neighbouring rooms gets a second door
+            (``dungeon``: a corridor of its own besides the spanning tree's).
         labmaze: The ``labmaze`` family's knobs (cell pitch, rooms, extra connections).
     """
 
@@ -492,6 +500,175 @@ def carve_labmaze(canvas: Canvas, region: Rect, rng: np.random.Generator,
     canvas.solid[ey[1]:ey[-2], ex[1]:ex[-2]] &= ~cells
 
 
+# ---------------------------------------------------------------------------- dungeon
+
+DUNGEON_ROOM_MAX_SIDE = 10.0
+"""Largest side of a ``dungeon`` room in metres (the smallest is ``room_size[0]``)."""
+DUNGEON_ROOM_SPACING = 2.0
+"""Least solid gap between two ``dungeon`` rooms in metres (corridors may cross it)."""
+DUNGEON_MIN_WALL = 0.5
+"""Walls that ``dungeon`` corridors leave thinner than this (metres) are opened, so that
+corridors running side by side or along a room merge instead of leaving slivers."""
+DUNGEON_PLACEMENT_TRIES = 10
+"""``dungeon`` room placements tried per room of mean size that the region's area holds."""
+DUNGEON_MIN_ROOMS = 3
+"""``dungeon`` rooms wanted at least: a scatter with fewer is redrawn, up to
+``DUNGEON_SCATTER_ROUNDS`` times (small areas may hold fewer; the fullest draw is kept)."""
+DUNGEON_SCATTER_ROUNDS = 20
+"""Room scatters drawn at most while fewer than ``DUNGEON_MIN_ROOMS`` rooms are placed."""
+DUNGEON_EXTRA_CANDIDATES = 3
+"""A ``dungeon`` room's nearest rooms (by centre) that may get an extra corridor to it."""
+
+
+def _scatter_rooms(inner: Rect, rng: np.random.Generator, smallest: float, largest: float,
+                   spacing: float) -> np.ndarray:
+    """Rooms placed at random without overlap, a roguelike's first step.
+
+    Every try draws the two sides uniformly from [``smallest``, ``largest``] and a uniform
+    position inside ``inner``, and keeps the room if it stays ``spacing`` clear of the rooms
+    kept so far. ``largest`` is capped so that two rooms fit side by side along each axis
+    (but not below ``smallest``), so small areas still get several rooms.
+
+    Args:
+        inner: The carvable area, metres.
+        rng: The source of every draw.
+        smallest: Least room side, metres.
+        largest: Greatest room side, metres.
+        spacing: Least gap between two rooms, metres.
+
+    Returns:
+        (n, 4) array of rooms as x0, y0, x1, y1 in metres, in the order they were placed.
+    """
+    max_w, max_h = (min(largest, max(smallest, (side - spacing) / 2), side)
+                    for side in (inner.w, inner.h))
+    mean_area = (smallest + max_w) * (smallest + max_h) / 4
+    tries = DUNGEON_PLACEMENT_TRIES * max(1, round(inner.w * inner.h / mean_area))
+    rooms = np.empty((0, 4))
+    for shrink in np.linspace(1.0, 0.0, tries):
+        w = rng.uniform(smallest, smallest + shrink * (max_w - smallest))
+        h = rng.uniform(smallest, smallest + shrink * (max_h - smallest))
+        x0, y0 = rng.uniform(inner.x0, inner.x1 - w), rng.uniform(inner.y0, inner.y1 - h)
+        clash = ((rooms[:, 0] < x0 + w + spacing) & (x0 < rooms[:, 2] + spacing)
+                 & (rooms[:, 1] < y0 + h + spacing) & (y0 < rooms[:, 3] + spacing))
+        if not clash.any():
+            rooms = np.vstack([rooms, [x0, y0, x0 + w, y0 + h]])
+    return rooms
+
+
+def _room_links(centres: np.ndarray, rng: np.random.Generator, extra_probability: float,
+                ) -> list[tuple[int, int]]:
+    """Pairs of rooms to join: a minimum spanning tree of the centres, plus extra pairs.
+
+    Each room's ``DUNGEON_EXTRA_CANDIDATES`` nearest rooms not already joined to it by the
+    tree get a corridor with ``extra_probability`` each, which makes loops.
+
+    Args:
+        centres: (n, 2) room centres, metres.
+        rng: The source of the extra pairs' draws.
+        extra_probability: Chance of each extra pair.
+    """
+    n = len(centres)
+    distance = np.linalg.norm(centres[:, None] - centres[None], axis=-1)
+    in_tree = np.zeros(n, bool)
+    in_tree[0] = True
+    nearest_in_tree = distance[0].copy()
+    parent = np.zeros(n, int)
+    links = []
+    for _ in range(n - 1):  # Prim's algorithm on the complete graph of room centres.
+        j = int(np.argmin(np.where(in_tree, np.inf, nearest_in_tree)))
+        links.append((int(parent[j]), j))
+        in_tree[j] = True
+        closer = distance[j] < nearest_in_tree
+        parent[closer] = j
+        nearest_in_tree = np.minimum(nearest_in_tree, distance[j])
+    joined = {frozenset(link) for link in links}
+    for i in range(n):
+        for j in np.argsort(distance[i])[1:DUNGEON_EXTRA_CANDIDATES + 1]:
+            pair = frozenset((i, int(j)))
+            if pair not in joined and rng.random() < extra_probability:
+                joined.add(pair)
+                links.append((i, int(j)))
+    return links
+
+
+def _corridor_legs(a: np.ndarray, b: np.ndarray, width: float,
+                   rng: np.random.Generator) -> list[Rect]:
+    """The one or two rectangles of a corridor ``width`` wide from room ``a`` to room ``b``.
+
+    Where the rooms face each other over at least ``width``, the corridor is straight;
+    otherwise it is L-shaped, from a random point of ``a`` to a random point of ``b``,
+    turning at either of the two corners (each equally likely). The points keep half the
+    width from their room's walls, so the corridor opens fully into both rooms.
+
+    Args:
+        a: Room (x0, y0, x1, y1), metres.
+        b: Room (x0, y0, x1, y1), metres.
+        width: Corridor width, metres (at most every room side).
+        rng: The source of the points and the turn.
+    """
+    half = width / 2
+    pa = rng.uniform(a[:2] + half, a[2:] - half)
+    pb = rng.uniform(b[:2] + half, b[2:] - half)
+    overlap_lo, overlap_hi = np.maximum(a[:2], b[:2]), np.minimum(a[2:], b[2:])
+    facing = overlap_hi - overlap_lo >= width
+    if facing.any():
+        axis = int(np.flatnonzero(facing)[rng.integers(facing.sum())])
+        pa[axis] = pb[axis] = rng.uniform(overlap_lo[axis] + half, overlap_hi[axis] - half)
+        stops = [pa, pb]
+    else:
+        turn = np.array([pb[0], pa[1]]) if rng.random() < 0.5 else np.array([pa[0], pb[1]])
+        stops = [pa, turn, pb]
+    return [Rect(min(p[0], q[0]) - half, min(p[1], q[1]) - half, max(p[0], q[0]) + half,
+                 max(p[1], q[1]) + half) for p, q in zip(stops[:-1], stops[1:])]
+
+
+def carve_dungeon(canvas: Canvas, region: Rect, rng: np.random.Generator,
+                  cfg: GeneratorConfig) -> None:
+    """A roguelike dungeon: scattered rooms joined by straight and L-shaped corridors.
+
+    Rooms of ``cfg.room_size[0]`` to ``DUNGEON_ROOM_MAX_SIDE`` a side are placed at random,
+    ``DUNGEON_ROOM_SPACING`` apart (redrawn while fewer than ``DUNGEON_MIN_ROOMS``).
+    Corridors join them along a minimum spanning tree of their centres, plus extra corridors
+    (``cfg.extra_door_probability``) that close loops; each corridor's width is drawn from
+    ``cfg.loop_corridor_width`` and capped at half the narrower room's side (not below the
+    range's minimum). Corridors may cross rooms and each other, as in the games; walls they
+    leave thinner than ``DUNGEON_MIN_WALL`` (or ``cfg.wall_thickness`` if thicker) are opened.
+
+    Raises:
+        UserInputError: the region is narrower than the smallest room.
+    """
+    inner = region.inset(cfg.wall_thickness / 2)
+    smallest = cfg.room_size[0]
+    if min(inner.w, inner.h) < smallest:
+        raise UserInputError(f"dungeon needs at least {smallest + cfg.wall_thickness:.1f} m on "
+                             f"each side (its part is {region.w:.1f} x {region.h:.1f} m): make "
+                             "the scene larger or the smallest room (room_size) smaller.")
+    rooms = np.empty((0, 4))
+    for _ in range(DUNGEON_SCATTER_ROUNDS):
+        drawn = _scatter_rooms(inner, rng, smallest, max(smallest, DUNGEON_ROOM_MAX_SIDE),
+                               DUNGEON_ROOM_SPACING)
+        rooms = drawn if len(drawn) > len(rooms) else rooms
+        if len(rooms) >= DUNGEON_MIN_ROOMS:
+            break
+    for x0, y0, x1, y1 in rooms:
+        canvas.carve(Rect(x0, y0, x1, y1))
+    centres = (rooms[:, :2] + rooms[:, 2:]) / 2
+    sides = rooms[:, 2:] - rooms[:, :2]
+    narrowest = cfg.loop_corridor_width[0]
+    for i, j in _room_links(centres, rng, cfg.extra_door_probability):
+        # At most half the narrower room's side, so that corridors stay narrower than rooms.
+        side = sides[[i, j]].min()
+        width = min(rng.uniform(*cfg.loop_corridor_width), max(narrowest, side / 2), side)
+        for leg in _corridor_legs(rooms[i], rooms[j], width, rng):
+            canvas.carve(leg)
+    window = canvas._cells(inner)
+    wall_cells = max(1, round(max(DUNGEON_MIN_WALL, cfg.wall_thickness) / canvas.resolution))
+    # Outside the window lies this region's solid margin, hence border_value=True.
+    canvas.solid[window] = ndimage.binary_opening(
+        canvas.solid[window], structure=np.ones((wall_cells, wall_cells), bool),
+        border_value=True)
+
+
 FAMILIES: dict[str, Callable[[Canvas, Rect, np.random.Generator, GeneratorConfig], None]] = {
     "office": carve_office,
     "rooms": carve_rooms,
@@ -500,6 +677,7 @@ FAMILIES: dict[str, Callable[[Canvas, Rect, np.random.Generator, GeneratorConfig
     "corridor": carve_corridor,
     "hall": carve_hall,
     "labmaze": carve_labmaze,
+    "dungeon": carve_dungeon,
 }
 
 
