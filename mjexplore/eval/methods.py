@@ -42,6 +42,10 @@ METHODS: dict[str, str] = {
     "oracle_2m": "the oracle's planner given the truth within 2 m of the mapped cells",
     "oracle_5m": "the oracle's planner given the truth within 5 m of the mapped cells",
     "oracle_10m": "the oracle's planner given the truth within 10 m of the mapped cells",
+    "predicted_tour": "pocket_nearest, departing when the oracle's tour on the learned map "
+                      "prediction saves > 5 m",
+    "predicted_tour_inpainting": "predicted_tour with inpainting as the prediction (ablation)",
+    "predicted_tour_truth": "predicted_tour with the true map as the prediction (privileged)",
     "gvn": "the learned GVN policy on the TER (--policy picks the model; default gvn_v3)",
     "cnn": "the 'Naive Exp' CNN on the map image (--policy picks the model; default cnn_paper)",
 }

@@ -26,9 +26,14 @@ CLASSIC: dict[str, tuple] = {
     "potential": ("mjexplore.explorers.potential", "PotentialField"),
     "oracle": ("mjexplore.explorers.oracle", "OracleExplorer"),
     "pocket_truth": ("mjexplore.explorers.pocket_nearest", "TruePocketNearest"),
-    "oracle_2m": ("mjexplore.explorers.horizon_oracle", "HorizonOracle", {"horizon": 2.0}),
-    "oracle_5m": ("mjexplore.explorers.horizon_oracle", "HorizonOracle", {"horizon": 5.0}),
-    "oracle_10m": ("mjexplore.explorers.horizon_oracle", "HorizonOracle", {"horizon": 10.0}),
+    "oracle_2m": ("mjexplore.explorers.map_planner", "HorizonOracle", {"horizon": 2.0}),
+    "oracle_5m": ("mjexplore.explorers.map_planner", "HorizonOracle", {"horizon": 5.0}),
+    "oracle_10m": ("mjexplore.explorers.map_planner", "HorizonOracle", {"horizon": 10.0}),
+    "predicted_tour": ("mjexplore.explorers.predicted_tour", "PredictedTour"),
+    "predicted_tour_inpainting": ("mjexplore.explorers.predicted_tour", "PredictedTour",
+                                  {"source": "inpainting"}),
+    "predicted_tour_truth": ("mjexplore.explorers.predicted_tour", "PredictedTour",
+                             {"source": "truth"}),
 }
 
 

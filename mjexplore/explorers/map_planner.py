@@ -1,18 +1,23 @@
-"""The horizon oracle: the oracle's coverage planner given the truth only within ``horizon``
-metres of what the robot has mapped, a bound on what perfect prediction up to that distance
-is worth (between nearest-frontier's nothing and the full oracle's everything).
+"""The oracle's coverage planner on a map short of the truth, made afresh at each decision:
+the horizon oracle (the truth within ``horizon`` metres of what the robot has mapped), and
+the planner that the prediction-based explorers run on a predicted map.
 
-At every decision it makes its *planning map*, the ground truth where a mapped cell lies
-within ``horizon`` and unknown beyond, and runs
-:class:`~mjexplore.explorers.oracle.OracleExplorer`'s plan on it (viewpoints that see the
-cells still needed, a greedy cover, an OR-Tools open tour, pruning by what the tour sees on
-the way): what each viewpoint sees is ray cast on the planning map, the cells to see are its
-observable cells still unknown in the robot's map, and the paths are searched on its
-traversable cells. As the oracle drives on the ground truth, it drives on its planning map
-(the navigation costmap is updated in place at each decision). Like the oracle's, its plan
-leaves unseen the share of the planning map's cells that the target ratio plus ``margin``
-allows, the least worth a detour; with the whole truth within the horizon it plans as the
-oracle does.
+:class:`PlanningMapOracle` runs :class:`~mjexplore.explorers.oracle.OracleExplorer`'s plan
+(viewpoints that see the cells still needed, a greedy cover, an OR-Tools open tour, pruning
+by what the tour sees on the way) on its *planning map* (:meth:`PlanningMapOracle.
+planning_data`): what each viewpoint sees is ray cast on the planning map, the cells to see
+are its observable cells still unknown in the robot's map, and the paths are searched on
+its traversable cells (a costmap of the planning map, updated in place at each decision).
+Like the oracle's, a plan leaves unseen the share of the planning map's cells that the
+target ratio plus ``margin`` allows, the least worth a detour. On the whole truth it makes
+the oracle's plans: the costmap's squared distances to walls are the exact integers the
+oracle's GVD gives, and the viewpoints it drops (beyond the lidar's range of every cell to
+see) could add nothing to a plan.
+
+:class:`HorizonOracle` plans on the truth within ``horizon`` metres of the robot's mapped
+cells (unknown beyond) and, as the oracle drives on the ground truth, drives on that map:
+what perfect prediction up to that distance is worth, between nearest-frontier's nothing
+and the full oracle's everything.
 """
 
 from __future__ import annotations
@@ -34,9 +39,89 @@ def _distance_to(mask: np.ndarray) -> np.ndarray:
     return cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
 
 
-class HorizonOracle(OracleExplorer):
-    """The oracle's planner on the truth within ``horizon`` metres of the mapped cells (see
-    the module docstring). Privileged: it reads the ground truth.
+class PlanningMapOracle(OracleExplorer):
+    """The oracle's planner on a planning map made at each decision (see the module
+    docstring); subclasses define :meth:`planning_data`. The keyword arguments are
+    :class:`~mjexplore.explorers.oracle.OracleExplorer`'s.
+    """
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self._costmap: Costmap | None = None
+
+    def planning_data(self, state: ExplorationState) -> np.ndarray:
+        """The planning map's cells at this decision (int8, the robot's map's shape)."""
+        raise NotImplementedError
+
+    def reset(self, rng: np.random.Generator) -> None:
+        super().reset(rng)
+        self._cells = np.zeros((0, 2), np.int64)  # The viewpoints' (row, col) cells.
+        self._view_cache: dict[tuple[int, int], np.ndarray] = {}  # Lists by viewpoint cell.
+        self._cast_on: np.ndarray | None = None  # The planning map they were cast on.
+
+    def ground_truth_costmap(self, state: ExplorationState) -> Costmap:
+        """The costmap of the planning map: all unknown until the first decision, then
+        updated in place at each (what :class:`HorizonOracle` drives on)."""
+        grid = state.ground_truth if state.ground_truth is not None else state.grid
+        self._plan = GridMap(np.full(grid.shape, UNKNOWN, np.int8), grid.resolution,
+                             grid.origin)
+        self._dist2 = np.zeros(grid.shape, np.float32)
+        self._costmap = Costmap(self._plan, self._dist2, PlannerConfig())
+        return self._costmap
+
+    def prepare(self, state: ExplorationState) -> None:
+        """This decision's planning map, its costmap and path graph, viewpoints and views;
+        the previous plan is carried over where its viewpoints are still candidates."""
+        if self._costmap is None or self._plan.shape != state.grid.shape:
+            self.ground_truth_costmap(state)
+        plan_map = self._plan
+        plan_map.data[...] = self.planning_data(state)
+        # Squared distances in cells are integers: rounded, they are the GVD's exactly.
+        self._dist2[...] = np.rint(_distance_to(~plan_map.free) ** 2)
+        self._costmap.update(None)
+        self.graph = CoarseGraph(plan_map, self._costmap.traversable)
+        observable = observable_ground_truth(plan_map).known.reshape(-1)
+        need = observable & (state.grid.data.reshape(-1) < 0)
+        near = (_distance_to(need.reshape(plan_map.shape)) * plan_map.resolution
+                <= state.sensor_range)
+        cells = np.argwhere(self.viewpoint_cells(self._costmap, state.pose) & near)
+        index = {tuple(c): i for i, c in enumerate(cells)}
+        carried = [index.get(tuple(self._cells[i])) for i in self.plan]
+        self.plan = [i for i in carried if i is not None]
+        self.current = (None if self.current is None
+                        else index.get(tuple(self._cells[self.current])))
+        self._cells = cells
+        self.set_views(plan_map, cells, observable, self._views_of(plan_map, cells, observable,
+                                                                   state.sensor_range), need)
+
+    def _views_of(self, plan_map: GridMap, cells: np.ndarray, observable: np.ndarray,
+                  sensor_range: float) -> list[np.ndarray]:
+        """What each viewpoint sees of the observable cells: kept from earlier decisions for
+        the viewpoints farther than the lidar's range from every cell of the planning map
+        that changed since, cast again for the others."""
+        if self._cast_on is None or self._cast_on.shape != plan_map.shape:
+            self._view_cache, self._cast_on = {}, plan_map.data.copy()
+        changed = plan_map.data != self._cast_on
+        if changed.any():
+            dirty = _distance_to(changed) * plan_map.resolution <= sensor_range + \
+                plan_map.resolution
+            self._view_cache = {c: v for c, v in self._view_cache.items() if not dirty[c]}
+            self._cast_on = plan_map.data.copy()
+        keys = [tuple(c) for c in cells]
+        todo = [i for i, key in enumerate(keys) if key not in self._view_cache]
+        if todo:
+            cast = self.cast_views(plan_map, cells[todo], observable, sensor_range)
+            self._view_cache.update(zip((keys[i] for i in todo), cast))
+        return [self._view_cache[key] for key in keys]
+
+    def replan(self, state: ExplorationState) -> list[int]:
+        self.prepare(state)
+        return super().replan(state)
+
+
+class HorizonOracle(PlanningMapOracle):
+    """The oracle's planner on the truth within ``horizon`` metres of the mapped cells,
+    driving on it (see the module docstring). Privileged: it reads the ground truth.
 
     Args:
         horizon: How far beyond the mapped cells the truth is known, metres.
@@ -49,50 +134,11 @@ class HorizonOracle(OracleExplorer):
         super().__init__(**kwargs)
         self.horizon = float(horizon)
         self.name = f"oracle_{horizon:g}m"
-        self._costmap: Costmap | None = None
 
-    def reset(self, rng: np.random.Generator) -> None:
-        super().reset(rng)
-        self._cells = np.zeros((0, 2), np.int64)  # The viewpoints' (row, col) cells.
-
-    def ground_truth_costmap(self, state: ExplorationState) -> Costmap:
-        """The costmap it navigates on: of its planning map, all unknown until the first
-        decision, then updated in place at each."""
-        gt = state.ground_truth
-        self._plan = GridMap(np.full(gt.shape, UNKNOWN, gt.data.dtype), gt.resolution,
-                             gt.origin)
-        self._dist2 = np.zeros(gt.shape, np.float32)
-        self._costmap = Costmap(self._plan, self._dist2, PlannerConfig())
-        return self._costmap
-
-    def prepare(self, state: ExplorationState) -> None:
-        """This decision's planning map, its costmap and path graph, viewpoints and views;
-        the previous plan is carried over where its viewpoints are still candidates."""
+    def planning_data(self, state: ExplorationState) -> np.ndarray:
         gt = state.ground_truth
         if gt is None:
             raise ValueError("the horizon oracle needs the ground truth "
                              "(ExplorationState.ground_truth)")
-        if self._costmap is None or self._plan.shape != gt.shape:
-            self.ground_truth_costmap(state)
-        plan_map = self._plan
         inside = _distance_to(state.grid.known) * gt.resolution <= self.horizon
-        plan_map.data[...] = np.where(inside, gt.data, UNKNOWN)
-        self._dist2[...] = _distance_to(~plan_map.free) ** 2
-        self._costmap.update(None)
-        self.graph = CoarseGraph(plan_map, self._costmap.traversable)
-        observable = observable_ground_truth(plan_map).known.reshape(-1)
-        need = observable & (state.grid.data.reshape(-1) < 0)
-        near = (_distance_to(need.reshape(gt.shape)) * gt.resolution
-                <= state.sensor_range)
-        cells = np.argwhere(self.viewpoint_cells(self._costmap, state.pose) & near)
-        index = {tuple(c): i for i, c in enumerate(cells)}
-        carried = [index.get(tuple(self._cells[i])) for i in self.plan]
-        self.plan = [i for i in carried if i is not None]
-        self.current = (None if self.current is None
-                        else index.get(tuple(self._cells[self.current])))
-        self._cells = cells
-        self.set_views(plan_map, cells, observable, need, state.sensor_range)
-
-    def replan(self, state: ExplorationState) -> list[int]:
-        self.prepare(state)
-        return super().replan(state)
+        return np.where(inside, gt.data, UNKNOWN).astype(np.int8)

@@ -287,7 +287,8 @@ class OracleExplorer:
         self.graph = CoarseGraph(gt, costmap.traversable)
         observable = observable_ground_truth(gt).known.reshape(-1)
         cand = np.argwhere(self.viewpoint_cells(costmap, state.pose))
-        self.set_views(gt, cand, observable, observable, state.sensor_range)
+        seen = self.cast_views(gt, cand, observable, state.sensor_range)
+        self.set_views(gt, cand, observable, seen, observable)
 
     def viewpoint_cells(self, costmap: Costmap, pose: np.ndarray) -> np.ndarray:
         """(rows, cols) bool: the ``spacing`` lattice's cells of ``costmap`` that a path
@@ -300,41 +301,49 @@ class OracleExplorer:
         lattice[::step, ::step] = True
         return reachable & (clear >= self.clearance) & lattice
 
-    def set_views(self, plan_map, cand: np.ndarray, observable: np.ndarray,
-                  wanted: np.ndarray, sensor_range: float) -> None:
-        """Ray casts what each candidate viewpoint sees on ``plan_map`` and sets up the
-        plan's bookkeeping (``self.graph`` must be the path graph of the same map).
-
-        Args:
-            plan_map: The map planned on (its non-free cells block the view).
-            cand: (n, 2) int (row, col) cells of the candidate viewpoints.
-            observable: (cells,) bool, the cells the plan must see (or leave within the
-                target's slack).
-            wanted: (cells,) bool, the cells listed in the views (a subset of
-                ``observable`` holding every cell that may still be needed).
-            sensor_range: The lidar's range, metres.
-        """
-        res = plan_map.resolution
+    def cast_views(self, plan_map, cand: np.ndarray, wanted: np.ndarray,
+                   sensor_range: float) -> list[np.ndarray]:
+        """The flat indices of the cells of ``wanted`` each candidate viewpoint (an (n, 2)
+        int (row, col) array) sees on ``plan_map``, whose non-free cells block the view."""
         opaque = ~plan_map.free
-        reach = sensor_range / res
+        reach = sensor_range / plan_map.resolution
         stamp = np.zeros(plan_map.data.size, np.int64)
         buf = np.empty(plan_map.data.size, np.int64)
         seen = []
         for i, (r, c) in enumerate(cand):
             n = _visible_cells(opaque, wanted, r, c, reach, self.rays, stamp, i + 1, buf)
             seen.append(buf[:n].copy())
+        return seen
+
+    def set_views(self, plan_map, cand: np.ndarray, observable: np.ndarray,
+                  seen: list[np.ndarray], needed: np.ndarray) -> None:
+        """Sets the candidate viewpoints and what they see, and the plan's bookkeeping
+        (``self.graph`` must be the path graph of ``plan_map``).
+
+        Args:
+            plan_map: The map planned on.
+            cand: (n, 2) int (row, col) cells of the candidate viewpoints.
+            observable: (cells,) bool, the cells the plan must see (or leave within the
+                target's slack).
+            seen: Per viewpoint, the flat indices of the observable cells it sees
+                (:meth:`cast_views`).
+            needed: (cells,) bool, the cells that may still be needed (``seen`` is cut down
+                to them).
+        """
         ptr = np.zeros(len(seen) + 1, np.int64)
         ptr[1:] = np.cumsum([len(s) for s in seen])
         idx = (np.concatenate(seen) if seen else np.zeros(0, np.int64)).astype(np.int32)
+        if not needed.all():
+            ptr, idx = _keep_needed(ptr, idx, needed)
         self.views = _Views(plan_map.cell_to_world(cand).reshape(-1, 2), ptr, idx, observable)
         # Each viewpoint's count of needed cells, kept up to date cell by cell as the map
         # fills in (through the transposed lists): the cover's upper bounds without a pass
         # over every list at every decision.
         self._viewer_ptr, self._viewer_idx = _viewers(ptr, idx, plan_map.data.size)
         self._need_count = np.diff(ptr)
-        self._needed = wanted.copy()
+        self._needed = needed.copy()
         self._stamp, self._stamp_id = np.zeros(plan_map.data.size, np.int64), 0
-        self._listed = int(wanted.sum())  # Unknown cells when the lists were last cut.
+        self._listed = int(needed.sum())  # Unknown cells when the lists were last cut.
         # The viewpoint standing for each node of the path graph (the nearest within one
         # lattice step; -1 if none): what the robot sees while it drives through the node.
         self._view_tree = cKDTree(self.views.points) if len(cand) else None

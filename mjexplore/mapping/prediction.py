@@ -32,6 +32,7 @@ from torch import nn
 
 from mjexplore.errors import UserInputError
 from mjexplore.io.atomic import write_bytes_atomic
+from mjexplore.io.provenance import REPO
 from mjexplore.io.tensor_file import read_tensor_file
 from mjexplore.maps import GridMap, is_free, is_occupied
 
@@ -214,6 +215,30 @@ class MapPredictor:
     def __call__(self, channels: np.ndarray) -> np.ndarray:
         """(H, W) float32 free probability (one pass, dropout off)."""
         return self.predict_channels(channels)[0]
+
+
+_PREDICTORS: dict[tuple[str, float], MapPredictor] = {}
+
+
+def map_predictor(path: str | os.PathLike) -> MapPredictor:
+    """The predictor in ``path``, loaded once per process (again if the file changed); a
+    relative ``path`` that is not there from the working directory is looked up from the
+    repository root.
+
+    Raises:
+        UserInputError: the file is missing or is not a map predictor.
+    """
+    resolved = Path(path)
+    if not resolved.is_absolute() and not resolved.exists():
+        resolved = REPO / resolved
+    if not resolved.is_file():
+        raise UserInputError(f"no map predictor at {str(path)!r}: train one with 'mjexplore "
+                             "train-predictor' and give its predictor.safetensors.")
+    resolved = resolved.resolve()
+    key = (str(resolved), resolved.stat().st_mtime)
+    if key not in _PREDICTORS:
+        _PREDICTORS[key] = MapPredictor(resolved)
+    return _PREDICTORS[key]
 
 
 def unknown_as_free(channels: np.ndarray) -> np.ndarray:

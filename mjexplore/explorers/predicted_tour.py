@@ -1,0 +1,141 @@
+"""Predicted tour: ``pocket_nearest``, departing from its choice when the oracle's planner,
+run on a *predicted* map, says another frontier saves more than ``margin_m``.
+
+At each decision the partial map's unknown cells are filled from a prediction
+(:class:`PredictedMapPlanner`): free where the predicted free probability is at least
+``free_above``, a wall where it is at most ``occupied_below``, unknown where the prediction
+is uncertain in between. The oracle's coverage planner
+(:class:`~mjexplore.explorers.map_planner.PlanningMapOracle`) plans a tour of viewpoints
+that see the predicted map's cells still unknown, and scores each valid TER frontier node
+by the path to it plus the tour that is left after it
+(:meth:`~mjexplore.explorers.oracle.OracleExplorer.expert_lookahead`); the robot keeps
+``pocket_nearest``'s node unless the best one is shorter by more than ``margin_m``. It
+drives on its own map, as every explorer does.
+
+The prediction's ``source``:
+
+* ``learned``: the map predictor (:mod:`mjexplore.mapping.prediction`, ``mjexplore
+  train-predictor``);
+* ``inpainting``: OpenCV's inpainting of the known map (the non-learned ablation);
+* ``truth``: the ground truth (privileged: what perfect prediction is worth; with a margin
+  of 0 it chooses as the oracle's lookahead does).
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from mjexplore.episode.explorer import ExplorationState
+from mjexplore.errors import UserInputError
+from mjexplore.explorers.map_planner import PlanningMapOracle
+from mjexplore.explorers.oracle import LOOKAHEAD_MARGIN
+from mjexplore.explorers.pocket_nearest import PocketNearest
+from mjexplore.maps import FREE, OCCUPIED
+
+SOURCES = ("learned", "inpainting", "truth")
+MAP_PREDICTOR = "models/map_predictor/predictor.safetensors"
+
+
+class PredictedMapPlanner(PlanningMapOracle):
+    """The oracle's planner on the robot's map with its unknown cells predicted.
+
+    Args:
+        source: ``learned``, ``inpainting`` or ``truth`` (see the module docstring).
+        predictor: The learned predictor's weights file (a relative path is looked up from
+            the working directory, then from the repository root).
+        free_above: Least free probability of a cell planned as free.
+        occupied_below: Greatest free probability of a cell planned as a wall.
+        **kwargs: :class:`~mjexplore.explorers.oracle.OracleExplorer`'s settings.
+
+    Raises:
+        UserInputError: an unknown source, or a learned predictor that cannot be loaded.
+    """
+
+    def __init__(self, source: str = "learned", predictor: str | os.PathLike = MAP_PREDICTOR,
+                 free_above: float = 0.7, occupied_below: float = 0.3, **kwargs) -> None:
+        if source not in SOURCES:
+            raise UserInputError(f"prediction source {source!r} is unknown: use one of "
+                                 f"{', '.join(SOURCES)}.")
+        if not 0 <= occupied_below < free_above <= 1:
+            raise ValueError("need 0 <= occupied_below < free_above <= 1")
+        super().__init__(**kwargs)
+        self.source = source
+        self.free_above, self.occupied_below = free_above, occupied_below
+        self.predictor = None
+        if source == "learned":
+            from mjexplore.mapping.prediction import map_predictor
+
+            self.predictor = map_predictor(predictor)
+
+    def free_probability(self, state: ExplorationState) -> np.ndarray:
+        """(rows, cols) float32 predicted free probability of every cell of the map (the
+        coarse prediction spread over its blocks)."""
+        from mjexplore.mapping.prediction import block_size, coarse_channels, inpainted
+
+        grid = state.grid
+        channels = coarse_channels(grid)
+        coarse = self.predictor(channels) if self.predictor is not None else inpainted(channels)
+        k = block_size(grid)
+        return np.repeat(np.repeat(coarse, k, 0), k, 1)[:grid.shape[0], :grid.shape[1]]
+
+    def planning_data(self, state: ExplorationState) -> np.ndarray:
+        data = state.grid.data.copy()
+        unknown = data < 0
+        if self.source == "truth":
+            if state.ground_truth is None:
+                raise ValueError("predicted_tour on the truth needs the ground truth")
+            data[unknown] = state.ground_truth.data[unknown]
+            return data
+        p = self.free_probability(state)
+        data[unknown & (p >= self.free_above)] = FREE
+        data[unknown & (p <= self.occupied_below)] = OCCUPIED
+        return data
+
+
+class PredictedTour(PocketNearest):
+    """``pocket_nearest``'s node unless the tour on the predicted map saves more than
+    ``margin_m`` with another (see the module docstring).
+
+    Args:
+        margin_m: Metres of path plus tour the best node must save over pocket_nearest's.
+        source: The prediction: ``learned``, ``inpainting`` or ``truth``.
+        predictor: The learned predictor's weights file.
+        free_above: Least free probability of a cell planned as free.
+        occupied_below: Greatest free probability of a cell planned as a wall.
+        **kwargs: :class:`~mjexplore.explorers.pocket_nearest.PocketNearest`'s settings.
+    """
+
+    def __init__(self, margin_m: float = 5.0, source: str = "learned",
+                 predictor: str | os.PathLike = MAP_PREDICTOR, free_above: float = 0.7,
+                 occupied_below: float = 0.3, **kwargs) -> None:
+        if margin_m < 0:
+            raise ValueError("margin_m must be >= 0 (metres)")
+        self.margin_m = float(margin_m)
+        # The lookahead's margin: its plan covers a little more than the target, so that it
+        # does not send the robot back and forth for the last cells (see the oracle).
+        self.planner = PredictedMapPlanner(source, predictor, free_above, occupied_below,
+                                           margin=LOOKAHEAD_MARGIN)
+        super().__init__(**kwargs)
+        self.name = "predicted_tour" if source == "learned" else f"predicted_tour_{source}"
+        self.departures = 0
+
+    def reset(self, rng: np.random.Generator) -> None:
+        super().reset(rng)
+        self.planner.reset(rng)
+        self.departures = 0
+
+    def select_goal(self, state: ExplorationState) -> np.ndarray | None:
+        goal = super().select_goal(state)
+        if goal is None:
+            return None
+        valid = np.flatnonzero(self.mask)
+        prior = int(np.argmin(self.cost))
+        candidates = self.padded.node_positions[valid].astype(float)
+        pick = self.planner.expert_lookahead(state, candidates, baseline=int(
+            np.flatnonzero(valid == prior)[0]), gain_m=self.margin_m)
+        if pick < 0 or valid[pick] == prior:
+            return goal
+        self.departures += 1
+        return candidates[pick].copy()

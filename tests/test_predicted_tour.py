@@ -1,0 +1,109 @@
+"""predicted_tour: pocket_nearest departing when the oracle's tour on a predicted map saves
+more than a margin. On the truth with no margin it chooses as the oracle's lookahead; with
+an endless margin as pocket_nearest; its planning map is the robot's map with the unknown
+cells filled from the prediction where it is confident."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from mjexplore.episode import Episode, EpisodeConfig
+from mjexplore.errors import UserInputError
+from mjexplore.explorers import make_explorer
+from mjexplore.explorers.oracle import lookahead_expert
+from mjexplore.explorers.pocket_nearest import PocketNearest
+from mjexplore.explorers.predicted_tour import PredictedMapPlanner, PredictedTour
+from mjexplore.mapping.prediction import MapPredictorNet, save_map_predictor
+from mjexplore.maps import FREE, OCCUPIED, UNKNOWN
+from mjexplore.scenes.canonical import resolve_scene
+from mjexplore.sim.simulator import SimConfig
+
+GRID = EpisodeConfig(max_time=600.0, sim=SimConfig(dynamics="grid"))
+
+
+class _Ask:
+    """Drives with a predicted tour; at each decision asks the oracle's lookahead and
+    pocket_nearest on the same state and candidates."""
+
+    name = "ask"
+
+    def __init__(self, tour: PredictedTour) -> None:
+        self.tour, self.oracle, self.prior = tour, lookahead_expert(), PocketNearest()
+        self.rows: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+
+    def reset(self, rng: np.random.Generator) -> None:
+        for e in (self.tour, self.oracle, self.prior):
+            e.reset(rng)
+
+    def select_goal(self, state):
+        goal = self.tour.select_goal(state)
+        if goal is None:
+            return None
+        t = self.tour
+        valid = np.flatnonzero(t.mask)
+        candidates = t.padded.node_positions[valid].astype(float)
+        baseline = int(np.flatnonzero(valid == int(np.argmin(t.cost)))[0])
+        oracle = self.oracle.expert_lookahead(state, candidates, baseline=baseline, gain_m=0.0)
+        self.rows.append((goal, candidates[oracle], self.prior.select_goal(state)))
+        return goal
+
+
+@pytest.mark.parametrize("scene", ["train_loop", "train_rooms"])
+def test_on_the_truth_without_margin_it_chooses_as_the_oracles_lookahead(scene):
+    ask = _Ask(PredictedTour(margin_m=0.0, source="truth"))
+    metrics = Episode(resolve_scene(scene), ask, 0, GRID).run().metrics
+    assert metrics["end_reason"] == "explored" and len(ask.rows) >= 5
+    for i, (goal, oracle, _) in enumerate(ask.rows):
+        np.testing.assert_allclose(goal, oracle, err_msg=f"decision {i}")
+    assert ask.tour.departures > 0  # It did depart from pocket_nearest.
+    assert any(not np.allclose(goal, prior) for goal, _, prior in ask.rows)
+
+
+def test_with_an_endless_margin_it_keeps_pocket_nearests_node():
+    ask = _Ask(PredictedTour(margin_m=1e9, source="inpainting"))
+    Episode(resolve_scene("train_rooms"), ask, 0, GRID).run()
+    assert ask.rows and ask.tour.departures == 0
+    for goal, _, prior in ask.rows:
+        np.testing.assert_allclose(goal, prior)
+
+
+def test_the_planning_map_fills_the_confident_unknown_cells(tmp_path):
+    torch.manual_seed(0)
+    save_map_predictor(tmp_path / "p.safetensors", MapPredictorNet(width=4))
+    states = []
+
+    class _Keep:
+        name = "keep"
+
+        def reset(self, rng):
+            self.nearest = make_explorer("nearest")
+
+        def select_goal(self, state):
+            states.append(state)
+            return self.nearest.select_goal(state)
+
+    Episode(resolve_scene("train_loop"), _Keep(), 0,
+            EpisodeConfig(max_time=20.0, sim=SimConfig(dynamics="grid"))).run()
+    state = states[-1]
+    known = state.grid.data >= 0
+    unknown = ~known
+    p = PredictedMapPlanner("learned", tmp_path / "p.safetensors").free_probability(state)
+    assert p.shape == state.grid.shape
+    low, high = np.quantile(p[unknown], [0.3, 0.7])  # The untrained net's middle.
+    assert low < high
+    planner = PredictedMapPlanner("learned", tmp_path / "p.safetensors", free_above=high,
+                                  occupied_below=low)
+    data = planner.planning_data(state)
+    np.testing.assert_array_equal(data[known], state.grid.data[known])
+    for cells, value in ((p >= high, FREE), (p <= low, OCCUPIED),
+                         ((p > low) & (p < high), UNKNOWN)):
+        assert (unknown & cells).any() and (data[unknown & cells] == value).all()
+
+
+def test_a_missing_predictor_says_how_to_make_one(tmp_path):
+    with pytest.raises(UserInputError, match="train-predictor"):
+        PredictedTour(predictor=tmp_path / "none.safetensors")
+    with pytest.raises(UserInputError, match="source"):
+        PredictedTour(source="crystal_ball")
