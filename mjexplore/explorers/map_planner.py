@@ -91,14 +91,16 @@ class PlanningMapOracle(OracleExplorer):
         self.current = (None if self.current is None
                         else index.get(tuple(self._cells[self.current])))
         self._cells = cells
-        self.set_views(plan_map, cells, observable, self._views_of(plan_map, cells, observable,
+        self.set_views(plan_map, cells, observable, self._views_of(plan_map, cells, need,
                                                                    state.sensor_range), need)
 
-    def _views_of(self, plan_map: GridMap, cells: np.ndarray, observable: np.ndarray,
+    def _views_of(self, plan_map: GridMap, cells: np.ndarray, need: np.ndarray,
                   sensor_range: float) -> list[np.ndarray]:
-        """What each viewpoint sees of the observable cells: kept from earlier decisions for
+        """What each viewpoint sees of the cells to see: kept from earlier decisions for
         the viewpoints farther than the lidar's range from every cell of the planning map
-        that changed since, cast again for the others."""
+        that changed since, cast again for the others. A kept list may hold cells mapped
+        since (:meth:`set_views` cuts them); it misses none still to see, as the cells to
+        see change only where the planning map does, or by being mapped."""
         if self._cast_on is None or self._cast_on.shape != plan_map.shape:
             self._view_cache, self._cast_on = {}, plan_map.data.copy()
         changed = plan_map.data != self._cast_on
@@ -110,7 +112,7 @@ class PlanningMapOracle(OracleExplorer):
         keys = [tuple(c) for c in cells]
         todo = [i for i, key in enumerate(keys) if key not in self._view_cache]
         if todo:
-            cast = self.cast_views(plan_map, cells[todo], observable, sensor_range)
+            cast = self.cast_views(plan_map, cells[todo], need, sensor_range)
             self._view_cache.update(zip((keys[i] for i in todo), cast))
         return [self._view_cache[key] for key in keys]
 
