@@ -52,7 +52,7 @@ class _Ask:
 
 @pytest.mark.parametrize("scene", ["train_loop", "train_rooms"])
 def test_on_the_truth_without_margin_it_chooses_as_the_oracles_lookahead(scene):
-    ask = _Ask(PredictedTour(margin_m=0.0, source="truth"))
+    ask = _Ask(PredictedTour(margin_m=0.0, source="truth", resolution=None))
     metrics = Episode(resolve_scene(scene), ask, 0, GRID).run().metrics
     assert metrics["end_reason"] == "explored" and len(ask.rows) >= 5
     for i, (goal, oracle, _) in enumerate(ask.rows):

@@ -2,14 +2,18 @@
 
 Each explorer explores the office (kinematic mode, seed 0) for ``--seconds`` simulated
 seconds while every call of its ``select_goal`` is timed on one core. Printed per explorer:
-``decision_ms_median`` and ``decision_ms_p99`` (milliseconds) and ``decision_vs_nearest``
-(its median over nearest-frontier's, measured in the same run). For the oracle also
+``decision_ms_median``, ``decision_ms_p95`` and ``decision_ms_p99`` (milliseconds) and
+``decision_vs_nearest`` (its median over nearest-frontier's, measured in the same run). For
+an explorer that predicts the map (``predicted_tour``) also ``prediction_ms_median`` and
+``_p95``: the prediction alone (coarse channels, the network, spreading it over the map).
+For the oracle also
 ``oracle_initial_plan_s`` (candidate views, path graph and the first tour: what its first
 decision costs) and ``oracle_resolve_ms_median`` / ``_p99`` (the later decisions: the
 re-solve of cover and tour).
 
 Bounds (issue 15): oracle_initial_plan_s <= 5, oracle re-solve <= 200 ms, frontier_tsp's
-median <= 100 ms.
+median <= 100 ms; (issue 49) prediction <= 30 ms, a prediction-using decision's p95 <= 250
+ms.
 
 Usage: python tools/bench_explorers.py [--seconds 300] [--explorers nearest,...]
 """
@@ -36,22 +40,31 @@ from mjexplore.sim.simulator import SimConfig  # noqa: E402
 EXPLORERS = "nearest,explore_lite,frontier_tsp,rrt,potential,oracle,gvn,cnn"
 
 
-def decision_times(scene, name: str, seconds: float) -> list[float]:
-    """Wall-clock seconds of each ``select_goal`` call while exploring."""
+def _timed(call, times: list[float]):
+    """``call`` that appends the wall-clock seconds of each call to ``times``."""
+
+    def timed(*args):
+        t0 = time.perf_counter()
+        out = call(*args)
+        times.append(time.perf_counter() - t0)
+        return out
+
+    return timed
+
+
+def decision_times(scene, name: str, seconds: float) -> tuple[list[float], list[float]]:
+    """Wall-clock seconds of each ``select_goal`` call while exploring, and of each map
+    prediction within them (none for an explorer that predicts nothing)."""
     explorer = make_explorer(name)
     times: list[float] = []
-    select = explorer.select_goal
-
-    def timed(state):
-        t0 = time.perf_counter()
-        goal = select(state)
-        times.append(time.perf_counter() - t0)
-        return goal
-
-    explorer.select_goal = timed
+    predictions: list[float] = []
+    explorer.select_goal = _timed(explorer.select_goal, times)
+    planner = getattr(explorer, "planner", None)
+    if planner is not None and hasattr(planner, "free_probability"):
+        planner.free_probability = _timed(planner.free_probability, predictions)
     config = EpisodeConfig(max_time=seconds, sim=SimConfig(dynamics="kinematic"))
     Episode(scene, explorer, 0, config).run()
-    return times
+    return times, predictions
 
 
 def main() -> None:
@@ -66,7 +79,12 @@ def main() -> None:
     out: dict[str, float | int | str] = {"scene": args.scene, "seconds": args.seconds}
     medians = {}
     for name in args.explorers.split(","):
-        times = np.asarray(decision_times(scene, name, args.seconds)) * 1e3
+        times, predictions = decision_times(scene, name, args.seconds)
+        times = np.asarray(times) * 1e3
+        if predictions:
+            predictions = np.asarray(predictions) * 1e3
+            out[f"{name}_prediction_ms_median"] = round(float(np.median(predictions)), 2)
+            out[f"{name}_prediction_ms_p95"] = round(float(np.percentile(predictions, 95)), 2)
         if name == "oracle" and len(times):
             out["oracle_initial_plan_s"] = round(float(times[0]) / 1e3, 3)
             later = times[1:] if len(times) > 1 else times
@@ -76,6 +94,7 @@ def main() -> None:
         medians[name] = float(np.median(times))
         out[f"{name}_decisions"] = int(len(times))
         out[f"{name}_decision_ms_median"] = round(medians[name], 2)
+        out[f"{name}_decision_ms_p95"] = round(float(np.percentile(times, 95)), 2)
         out[f"{name}_decision_ms_p99"] = round(float(np.percentile(times, 99)), 2)
     if "nearest" in medians:
         for name, median in medians.items():

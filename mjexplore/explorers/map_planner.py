@@ -28,7 +28,7 @@ import numpy as np
 from mjexplore.episode.explorer import ExplorationState
 from mjexplore.explorers.oracle import OracleExplorer
 from mjexplore.mapping.metrics import observable_ground_truth
-from mjexplore.maps import UNKNOWN, GridMap
+from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap, is_free, is_occupied
 from mjexplore.navigation.planner import Costmap, PlannerConfig
 from mjexplore.navigation.tour import CoarseGraph
 
@@ -41,12 +41,21 @@ def _distance_to(mask: np.ndarray) -> np.ndarray:
 
 class PlanningMapOracle(OracleExplorer):
     """The oracle's planner on a planning map made at each decision (see the module
-    docstring); subclasses define :meth:`planning_data`. The keyword arguments are
-    :class:`~mjexplore.explorers.oracle.OracleExplorer`'s.
+    docstring); subclasses define :meth:`planning_data`.
+
+    Args:
+        resolution: Cell side of the map planned on, metres (a whole multiple of the
+            robot's map's); None: the robot's map's. On coarser cells the views, the cover
+            and the paths cost far less (at 0.2 m against 0.05 m, lists 16 times shorter):
+            a coarse cell is a wall where at least a quarter of its cells are, free where
+            at least half are, unknown otherwise; it is still to see where at least half of
+            its cells are unmapped. Paths are searched on its cells (no coarser graph).
+        **kwargs: :class:`~mjexplore.explorers.oracle.OracleExplorer`'s settings.
     """
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, resolution: float | None = None, **kwargs) -> None:
         super().__init__(**kwargs)
+        self.resolution = resolution
         self._costmap: Costmap | None = None
 
     def planning_data(self, state: ExplorationState) -> np.ndarray:
@@ -59,29 +68,68 @@ class PlanningMapOracle(OracleExplorer):
         self._view_cache: dict[tuple[int, int], np.ndarray] = {}  # Lists by viewpoint cell.
         self._cast_on: np.ndarray | None = None  # The planning map they were cast on.
 
+    def _block(self, grid: GridMap) -> int:
+        """The robot's map's cells per planning cell along each axis."""
+        if self.resolution is None:
+            return 1
+        k = int(round(self.resolution / grid.resolution))
+        if k < 1 or abs(k * grid.resolution - self.resolution) > 1e-6:
+            raise ValueError(f"planning resolution {self.resolution} m is not a whole "
+                             f"multiple of the map's {grid.resolution} m")
+        return k
+
+    def _shares(self, mask: np.ndarray, k: int) -> np.ndarray:
+        """Share of each k x k block of ``mask`` that is set (past the edge: unset)."""
+        rows, cols = mask.shape
+        padded = np.zeros((-(-rows // k) * k, -(-cols // k) * k), np.float32)
+        padded[:rows, :cols] = mask
+        return padded.reshape(padded.shape[0] // k, k, padded.shape[1] // k, k).mean((1, 3))
+
     def ground_truth_costmap(self, state: ExplorationState) -> Costmap:
         """The costmap of the planning map: all unknown until the first decision, then
         updated in place at each (what :class:`HorizonOracle` drives on)."""
         grid = state.ground_truth if state.ground_truth is not None else state.grid
-        self._plan = GridMap(np.full(grid.shape, UNKNOWN, np.int8), grid.resolution,
+        k = self._block(grid)
+        shape = (-(-grid.shape[0] // k), -(-grid.shape[1] // k))
+        self._plan = GridMap(np.full(shape, UNKNOWN, np.int8), grid.resolution * k,
                              grid.origin)
-        self._dist2 = np.zeros(grid.shape, np.float32)
+        self._dist2 = np.zeros(shape, np.float32)
         self._costmap = Costmap(self._plan, self._dist2, PlannerConfig())
         return self._costmap
+
+    def unknown_cells(self, state: ExplorationState) -> np.ndarray:
+        k = self._block(state.grid)
+        if k == 1:
+            return super().unknown_cells(state)
+        return (self._shares(state.grid.data < 0, k) >= 0.5).reshape(-1)
+
+    def _planning_map(self, state: ExplorationState) -> np.ndarray:
+        """:meth:`planning_data` on the planning cells."""
+        data = self.planning_data(state)
+        k = self._block(state.grid)
+        if k == 1:
+            return data
+        out = np.full(self._plan.shape, UNKNOWN, np.int8)
+        out[self._shares(is_free(data), k) >= 0.5] = FREE
+        out[self._shares(is_occupied(data), k) >= 0.25] = OCCUPIED
+        return out
 
     def prepare(self, state: ExplorationState) -> None:
         """This decision's planning map, its costmap and path graph, viewpoints and views;
         the previous plan is carried over where its viewpoints are still candidates."""
-        if self._costmap is None or self._plan.shape != state.grid.shape:
+        k = self._block(state.grid)
+        if (self._costmap is None or self._plan.resolution != state.grid.resolution * k
+                or self._plan.shape != (-(-state.grid.shape[0] // k),
+                                        -(-state.grid.shape[1] // k))):
             self.ground_truth_costmap(state)
         plan_map = self._plan
-        plan_map.data[...] = self.planning_data(state)
+        plan_map.data[...] = self._planning_map(state)
         # Squared distances in cells are integers: rounded, they are the GVD's exactly.
         self._dist2[...] = np.rint(_distance_to(~plan_map.free) ** 2)
         self._costmap.update(None)
-        self.graph = CoarseGraph(plan_map, self._costmap.traversable)
+        self.graph = CoarseGraph(plan_map, self._costmap.traversable, max(1, 4 // k))
         observable = observable_ground_truth(plan_map).known.reshape(-1)
-        need = observable & (state.grid.data.reshape(-1) < 0)
+        need = observable & self.unknown_cells(state)
         near = (_distance_to(need.reshape(plan_map.shape)) * plan_map.resolution
                 <= state.sensor_range)
         cells = np.argwhere(self.viewpoint_cells(self._costmap, state.pose) & near)

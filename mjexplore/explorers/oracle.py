@@ -361,8 +361,7 @@ class OracleExplorer:
         known, the lists are cut down to the unknown ones: later passes over them are shorter.
         """
         views = self.views
-        unknown = state.grid.data.reshape(-1) < 0
-        need = views.observable & unknown
+        need = views.observable & self.unknown_cells(state)
         for cells, delta in ((self._needed & ~need, -1), (need & ~self._needed, 1)):
             _recount(self._viewer_ptr, self._viewer_idx, np.flatnonzero(cells), delta,
                      self._need_count)
@@ -373,6 +372,10 @@ class OracleExplorer:
             views.ptr, views.idx = _keep_needed(views.ptr, views.idx, need)
             self._listed = unseen
         return need, max(1, min(self.required(state, total, unseen), unseen))
+
+    def unknown_cells(self, state: ExplorationState) -> np.ndarray:
+        """(cells,) bool: the cells of the map planned on that the robot has not mapped."""
+        return state.grid.data.reshape(-1) < 0
 
     def required(self, state: ExplorationState, total: int, unseen: int) -> int:
         """How many of the ``unseen`` needed cells the plan must see: enough for the target
