@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import difflib
 import json
 import logging
 import os
@@ -576,13 +577,18 @@ def cmd_train_predictor(args: argparse.Namespace) -> int:
 def cmd_collect(args: argparse.Namespace) -> int:
     from mjexplore.eval.summaries import collect_sweep, merge_summaries, read_summary, write_summary
 
-    if not args.experiment.replace("_", "").isalnum():
-        raise UserInputError(f"--experiment {args.experiment!r}: use letters, digits and '_' "
-                             "(it names the summary file).")
+    from mjexplore.eval.report import EXPERIMENTS
+
+    known = [exp.name for exp in EXPERIMENTS]
+    if args.experiment not in known:
+        close = difflib.get_close_matches(args.experiment, known, n=1)
+        hint = f"did you mean {close[0]!r}? " if close else ""
+        raise UserInputError(f"--experiment {args.experiment!r} is not an experiment of the "
+                             f"report: {hint}use one of {', '.join(known)}.")
     check_output_folder(args.data, "--data")
     if args.stills is not None:
         check_output_folder(args.figures, "--figures")
-    summary = collect_sweep(args.sweep, args.experiment, command=args.command,
+    summary = collect_sweep(args.sweep, args.experiment, command=args.sweep_command,
                             kinematics_series=args.kinematics, reference=args.reference,
                             stills=args.stills, media_dir=args.figures)
     path = args.data / f"{args.experiment}.json"
@@ -979,7 +985,7 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("--experiment", required=True, help="summary name (e.g. table1)")
     co.add_argument("--data", type=Path, default=Path("docs/results/data"),
                     help="summaries folder")
-    co.add_argument("--command", default=None,
+    co.add_argument("--command", dest="sweep_command", default=None,
                     help="the sweep's command (default: the one recorded in sweep.json)")
     co.add_argument("--kinematics", action="store_true",
                     help="also keep velocity and acceleration over time (Fig. 9)")

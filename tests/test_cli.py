@@ -135,6 +135,12 @@ BAD = {
                                       str(p / "o")],
     "collect bad experiment name": lambda p: ["collect", str(p), "--experiment", "../t1",
                                               "--data", str(p / "o")],
+    "collect unknown experiment": lambda p: ["collect", str(p), "--experiment", "tabel1",
+                                             "--data", str(p / "o")],
+    "explore a model as explorer": lambda p: ["explore", "--explorer", "gvn_paper", "--out",
+                                              str(p / "o")],
+    "explore a team method alone": lambda p: ["explore", "--explorer", "assign_greedy",
+                                              "--out", str(p / "o")],
     "report no data": lambda p: ["report", "--data", str(p / "none"), "--out",
                                  str(p / "o" / "r.md")],
     "report damaged summary": lambda p: ["report", "--data",
@@ -297,3 +303,21 @@ def test_bench_writes_tables_and_resumes(tmp_path):
     stamp = done.stat().st_mtime_ns
     assert main(args) == 0  # Finished episodes are skipped, not run again.
     assert done.stat().st_mtime_ns == stamp
+
+
+@pytest.mark.parametrize(("argv", "says"), [
+    (["collect", "{p}", "--experiment", "tabel1", "--data", "{p}/o"],
+     ["mjexplore collect: error:", "did you mean 'table1'"]),
+    (["collect", "{p}/none", "--experiment", "table1", "--command", "x", "--data", "{p}/o"],
+     ["mjexplore collect: error:"]),
+    (["explore", "--explorer", "gvn_paper", "--out", "{p}/o"],
+     ["--explorer gvn --policy gvn_paper", "gvn:gvn_paper"]),
+    (["explore", "--explorer", "assign_greedy", "--out", "{p}/o"], ["add --robots 2"]),
+])
+def test_errors_name_the_command_and_the_fix(tmp_path, capsys, argv, says):
+    assert main([a.format(p=tmp_path) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "None" not in err, err
+    for text in says:
+        assert text in err, err
+    assert not (tmp_path / "o").exists()

@@ -130,6 +130,14 @@ def parse_method(spec: str) -> MethodSpec:
     if method in METHODS:
         raise UserInputError(f"{text!r}: only the learned methods ({', '.join(LEARNED)}) take a "
                              "policy (METHOD:POLICY).")
+    if text in shipped_models():
+        kind = shipped_models()[text].kind
+        raise UserInputError(f"{text!r} is a model, not an explorer: run it with --explorer "
+                             f"{kind} --policy {text} (in bench --explorers: {kind}:{text}).")
+    from mjexplore.explorers.team import TEAM_METHODS
+
+    if text in TEAM_METHODS:
+        raise UserInputError(f"{text!r} is a team method: add --robots 2 (or more).")
     raise UserInputError(f"unknown explorer {text!r}: use one of {', '.join(METHODS)}, "
                          "METHOD:POLICY for a learned one, or a shipped model's run label "
                          "('mjexplore policies' lists them).")

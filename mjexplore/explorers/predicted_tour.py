@@ -122,8 +122,11 @@ class PredictedTour(PocketNearest):
         self.margin_m = float(margin_m)
         # The lookahead's margin: its plan covers a little more than the target, so that it
         # does not send the robot back and forth for the last cells (see the oracle).
+        # On 0.2 m cells 360 rays reach every cell within the lidar's 6 m (0.1 m apart there).
+        rays = 720 if resolution is None else 360
         self.planner = PredictedMapPlanner(source, predictor, free_above, occupied_below,
-                                           resolution=resolution, margin=LOOKAHEAD_MARGIN)
+                                           resolution=resolution, margin=LOOKAHEAD_MARGIN,
+                                           rays=rays)
         super().__init__(**kwargs)
         self.name = "predicted_tour" if source == "learned" else f"predicted_tour_{source}"
         self.departures = 0
