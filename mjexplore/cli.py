@@ -575,9 +575,8 @@ def cmd_train_predictor(args: argparse.Namespace) -> int:
 
 
 def cmd_collect(args: argparse.Namespace) -> int:
-    from mjexplore.eval.summaries import collect_sweep, merge_summaries, read_summary, write_summary
-
     from mjexplore.eval.report import EXPERIMENTS
+    from mjexplore.eval.summaries import collect_sweep, merge_summaries, read_summary, write_summary
 
     known = [exp.name for exp in EXPERIMENTS]
     if args.experiment not in known:
