@@ -668,10 +668,18 @@ def _add_lidar_model_arg(p: argparse.ArgumentParser) -> None:
                         "noise, dropouts, motion skew)")
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line that points at ``--help`` (argparse
+    prints its usage block first)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {_one_line(message)} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from mjexplore.eval.methods import METHODS
 
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="mjexplore",
         description="MuJoCo simulator and learning stack for lidar-based exploration.")
     parser.add_argument("-v", "--verbose", action="store_true", help="log more")

@@ -321,3 +321,13 @@ def test_errors_name_the_command_and_the_fix(tmp_path, capsys, argv, says):
     for text in says:
         assert text in err, err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("argv", [["explore", "--seed", "x"], ["bench", "--nope"],
+                                  ["explore", "--explorer"], ["no-such-command"], []])
+def test_argument_errors_are_one_line_that_points_at_help(capsys, argv):
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "usage:" not in err and "--help)" in err, err
