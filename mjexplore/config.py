@@ -74,7 +74,8 @@ def from_dict(cls: type[T], data: Any, where: str = "config") -> T:
         UserInputError: unknown key, wrong type, or a value the dataclass rejects.
     """
     if data is None:
-        data = {}
+        raise UserInputError(f"config {str(path)!r} is empty: give the settings (see "
+                             "training/gvn_v3.yaml), or 'extends: FILE' to start from another.")
     if not isinstance(data, dict):
         raise UserInputError(f"{where}: expected a mapping of keys to values, got {data!r}.")
     hints = typing.get_type_hints(cls)
@@ -132,7 +133,8 @@ def _read_layers(path: Path, chain: tuple[Path, ...] = ()) -> list[tuple[str, di
     except yaml.YAMLError as exc:
         raise UserInputError(f"config {str(path)!r} is not valid YAML: {exc}") from None
     if data is None:
-        data = {}
+        raise UserInputError(f"config {str(path)!r} is empty: give the settings (see "
+                             "training/gvn_v3.yaml), or 'extends: FILE' to start from another.")
     if not isinstance(data, dict):
         raise UserInputError(f"{path.name}: expected a mapping of keys to values, got {data!r}.")
     if EXTENDS not in data:

@@ -331,3 +331,12 @@ def test_argument_errors_are_one_line_that_points_at_help(capsys, argv):
     assert exit_.value.code == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "usage:" not in err and "--help)" in err, err
+
+
+def test_an_empty_config_is_refused_not_trained_on_defaults(tmp_path, capsys):
+    (tmp_path / "empty.yaml").write_text("# nothing but a comment\n")
+    assert main(["train", "--config", str(tmp_path / "empty.yaml"), "--out",
+                 str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert "is empty" in err and err.count("\n") == 1
+    assert not (tmp_path / "run").exists()
