@@ -74,8 +74,7 @@ def from_dict(cls: type[T], data: Any, where: str = "config") -> T:
         UserInputError: unknown key, wrong type, or a value the dataclass rejects.
     """
     if data is None:
-        raise UserInputError(f"config {str(path)!r} is empty: give the settings (see "
-                             "training/gvn_v3.yaml), or 'extends: FILE' to start from another.")
+        data = {}
     if not isinstance(data, dict):
         raise UserInputError(f"{where}: expected a mapping of keys to values, got {data!r}.")
     hints = typing.get_type_hints(cls)

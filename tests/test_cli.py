@@ -2,6 +2,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -339,4 +340,15 @@ def test_an_empty_config_is_refused_not_trained_on_defaults(tmp_path, capsys):
                  str(tmp_path / "run")]) == 2
     err = capsys.readouterr().err
     assert "is empty" in err and err.count("\n") == 1
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_misspelt_family_is_named_before_anything_is_written(tmp_path, capsys):
+    config = tmp_path / "typo.yaml"
+    config.write_text("extends: " + str(Path(__file__).resolve().parents[1] / "training"
+                                        / "gvn_v3.yaml") + "\n"
+                      "env:\n  procedural: {families: [offfice]}\n")
+    assert main(["train", "--config", str(config), "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert "offfice" in err and "widen" not in err and err.count("\n") == 1, err
     assert not (tmp_path / "run").exists()

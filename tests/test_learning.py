@@ -477,14 +477,18 @@ def test_train_config_round_trip_and_errors(tmp_path):
 
 def test_every_shipped_recipe_loads():
     from mjexplore.learning.pocket_training import PocketTrainingConfig, load_pocket_config
+    from mjexplore.learning.predictor_training import (
+        PredictorTrainingConfig,
+        load_predictor_config,
+    )
 
+    loaders = {"pockets.yaml": (load_pocket_config, PocketTrainingConfig),
+               "predictor.yaml": (load_predictor_config, PredictorTrainingConfig)}
     recipes = sorted((REPO / "training").glob("*.yaml"))
-    assert len(recipes) >= 20
+    assert len(recipes) >= 21
     for path in recipes:
-        config = (load_pocket_config(path) if path.name == "pockets.yaml"
-                  else load_train_config(path))
-        assert isinstance(config, PocketTrainingConfig if path.name == "pockets.yaml"
-                          else TrainConfig), path.name
+        load, kind = loaders.get(path.name, (load_train_config, TrainConfig))
+        assert isinstance(load(path), kind), path.name
 
 
 def test_a_recipe_extends_another_key_by_key(tmp_path):

@@ -121,6 +121,14 @@ class ProceduralScenes:
     height: tuple[float, float] = (10.0, 20.0)
     cache_dir: str | None = None
 
+    def __post_init__(self) -> None:
+        from mjexplore.scenes.generators import parse_family
+
+        if not self.families:
+            raise UserInputError("procedural.families must name at least one family.")
+        for family in self.families:
+            parse_family(family)  # An unknown family: its own error, not "widen the sizes".
+
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class EnvConfig:
