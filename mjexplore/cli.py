@@ -986,7 +986,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "curves every 2 s, kinematic statistics) in DATA/EXPERIMENT.json, small "
                     "enough to commit. Experiments the report knows: table1, gvn_v2, gvn_v3, "
                     "ablation, ablation_v2, ablation_v3, lobby_real, realistic, realistic_truth, "
-                    "realistic_odometry, realistic_imu, explore_bench, ariadne, teams, "
+                    "realistic_odometry, realistic_imu, explore_bench, ladder, ariadne, teams, "
                     "teams_explore_bench. The last two summarise team sweeps (bench --robots).")
     co.add_argument("sweep", type=Path, help="the sweep's --out folder")
     co.add_argument("--experiment", required=True, help="summary name (e.g. table1)")

@@ -290,3 +290,20 @@ def test_the_report_names_each_experiments_revision_and_checks_runs_repeated_at_
     assert "| table1 | 3 | `aaaaaaa` |" in text and "| realistic | 1 | `ccccccc` |" in text
     assert "table1 (`aaaaaaa`) and gvn_v3 (`bbbbbbb`) share 2 runs: 1 of them identical" in text
     assert "realistic (" not in text
+
+
+def test_the_ladder_reads_each_method_against_pocket_nearest_per_seed():
+    from mjexplore.eval.report import EXPERIMENTS, ladder_lines
+
+    def runs(times):
+        return [{"seed": k, "metrics": {"exploration_time_s": t}} for k, t in enumerate(times)]
+
+    groups = {"maze": {"pocket_nearest": runs([100, 200]), "oracle": runs([50, 100])},
+              "office": {"pocket_nearest": runs([400, 400]), "oracle": runs([300, 500]),
+                         "oracle_5m": runs([400])}}
+    text = "\n".join(ladder_lines(groups))
+    oracle = next(line for line in text.splitlines() if line.startswith("| oracle"))
+    # maze 0.5, office (0.75 + 1.25) / 2 = 1.0; their mean 0.75; faster on 3 of 4 seeds.
+    assert "| 0.500 | 1.000 | 0.750 |" in oracle and "| 3 / 1 |" in oracle
+    assert "oracle_5m" not in text  # It did not run on every scene.
+    assert any(e.name == "ladder" and ladder_lines in e.sections for e in EXPERIMENTS)

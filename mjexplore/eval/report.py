@@ -12,6 +12,7 @@ import dataclasses
 import json
 import os
 import types
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -27,10 +28,11 @@ from mjexplore.eval.team_report import team_section
 from mjexplore.eval.training_record import training_section
 from mjexplore.io.atomic import write_text_atomic
 
-METHOD_ORDER = ("nearest", "pocket_nearest", "explore_lite", "frontier_tsp", "rrt", "potential",
+METHOD_ORDER = ("nearest", "pocket_nearest", "pocket_truth", "distance_advantage",
+                "pocket_advantage", "explore_lite", "frontier_tsp", "rrt", "potential",
                 "cnn", "cnn_v2", "gvn_none", "gvn_naive", "gvn_unmasked", "gvn", "gvn_v2_none",
                 "gvn_v2_naive", "gvn_v2_unmasked", "gvn_v2", "gvn_v3_none", "gvn_v3_naive",
-                "gvn_v3_unmasked", "gvn_v3", "oracle")
+                "gvn_v3_unmasked", "gvn_v3", "oracle_2m", "oracle_5m", "oracle_10m", "oracle")
 # The paper's claim (Sec. "Comparison with baselines"): gvn is faster than the potential field
 # by this range of percentages to the given exploration ratio.
 PAPER_SPEEDUP = {"t80_s": (7.0, 11.1), "t985_s": (4.0, 16.2)}
@@ -60,6 +62,8 @@ class Experiment:
         methods: The explorers it compares, in the report's order.
         sweep: The sweep that makes it (then ``mjexplore collect`` of its folder), with
             ``{explorers}`` where the comma-joined methods go.
+        sections: Lines the experiment adds after its table, each from the runs grouped by
+            scene and method.
     """
 
     name: str
@@ -67,11 +71,47 @@ class Experiment:
     about: str
     methods: tuple[str, ...]
     sweep: str
+    sections: tuple[Callable[[dict], list[str]], ...] = ()
 
     @property
     def command(self) -> str:
         """The sweep's command line."""
         return self.sweep.format(explorers=",".join(self.methods))
+
+
+LADDER_BASELINE = "pocket_nearest"
+
+
+def ladder_lines(groups) -> list[str]:
+    """Each method against ``pocket_nearest`` paired per scene and seed: the mean of the
+    three scenes' mean ratios (Table 1's figure) and the pooled seeds' interval."""
+    rows = []
+    scenes = [s for s, methods in groups.items() if LADDER_BASELINE in methods]
+    for method in _ordered({m for s in scenes for m in groups[s]}):
+        ratios, pooled = [], ([], [])
+        for scene in scenes:
+            mine = {r["seed"]: r["metrics"]["exploration_time_s"]
+                    for r in groups[scene].get(method, [])}
+            base = {r["seed"]: r["metrics"]["exploration_time_s"]
+                    for r in groups[scene][LADDER_BASELINE]}
+            seeds = sorted(mine.keys() & base.keys())
+            if seeds:
+                ratios.append(compare_paired([mine[k] for k in seeds],
+                                             [base[k] for k in seeds]).mean)
+                pooled[0].extend(mine[k] for k in seeds)
+                pooled[1].extend(base[k] for k in seeds)
+        if len(ratios) == len(scenes) and pooled[0]:
+            c = compare_paired(*pooled)
+            rows.append([METHOD_LABELS.get(method, method),
+                         *(f"{r:.3f}" for r in ratios), f"{np.mean(ratios):.3f}",
+                         f"{c.low:.3f}-{c.high:.3f}", f"{c.faster} / {c.slower}"])
+    if not rows:
+        return []
+    return [f"Each method's exploration time over {LADDER_BASELINE}'s, paired per seed: per "
+            "scene, their mean over the three scenes, and the interval and faster/slower "
+            "count of the pooled seeds:", "",
+            markdown_table(["method", *scenes, "mean", "95 % interval (pooled)",
+                            "faster / slower"], rows), ""]
 
 
 EVAL_SCENES = "loop_with_corridor,maze,office"
@@ -236,6 +276,19 @@ EXPERIMENTS = (
                f"mjexplore bench --scenes {EXPLORE_BENCH} --lidar-range 7 --robots 2 --starts "
                "close,far --explorers nearest,assign_greedy --seeds 3 --workers 1 "
                "--out runs/eb2; mjexplore collect runs/eb2 --experiment teams_explore_bench"),
+    Experiment("ladder", "The ladder of bounds: what knowing more of the layout is worth",
+               "Explorers that differ only in what they know, on Table 1's scenes in full "
+               "physics, 10 runs each: pocket_nearest (the learned pocket classifier on "
+               "nearest-frontier); pocket_truth, the same rule with the true pockets; "
+               "distance_advantage (Ericson et al. 2025) alone and on the pocket prior "
+               "(pocket_advantage); oracle_2m/5m/10m, the oracle's planner given the truth "
+               "within r of the mapped cells and driving on it; the oracle, given all of it "
+               "(docs/guide/prediction.md).",
+               ("nearest", "pocket_nearest", "pocket_truth", "distance_advantage",
+                "pocket_advantage", "oracle_2m", "oracle_5m", "oracle_10m", "oracle"),
+               f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 10 "
+               "--workers 2 --out runs/ladder",
+               sections=(ladder_lines,)),
     Experiment("ariadne", "Generalisation: the ARiADNE test maps",
                "ARiADNE's 100 test maps at 0.1 m per pixel (64 x 48 m) with an 8 m lidar, which "
                "no policy was trained on. Path lengths are set beside the greedy planner's, "
@@ -662,6 +715,8 @@ def build_report(data_dir: str | os.PathLike, out: str | os.PathLike,
                     f"{m} {', '.join(f'`{h}`' for h in hashes)}"
                     for m, hashes in stale.items()) + ".", ""]
         lines += _section(exp.name, summary, groups, figures, rel)
+        for section in exp.sections:
+            lines += section(groups)
         if exp.name == "realistic" and "table1" in summaries:
             lines += ["Beside the ideal setting (Table 1's runs: ideal lidar, ground-truth "
                       "pose):", "", _beside_ideal(groups, _groups(summaries["table1"])), ""]
