@@ -352,3 +352,28 @@ def test_a_misspelt_family_is_named_before_anything_is_written(tmp_path, capsys)
     err = capsys.readouterr().err
     assert "offfice" in err and "widen" not in err and err.count("\n") == 1, err
     assert not (tmp_path / "run").exists()
+
+
+def test_an_all_wall_map_and_a_text_file_as_weights_are_one_line(tmp_path, capsys):
+    import shutil
+
+    import cv2
+
+    from mjexplore.scenes.canonical import resolve_scene
+
+    scene = tmp_path / "black"
+    shutil.copytree(resolve_scene("train_loop").xml.parent, scene)
+    image = cv2.imread(str(scene / "map.pgm"), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(scene / "map.pgm"), np.zeros_like(image))
+    (tmp_path / "w.safetensors").write_text("not weights")
+    for argv, says in (
+            (["explore", "--scene", str(scene), "--out", str(tmp_path / "o")], "no free cell"),
+            (["bench", "--scenes", str(scene), "--explorers", "nearest", "--seeds", "1",
+              "--out", str(tmp_path / "o")], "no free cell"),
+            (["bench", "--scenes", "train_loop", "--explorers",
+              f"gvn:{tmp_path / 'w.safetensors'}", "--seeds", "1", "--out",
+              str(tmp_path / "o")], "not a readable safetensors file")):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert says in err and err.count("\n") == 1 and "Traceback" not in err, err
+        assert not (tmp_path / "o").exists()

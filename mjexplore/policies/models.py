@@ -54,12 +54,12 @@ class Model:
 
 def weights_metadata(path: str | os.PathLike) -> dict[str, str]:
     """The safetensors metadata of a weights file, read from its header alone."""
-    from safetensors import safe_open
+    from safetensors import SafetensorError, safe_open
 
     try:
         with safe_open(str(path), "pt") as f:
             return f.metadata() or {}
-    except (OSError, ValueError, RuntimeError) as exc:
+    except (OSError, ValueError, RuntimeError, SafetensorError) as exc:
         raise UserInputError(f"{str(path)!r} is not a readable safetensors file ({exc}).") \
             from None
 

@@ -330,6 +330,10 @@ def load_scene_files(path: str | os.PathLike) -> SceneFiles:
                                  f"({meta if isinstance(meta, str) else 'not a JSON object'}): "
                                  "regenerate the scene with 'mjexplore scene-gen'.")
     grid = read_map(folder / "map.yaml") if (folder / "map.yaml").is_file() else None
+    if grid is not None and not grid.free.any():
+        raise UserInputError(f"the map of scene {str(folder)!r} has no free cell (map.pgm is "
+                             "all wall or unknown): regenerate the scene with 'mjexplore "
+                             "scene-gen', or fix map.pgm (free cells white).")
     if "start" in meta:
         start = tuple(float(v) for v in meta["start"])
     else:
