@@ -4,6 +4,7 @@ its weights file, and train-predictor end to end (collect, fit, resume, refuse).
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -25,6 +26,9 @@ from mjexplore.mapping.prediction import (
     unknown_cells,
 )
 from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
+
+REPO = Path(__file__).resolve().parents[1]
+SHIPPED = REPO / "models" / "map_predictor" / "predictor.safetensors"
 
 
 def _corridor() -> tuple[GridMap, GridMap]:
@@ -127,3 +131,61 @@ def test_train_predictor_collects_fits_resumes_and_refuses(tmp_path):
                  "--epochs", "2", "--workers", "1", "--no-progress"]) == 2
     assert all(torch.equal(load_file(out / "predictor.safetensors")[k], v)
                for k, v in weights.items())
+
+
+def _held_out_maps() -> list[tuple[np.ndarray, np.ndarray]]:
+    """Partial maps (coarse channels) and truths at the decisions of nearest-frontier on two
+    generated layouts with test generator seeds (apart from training and every choice)."""
+    from mjexplore.envs.exploration import TEST_SEED_BASE, heldout_scenes
+    from mjexplore.episode import Episode, EpisodeConfig
+    from mjexplore.episode.nearest import NearestFrontier
+    from mjexplore.learning.predictor_training import load_predictor_config
+    from mjexplore.scenes.scene import load_scene_files
+    from mjexplore.sim.simulator import SimConfig
+
+    proc = load_predictor_config(REPO / "training" / "predictor.yaml").env.procedural
+    maps = []
+
+    class _Keep(NearestFrontier):
+        def select_goal(self, state):
+            self.kept.append(coarse_channels(state.grid))
+            return super().select_goal(state)
+
+    for folder in heldout_scenes(proc, 2, base=TEST_SEED_BASE):
+        scene = load_scene_files(folder)
+        explorer = _Keep()
+        explorer.kept = []
+        Episode(scene, explorer, 0, EpisodeConfig(max_time=240.0,
+                                                  sim=SimConfig(dynamics="grid"))).run()
+        truth = coarse_truth(scene.ground_truth)
+        maps += [(channels, truth) for channels in explorer.kept[::2]]
+    return maps
+
+
+@pytest.mark.skipif(not SHIPPED.is_file(), reason="no shipped map predictor")
+def test_the_shipped_predictor_beats_inpainting_and_an_untrained_one_does_not():
+    maps = _held_out_maps()
+    assert len(maps) >= 10
+
+    def quality(predict):
+        return prediction_quality((predict(c), c, t) for c, t in maps)
+
+    shipped = quality(MapPredictor(SHIPPED))
+    inpainting = quality(inpainted)
+    torch.manual_seed(0)
+    untrained_net = MapPredictorNet().eval()
+
+    def untrained(channels):
+        from mjexplore.mapping.prediction import pad_to_depth
+
+        with torch.no_grad():
+            x = torch.from_numpy(pad_to_depth(channels))[None]
+            return torch.sigmoid(untrained_net(x))[0, :channels.shape[1],
+                                                   :channels.shape[2]].numpy()
+
+    random = quality(untrained)
+    for key in ("accuracy", "iou_free"):
+        assert shipped[key] > inpainting[key], (key, shipped, inpainting)
+    assert shipped["bce"] < min(inpainting["bce"], random["bce"]), (shipped, random)
+    assert not (random["accuracy"] > inpainting["accuracy"]
+                and random["iou_free"] > inpainting["iou_free"]), (random, inpainting)
