@@ -280,9 +280,16 @@ def quality_table(net, held: list[dict[str, np.ndarray]]) -> dict[str, dict[str,
     return table
 
 
+def steps_per_epoch(config: PredictorTrainingConfig, train: list[dict[str, np.ndarray]]
+                    ) -> int:
+    """Gradient steps in one pass over the training maps."""
+    return -(-sum(len(part["inputs"]) for part in train) // config.batch_size)
+
+
 def fit(config: PredictorTrainingConfig, train: list[dict[str, np.ndarray]],
         held: list[dict[str, np.ndarray]], out: Path, progress: Progress | None = None):
-    """Fits (or resumes fitting) the net; returns it and the per-epoch history."""
+    """Fits (or resumes fitting) the net; returns it and the per-epoch history.
+    ``progress`` counts the gradient steps."""
     import torch
     from torch.utils.tensorboard import SummaryWriter
 
@@ -303,9 +310,9 @@ def fit(config: PredictorTrainingConfig, train: list[dict[str, np.ndarray]],
         rng.bit_generator.state = json.loads(state["rng"])
         torch.set_rng_state(state["torch_rng"])
         history, start = json.loads(state["history"]), int(state["epoch"]) + 1
-        if progress is not None:
-            progress.update(start)
     samples = [(e, k) for e, part in enumerate(train) for k in range(len(part["inputs"]))]
+    if progress is not None:
+        progress.update(start * steps_per_epoch(config, train))
     with SummaryWriter(str(out / "tb")) as writer:
         for epoch in range(start, config.epochs):
             net.train()
@@ -321,6 +328,9 @@ def fit(config: PredictorTrainingConfig, train: list[dict[str, np.ndarray]],
                 loss.backward()
                 optimiser.step()
                 total, steps = total + loss.item(), steps + 1
+                if progress is not None:
+                    progress.update(detail=f"epoch {epoch + 1}, training BCE "
+                                           f"{total / steps:.3f}")
             figures = quality_table(net, held)["learned"]
             figures.update(epoch=epoch, train_bce=round(total / max(steps, 1), 4))
             history.append(figures)
@@ -334,7 +344,7 @@ def fit(config: PredictorTrainingConfig, train: list[dict[str, np.ndarray]],
             torch.save(state, tmp)
             tmp.replace(checkpoint)
             if progress is not None:
-                progress.update(detail=f"held-out IoU {figures['iou_free']:.3f}")
+                progress.detail(f"epoch {epoch + 1}, held-out IoU {figures['iou_free']:.3f}")
     return net, history
 
 
@@ -397,7 +407,8 @@ def train_predictor(config: PredictorTrainingConfig, out: str | Path, workers: i
         collect(config, out / "data", workers, shown)
     collected = time.perf_counter()
     train, held = load_shards(config, out / "data")
-    with Progress(config.epochs, "train-predictor", "epochs", enabled=progress,
+    with Progress(config.epochs * steps_per_epoch(config, train), "train-predictor", "steps",
+                  enabled=progress,
                   phase="fitting") as shown:
         net, history = fit(config, train, held, out, shown)
     quality = quality_table(net, held)
