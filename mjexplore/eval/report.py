@@ -83,34 +83,38 @@ LADDER_BASELINE = "pocket_nearest"
 
 
 def ladder_lines(groups) -> list[str]:
-    """Each method against ``pocket_nearest`` paired per scene and seed: the mean of the
-    three scenes' mean ratios (Table 1's figure) and the pooled seeds' interval."""
+    """Each method against ``pocket_nearest`` paired per scene and seed: the mean ratio per
+    scene ("-" where it did not run), the mean over the scenes it ran on, and the interval
+    and faster/slower count of those scenes' seeds pooled."""
     rows = []
     scenes = [s for s, methods in groups.items() if LADDER_BASELINE in methods]
     for method in _ordered({m for s in scenes for m in groups[s]}):
-        ratios, pooled = [], ([], [])
+        cells, ratios, pooled = [], [], ([], [])
         for scene in scenes:
             mine = {r["seed"]: r["metrics"]["exploration_time_s"]
                     for r in groups[scene].get(method, [])}
             base = {r["seed"]: r["metrics"]["exploration_time_s"]
                     for r in groups[scene][LADDER_BASELINE]}
             seeds = sorted(mine.keys() & base.keys())
-            if seeds:
-                ratios.append(compare_paired([mine[k] for k in seeds],
-                                             [base[k] for k in seeds]).mean)
-                pooled[0].extend(mine[k] for k in seeds)
-                pooled[1].extend(base[k] for k in seeds)
-        if len(ratios) == len(scenes) and pooled[0]:
+            if not seeds:
+                cells.append("-")
+                continue
+            ratios.append(compare_paired([mine[k] for k in seeds],
+                                         [base[k] for k in seeds]).mean)
+            cells.append(f"{ratios[-1]:.3f}")
+            pooled[0].extend(mine[k] for k in seeds)
+            pooled[1].extend(base[k] for k in seeds)
+        if ratios:
             c = compare_paired(*pooled)
-            rows.append([METHOD_LABELS.get(method, method),
-                         *(f"{r:.3f}" for r in ratios), f"{np.mean(ratios):.3f}",
-                         f"{c.low:.3f}-{c.high:.3f}", f"{c.faster} / {c.slower}"])
+            rows.append([METHOD_LABELS.get(method, method), *cells, str(len(ratios)),
+                         f"{np.mean(ratios):.3f}", f"{c.low:.3f}-{c.high:.3f}",
+                         f"{c.faster} / {c.slower}"])
     if not rows:
         return []
     return [f"Each method's exploration time over {LADDER_BASELINE}'s, paired per seed: per "
-            "scene, their mean over the three scenes, and the interval and faster/slower "
-            "count of the pooled seeds:", "",
-            markdown_table(["method", *scenes, "mean", "95 % interval (pooled)",
+            "scene ('-': not run yet), the mean over the scenes it ran on, and the interval "
+            "and faster/slower count of those scenes' seeds pooled:", "",
+            markdown_table(["method", *scenes, "scenes", "mean", "95 % interval (pooled)",
                             "faster / slower"], rows), ""]
 
 
