@@ -52,7 +52,7 @@ class _Ask:
 
 def test_on_the_truth_without_margin_it_chooses_as_the_oracles_lookahead():
     ask = _Ask(PredictedTour(margin_m=0.0, source="truth", resolution=None))
-    metrics = Episode(resolve_scene("train_rooms"), ask, 0, GRID).run().metrics
+    metrics = Episode(resolve_scene("train_loop"), ask, 0, GRID).run().metrics
     assert metrics["end_reason"] == "explored" and len(ask.rows) >= 5
     for i, (goal, oracle, _) in enumerate(ask.rows):
         np.testing.assert_allclose(goal, oracle, err_msg=f"decision {i}")
@@ -62,7 +62,7 @@ def test_on_the_truth_without_margin_it_chooses_as_the_oracles_lookahead():
 
 def test_with_an_endless_margin_it_keeps_pocket_nearests_node():
     ask = _Ask(PredictedTour(margin_m=1e9, source="inpainting"))
-    Episode(resolve_scene("train_rooms"), ask, 0, GRID).run()
+    Episode(resolve_scene("train_loop"), ask, 0, GRID).run()
     assert ask.rows and ask.tour.departures == 0
     for goal, _, prior in ask.rows:
         np.testing.assert_allclose(goal, prior)
