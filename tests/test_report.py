@@ -308,3 +308,16 @@ def test_the_ladder_reads_each_method_against_pocket_nearest_per_seed():
     partial = next(line for line in text.splitlines() if line.startswith("| oracle_5m |"))
     assert "| - | 1.000 | 1 | 1.000 |" in partial  # It ran on the office alone.
     assert any(e.name == "ladder" and ladder_lines in e.sections for e in EXPERIMENTS)
+
+
+def test_collect_leaves_out_an_episode_cut_off_by_ctrl_c(sweep, tmp_path):
+    partial = tmp_path / "partial"
+    shutil.copytree(sweep, partial)
+    metrics = partial / "runs" / "train_loop" / "potential" / "seed1" / "metrics.json"
+    data = json.loads(metrics.read_text())
+    metrics.write_text(json.dumps({**data, "end_reason": "interrupted"}))
+    summary = collect_sweep(partial, "table1")
+    assert ("potential", 1) not in {(r["method"], r["seed"]) for r in summary["runs"]}
+    assert len(summary["runs"]) == 3
+    assert summary["unfinished"]["not_run"] == [
+        {"scene": "train_loop", "method": "potential", "seed": 1}]

@@ -21,7 +21,7 @@ import numpy as np
 
 from mjexplore.errors import UserInputError
 from mjexplore.eval.plots import resample
-from mjexplore.eval.sweep import Job, read_kinematics, read_ratio_curve
+from mjexplore.eval.sweep import Job, finished_metrics, read_kinematics, read_ratio_curve
 from mjexplore.io.atomic import write_text_atomic
 from mjexplore.io.provenance import git_revision
 
@@ -59,10 +59,11 @@ def _policy_record(path: Path) -> dict[str, Any] | None:
 
 def _run_folders(sweep: Path) -> list[Path]:
     """The finished runs: ``runs/SCENE/METHOD/seedN``, or a team sweep's
-    ``runs/SCENE/PLACEMENT/METHOD/seedN`` (``bench --robots``)."""
+    ``runs/SCENE/PLACEMENT/METHOD/seedN`` (``bench --robots``); an episode cut off by
+    Ctrl-C is not finished (the sweep runs it again when resumed)."""
     return sorted(p.parent for pattern in ("runs/*/*/seed*/metrics.json",
                                            "runs/*/*/*/seed*/metrics.json")
-                  for p in sweep.glob(pattern))
+                  for p in sweep.glob(pattern) if finished_metrics(p.parent) is not None)
 
 
 def _team_run(folder: Path, config: dict[str, Any]) -> dict[str, Any]:
@@ -84,7 +85,7 @@ def _unfinished(sweep: Path, info: dict[str, Any]) -> dict[str, list[dict[str, A
             info.get("scenes", []), info.get("explorers", []), info.get("seeds", [])):
         job = Job(scene, explorer, int(seed))
         folder = job.folder(sweep)
-        if (folder / "metrics.json").is_file():
+        if finished_metrics(folder) is not None:
             continue
         record = {"scene": job.label, "method": explorer, "seed": job.seed}
         error = folder.with_name(folder.name + ".failed.json")

@@ -67,7 +67,7 @@ class Job:
         return out / "runs" / self.label / self.explorer / f"seed{self.seed}"
 
 
-def _finished(folder: Path) -> dict[str, Any] | None:
+def finished_metrics(folder: Path) -> dict[str, Any] | None:
     """A run folder's metrics if the episode ran to its end (not cut off by Ctrl-C)."""
     try:
         metrics = json.loads((folder / "metrics.json").read_text())
@@ -86,7 +86,7 @@ def _check_settings(jobs: list[Job], out: Path, config: EpisodeConfig) -> None:
     wanted = _episode_settings(config)
     for job in jobs:
         folder = job.folder(out)
-        if _finished(folder) is None:
+        if finished_metrics(folder) is None:
             continue
         try:
             stored = json.loads((folder / "config.json").read_text())["episode"]
@@ -102,7 +102,7 @@ def _check_settings(jobs: list[Job], out: Path, config: EpisodeConfig) -> None:
 def _run_job(args: tuple[Job, Path, EpisodeConfig, bool | str]) -> dict[str, Any]:
     job, out, config, mcap = args
     folder = job.folder(out)
-    done = _finished(folder)
+    done = finished_metrics(folder)
     if done is not None:
         return done
     try:
@@ -222,7 +222,7 @@ def write_summary(out: Path, jobs: list[Job]) -> None:
     failed = []
     for job in jobs:
         folder = job.folder(out)
-        metrics = _finished(folder)
+        metrics = finished_metrics(folder)
         if metrics is not None:
             finished[folder] = metrics
             by_scene.setdefault(job.label, {}).setdefault(job.explorer, []).append(folder)

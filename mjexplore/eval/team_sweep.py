@@ -18,7 +18,6 @@ import concurrent.futures
 import csv
 import dataclasses
 import io
-import json
 import logging
 from pathlib import Path
 from typing import Any
@@ -29,7 +28,7 @@ from mjexplore.episode import EpisodeConfig
 from mjexplore.episode.team import TeamConfig
 from mjexplore.errors import UserInputError
 from mjexplore.eval.run import write_run
-from mjexplore.eval.sweep import format_mean_std, markdown_table, scene_label
+from mjexplore.eval.sweep import finished_metrics, format_mean_std, markdown_table, scene_label
 from mjexplore.eval.team_run import team_starts, write_team_run
 from mjexplore.io.atomic import write_text_atomic
 from mjexplore.scenes.canonical import resolve_scene
@@ -59,18 +58,10 @@ class TeamJob:
         return out / "runs" / scene_label(self.scene) / where / self.label / f"seed{self.seed}"
 
 
-def _finished(folder: Path) -> dict[str, Any] | None:
-    try:
-        metrics = json.loads((folder / "metrics.json").read_text())
-    except (OSError, ValueError):
-        return None
-    return None if metrics.get("end_reason") == "interrupted" else metrics
-
-
 def _run(args: tuple[TeamJob, Path, EpisodeConfig]) -> dict[str, Any]:
     job, out, config = args
     folder = job.folder(out)
-    done = _finished(folder)
+    done = finished_metrics(folder)
     if done is not None:
         return done
     try:
@@ -207,7 +198,7 @@ def write_team_summary(out: Path, jobs: list[TeamJob]) -> None:
     single: dict[tuple[str, int], dict[str, Any]] = {}
     groups: dict[tuple[str, str, str, int], list[tuple[int, dict[str, Any]]]] = {}
     for job in jobs:
-        metrics = _finished(job.folder(out))
+        metrics = finished_metrics(job.folder(out))
         if metrics is None:
             continue
         if job.robots == 1:
