@@ -104,7 +104,33 @@ def platform_fingerprint() -> dict[str, str | None]:
         name: importlib.import_module(name).__version__ for name in FINGERPRINT_MODULES}
     found["machine"] = platform.machine()
     found["cpu"] = cpu_model()
+    # A virtual machine's model name can be generic; the instruction sets (numpy's dispatch)
+    # and the CPU numba compiles for decide the last bits of a result too.
+    found["cpu_flags_sha256"] = cpu_flags_digest()
+    found["numba_cpu"] = _numba_cpu()
     return found
+
+
+def cpu_flags_digest() -> str | None:
+    """The first 16 hex digits of the sha256 of the CPU's sorted feature flags (None where
+    /proc/cpuinfo has none)."""
+    try:
+        text = Path("/proc/cpuinfo").read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return None
+    for line in text.splitlines():
+        key, _, value = line.partition(":")
+        if key.strip() in ("flags", "Features"):
+            flags = " ".join(sorted(value.split()))
+            return hashlib.sha256(flags.encode()).hexdigest()[:16]
+    return None
+
+
+def _numba_cpu() -> str:
+    """The CPU name numba's compiler targets on this machine."""
+    import llvmlite.binding as llvm
+
+    return llvm.get_host_cpu_name()
 
 
 def platform_differences(stored: dict[str, Any]) -> list[str]:
