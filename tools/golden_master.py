@@ -83,15 +83,16 @@ Parts = dict[str, str]  # Part of a case (a file, a step) -> sha256 hex digest.
 # ---------------------------------------------------------------------- platform
 
 
-def cpu_model() -> str | None:
-    """The CPU's model name from /proc/cpuinfo (None where there is none)."""
+def cpuinfo_field(*keys: str) -> str | None:
+    """The value of the first line of /proc/cpuinfo whose key is one of ``keys`` (None where
+    there is none)."""
     try:
         text = Path("/proc/cpuinfo").read_text(encoding="utf-8", errors="replace")
     except OSError:
         return None
     for line in text.splitlines():
         key, _, value = line.partition(":")
-        if key.strip() in ("model name", "Model", "cpu model"):
+        if key.strip() in keys:
             return value.strip()
     return None
 
@@ -103,27 +104,14 @@ def platform_fingerprint() -> dict[str, str | None]:
     found: dict[str, str | None] = {
         name: importlib.import_module(name).__version__ for name in FINGERPRINT_MODULES}
     found["machine"] = platform.machine()
-    found["cpu"] = cpu_model()
+    found["cpu"] = cpuinfo_field("model name", "Model", "cpu model")
     # A virtual machine's model name can be generic; the instruction sets (numpy's dispatch)
     # and the CPU numba compiles for decide the last bits of a result too.
-    found["cpu_flags_sha256"] = cpu_flags_digest()
+    flags = cpuinfo_field("flags", "Features")
+    found["cpu_flags_sha256"] = (None if flags is None else hashlib.sha256(
+        " ".join(sorted(flags.split())).encode()).hexdigest()[:16])
     found["numba_cpu"] = _numba_cpu()
     return found
-
-
-def cpu_flags_digest() -> str | None:
-    """The first 16 hex digits of the sha256 of the CPU's sorted feature flags (None where
-    /proc/cpuinfo has none)."""
-    try:
-        text = Path("/proc/cpuinfo").read_text(encoding="utf-8", errors="replace")
-    except OSError:
-        return None
-    for line in text.splitlines():
-        key, _, value = line.partition(":")
-        if key.strip() in ("flags", "Features"):
-            flags = " ".join(sorted(value.split()))
-            return hashlib.sha256(flags.encode()).hexdigest()[:16]
-    return None
 
 
 def _numba_cpu() -> str:
