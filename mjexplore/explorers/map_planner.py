@@ -28,6 +28,7 @@ import numpy as np
 from mjexplore.episode.explorer import ExplorationState
 from mjexplore.explorers.oracle import OracleExplorer
 from mjexplore.mapping.metrics import observable_ground_truth
+from mjexplore.mapping.prediction import block_shares
 from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap, is_free, is_occupied
 from mjexplore.navigation.planner import Costmap, PlannerConfig
 from mjexplore.navigation.tour import CoarseGraph
@@ -78,13 +79,6 @@ class PlanningMapOracle(OracleExplorer):
                              f"multiple of the map's {grid.resolution} m")
         return k
 
-    def _shares(self, mask: np.ndarray, k: int) -> np.ndarray:
-        """Share of each k x k block of ``mask`` that is set (past the edge: unset)."""
-        rows, cols = mask.shape
-        padded = np.zeros((-(-rows // k) * k, -(-cols // k) * k), np.float32)
-        padded[:rows, :cols] = mask
-        return padded.reshape(padded.shape[0] // k, k, padded.shape[1] // k, k).mean((1, 3))
-
     def ground_truth_costmap(self, state: ExplorationState) -> Costmap:
         """The costmap of the planning map: all unknown until the first decision, then
         updated in place at each (what :class:`HorizonOracle` drives on)."""
@@ -101,7 +95,7 @@ class PlanningMapOracle(OracleExplorer):
         k = self._block(state.grid)
         if k == 1:
             return super().unknown_cells(state)
-        return (self._shares(state.grid.data < 0, k) >= 0.5).reshape(-1)
+        return (block_shares(state.grid.data < 0, k) >= 0.5).reshape(-1)
 
     def _planning_map(self, state: ExplorationState) -> np.ndarray:
         """:meth:`planning_data` on the planning cells."""
@@ -110,8 +104,8 @@ class PlanningMapOracle(OracleExplorer):
         if k == 1:
             return data
         out = np.full(self._plan.shape, UNKNOWN, np.int8)
-        out[self._shares(is_free(data), k) >= 0.5] = FREE
-        out[self._shares(is_occupied(data), k) >= 0.25] = OCCUPIED
+        out[block_shares(is_free(data), k) >= 0.5] = FREE
+        out[block_shares(is_occupied(data), k) >= 0.25] = OCCUPIED
         return out
 
     def prepare(self, state: ExplorationState) -> None:

@@ -252,19 +252,10 @@ def masked_bce(logits, channels, truth):
 
 def predict_maps(net, held: list[dict[str, np.ndarray]]) -> list[np.ndarray]:
     """The net's free probability for every held-out map (whole, one pass)."""
-    import torch
-
-    from mjexplore.mapping.prediction import pad_to_depth
+    from mjexplore.mapping.prediction import free_probability
 
     net.eval()
-    out = []
-    with torch.no_grad():
-        for part in held:
-            rows, cols = part["truth"].shape
-            for channels in part["inputs"]:
-                x = torch.from_numpy(pad_to_depth(channels))[None]
-                out.append(torch.sigmoid(net(x))[0, :rows, :cols].numpy())
-    return out
+    return [free_probability(net, channels) for part in held for channels in part["inputs"]]
 
 
 def quality_table(net, held: list[dict[str, np.ndarray]]) -> dict[str, dict[str, float]]:

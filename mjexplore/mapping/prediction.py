@@ -42,7 +42,7 @@ FORMAT = "mjexplore-map-predictor-v1"
 DEPTH = 3  # Poolings of the U-Net: a coarse map's sides are padded to multiples of 2**DEPTH.
 
 
-def _blocks(mask: np.ndarray, k: int) -> np.ndarray:
+def block_shares(mask: np.ndarray, k: int) -> np.ndarray:
     """(ceil(rows / k), ceil(cols / k)) float32 share of each k x k block of ``mask`` that
     is set (cells past the map's edge count as unset)."""
     rows, cols = mask.shape
@@ -69,9 +69,9 @@ def coarse_channels(grid: GridMap, cell_m: float = CELL_M) -> np.ndarray:
     """(3, H, W) uint8 input of the predictor: the share of each ``cell_m`` block of
     ``grid`` known free and known occupied (0-255) and 255 inside the map."""
     k = block_size(grid, cell_m)
-    free = _blocks(is_free(grid.data), k)
-    occupied = _blocks(is_occupied(grid.data), k)
-    inside = _blocks(np.ones(grid.shape, bool), k) > 0
+    free = block_shares(is_free(grid.data), k)
+    occupied = block_shares(is_occupied(grid.data), k)
+    inside = block_shares(np.ones(grid.shape, bool), k) > 0
     return np.stack([np.round(255 * free), np.round(255 * occupied),
                      255 * inside]).astype(np.uint8)
 
@@ -79,7 +79,7 @@ def coarse_channels(grid: GridMap, cell_m: float = CELL_M) -> np.ndarray:
 def coarse_truth(ground_truth: GridMap, cell_m: float = CELL_M) -> np.ndarray:
     """(H, W) uint8 share (0-255) of each ``cell_m`` block of the ground truth that is free:
     the target (free where at least half is)."""
-    return np.round(255 * _blocks(ground_truth.free, block_size(ground_truth, cell_m))
+    return np.round(255 * block_shares(ground_truth.free, block_size(ground_truth, cell_m))
                     ).astype(np.uint8)
 
 
@@ -139,6 +139,15 @@ def pad_to_depth(channels: np.ndarray) -> np.ndarray:
     return out
 
 
+def free_probability(net: MapPredictorNet, channels: np.ndarray) -> np.ndarray:
+    """(H, W) float32 free probability of one pass of ``net`` (in its current mode) over
+    (3, H, W) coarse channels."""
+    rows, cols = channels.shape[1:]
+    with torch.no_grad():
+        x = torch.from_numpy(pad_to_depth(channels))[None]
+        return torch.sigmoid(net(x))[0, :rows, :cols].numpy()
+
+
 def save_map_predictor(path: str | os.PathLike, net: MapPredictorNet,
                        provenance: dict | None = None) -> None:
     """Writes the predictor's weights and its layout (safetensors, atomically)."""
@@ -196,12 +205,12 @@ class MapPredictor:
             (H, W) float32 mean probability and (H, W) float32 standard deviation over the
             passes (zeros with one pass).
         """
+        if samples <= 1:
+            p = free_probability(self.net, channels)
+            return p, np.zeros_like(p)
         rows, cols = channels.shape[1:]
         x = torch.from_numpy(pad_to_depth(channels))[None]
         with torch.no_grad():
-            if samples <= 1:
-                p = torch.sigmoid(self.net(x))[0, :rows, :cols].numpy()
-                return p, np.zeros_like(p)
             self.net.dropout.train()
             try:
                 with torch.random.fork_rng(devices=[]):
