@@ -114,11 +114,15 @@ def platform_fingerprint() -> dict[str, str | None]:
     return found
 
 
-def _numba_cpu() -> str:
-    """The CPU name numba's compiler targets on this machine."""
-    import llvmlite.binding as llvm
+def _numba_cpu() -> str | None:
+    """The CPU name numba's compiler targets on this machine (its setting NUMBA_CPU_NAME
+    included); None where this numba does not say."""
+    from numba.core.codegen import JITCPUCodegen
 
-    return llvm.get_host_cpu_name()
+    try:
+        return JITCPUCodegen("golden_master")._get_host_cpu_name()
+    except AttributeError:
+        return None
 
 
 def platform_differences(stored: dict[str, Any]) -> list[str]:
