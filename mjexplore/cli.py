@@ -433,6 +433,16 @@ def cmd_policies(args: argparse.Namespace) -> int:
 TEAM_BENCH_METHODS = "nearest,assign_greedy,assign_optimal,mmpf"
 
 
+def _add_ray_argument(parser: argparse.ArgumentParser, what: str, default: str,
+                      more: str = "") -> None:
+    """The ``--ray [ADDRESS]`` option of the commands that run on a Ray cluster."""
+    parser.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
+                        help=f"{what}: without ADDRESS on a local Ray instance on this "
+                        "machine; with ADDRESS (auto, or the head's HOST:6379) on an existing "
+                        "cluster started with `ray start --head` (guide: 'Scaling out')"
+                        f"{more} (default: {default})")
+
+
 def _bench_team(args: argparse.Namespace) -> int:
     """``bench --robots N``: a sweep of team episodes (eval/team_sweep.py)."""
     from mjexplore.eval.team_run import team_explorers
@@ -458,7 +468,7 @@ def _bench_team(args: argparse.Namespace) -> int:
     check_output_folder(args.out)
     run_team_sweep(scenes, methods, args.robots, placements, list(range(args.seeds)),
                    Path(args.out), _episode_config(args), workers=args.workers,
-                   unknown_starts=unknown_starts)
+                   unknown_starts=unknown_starts, ray_address=args.ray)
     print((Path(args.out) / "results.md").read_text())
     return 0
 
@@ -489,7 +499,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     results = run_sweep(scenes, [spec.text for spec in specs], list(range(args.seeds)),
                         Path(args.out),
                         _episode_config(args), workers=args.workers, mcap=args.mcap,
-                        command=args.command_line, progress=not args.no_progress)
+                        command=args.command_line, progress=not args.no_progress,
+                        ray_address=args.ray)
     print((Path(args.out) / "results.md").read_text())
     failed = [r for r in results if r.get("end_reason") in ("error", "interrupted")]
     if failed:
@@ -570,7 +581,7 @@ def cmd_train_predictor(args: argparse.Namespace) -> int:
     if args.epochs is not None:
         config = dataclasses.replace(config, epochs=args.epochs)
     print(json.dumps(train_predictor(config, args.out, workers=args.workers,
-                                     progress=not args.no_progress)))
+                                     progress=not args.no_progress, ray_address=args.ray)))
     return 0
 
 
@@ -845,7 +856,11 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--seeds", type=int, default=BENCH_SEEDS,
                        help="seeds 0..N-1 per scene and explorer")
     bench.add_argument("--workers", type=int, default=2,
-                       help="worker processes, one episode each at a time")
+                       help="worker processes, one episode each at a time (with --ray alone: "
+                       "the local Ray instance's CPUs)")
+    _add_ray_argument(bench, "run each episode as a Ray task (one CPU each; the scene and "
+                      "weights travel with it, the run folder comes back)", "no Ray, --workers "
+                      "processes")
     bench.add_argument("--out", type=Path, required=True, help="sweep folder")
     bench.add_argument("--mcap", nargs="?", const="foxglove", default=None,
                        choices=["foxglove", "ros2"], metavar="PROFILE",
@@ -906,12 +921,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "sampling): another training seed of the same recipe, judged on the "
                          "same validation layouts (eval.seed stays); not on --resume "
                          "(default: the config's seed)")
-    tr.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
-                    help="run each env in a Ray actor: without ADDRESS on a local Ray instance "
-                         "on this machine; with ADDRESS (auto, or the head's HOST:6379) on an "
-                         "existing cluster started with `ray start --head` (README: 'Training "
-                         "on more than one machine'); may change on --resume (default: no "
-                         "Ray, worker processes on this machine)")
+    _add_ray_argument(tr, "run each env in a Ray actor", "no Ray, worker processes on this "
+                      "machine", "; may change on --resume")
     tr.add_argument("--device", default="auto", metavar="DEVICE",
                     help="the learner's torch device: auto (a GPU when there is one), cpu, "
                          "cuda, cuda:1 ... (default: auto); may change on --resume")
@@ -971,7 +982,11 @@ def build_parser() -> argparse.ArgumentParser:
                     "quality.json, config.yaml. Run it again with the same --out to resume.")
     tr.add_argument("--config", type=Path, required=True, help="predictor-training YAML")
     tr.add_argument("--out", type=Path, required=True, help="model folder")
-    tr.add_argument("--workers", type=_count, default=2, help="collection processes")
+    tr.add_argument("--workers", type=_count, default=2,
+                    help="collection processes (with --ray alone: the local Ray instance's "
+                    "CPUs)")
+    _add_ray_argument(tr, "record each collection episode as a Ray task (its shard comes back "
+                      "as data)", "no Ray, --workers processes")
     tr.add_argument("--episodes", type=_count, default=None, metavar="N",
                     help="collection episodes (default: the config's)")
     tr.add_argument("--epochs", type=_count, default=None, metavar="N",

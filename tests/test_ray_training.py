@@ -15,6 +15,7 @@ from test_learning import TINY
 from mjexplore.config import from_dict
 from mjexplore.envs import EnvConfig
 from mjexplore.errors import UserInputError
+from mjexplore.io.ray_cluster import connect
 from mjexplore.learning.training import _make_env, load_checkpoint, load_train_config, train
 
 # Episodes of 3 decisions: 5 steps cross an episode end and the automatic reset.
@@ -67,7 +68,7 @@ def test_ray_envs_step_exactly_as_subprocess_envs(local_ray, monkeypatch):
     np.testing.assert_equal(got, expected)
 
     with pytest.raises(UserInputError, match="has 2 CPUs and 3 envs"):
-        ray_vec_env.connect("local", 3)
+        connect("local", 3, what="envs", fewer="--n-envs")
     monkeypatch.setattr(ray_vec_env, "git_revision", lambda: "another-revision")
     with pytest.raises(UserInputError, match="checkouts differ"):
         ray_vec_env.RayVecEnv(makers[:1])

@@ -115,7 +115,7 @@ def run_episode(scene: SceneFiles, explorer: str, seed: int, config: EpisodeConf
 
 def resolved_config(scene: SceneFiles, explorer: str, seed: int, config: EpisodeConfig,
                     explorer_kwargs: dict | None = None) -> dict[str, Any]:
-    return {"scene": str(scene.xml), "scene_metadata": scene.metadata, "explorer": explorer,
+    return {"scene": scene.source, "scene_metadata": scene.metadata, "explorer": explorer,
             "explorer_kwargs": explorer_kwargs or {}, "seed": seed,
             "episode": dataclasses.asdict(config), "git_revision": git_revision()}
 

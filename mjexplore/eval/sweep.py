@@ -14,10 +14,12 @@ from __future__ import annotations
 import contextlib
 import csv
 import dataclasses
+import functools
 import io
 import json
 import logging
 import multiprocessing
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -29,10 +31,12 @@ from mjexplore.errors import UserInputError
 from mjexplore.eval.methods import LEARNED, parse_method
 from mjexplore.eval.plots import kinematics_figure, ratio_figure
 from mjexplore.eval.run import write_run
-from mjexplore.io.atomic import write_text_atomic
+from mjexplore.io.atomic import atomic_directory, write_text_atomic
+from mjexplore.io.bundle import Bundle, write_files
 from mjexplore.io.progress import Progress
 from mjexplore.io.provenance import git_revision
 from mjexplore.scenes.canonical import resolve_scene
+from mjexplore.scenes.scene import SceneFiles
 from mjexplore.sim.kinematics import KinematicsLog
 
 METRICS = (("iou", "IoU"), ("exploration_ratio", "ER"), ("exploration_time_s", "ET (s)"),
@@ -99,33 +103,64 @@ def _check_settings(jobs: list[Job], out: Path, config: EpisodeConfig) -> None:
                 "Use another --out, or delete that sweep's runs/ to start it afresh.")
 
 
+def episode_failure(job: Job, exc: BaseException) -> dict[str, Any]:
+    """The record of an episode that raised ``exc`` (logged here), for ``failed.json``."""
+    if isinstance(exc, UserInputError):  # Its message says it all.
+        log.error("episode %s/%s/seed%d failed: %s", job.label, job.explorer, job.seed, exc)
+    else:
+        log.error("episode %s failed", job, exc_info=exc)
+    return {"scene": job.label, "explorer": job.explorer, "seed": job.seed,
+            "end_reason": "error", "error": f"{type(exc).__name__}: {exc}"}
+
+
+def write_failure(folder: Path, failure: dict[str, Any]) -> None:
+    """Files a failed episode's record beside its (absent) run folder: ``seedN.failed.json``."""
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(folder.parent / f"{folder.name}.failed.json",
+                      json.dumps(failure, indent=2) + "\n")
+
+
+def run_job(job: Job, folder: Path, config: EpisodeConfig, mcap: bool | str,
+            scene: SceneFiles | None = None, spec: str | None = None) -> dict[str, Any]:
+    """Runs ``job``'s episode into the run folder ``folder``; its metrics, or its failure
+    record (:func:`episode_failure`) if it raised. ``scene`` and ``spec`` replace the job's
+    own (a Ray worker's copies of its files)."""
+    try:
+        metrics = write_run(folder, scene or resolve_scene(job.scene), job.explorer, job.seed,
+                            config, mcap, spec=spec or job.spec)
+    except Exception as exc:  # noqa: BLE001 - one broken episode must not end the sweep
+        return episode_failure(job, exc)
+    metrics["scene"] = job.label
+    return metrics
+
+
+def file_results(out: Path, results: Iterable[tuple[Any, dict[str, Any], Bundle]]
+                 ) -> Iterator[dict[str, Any]]:
+    """Writes episodes that ran elsewhere (``(job, metrics or failure record, run folder's
+    files)``, as :func:`mjexplore.eval.remote.run_remote` yields them) as run folders under
+    ``out`` (atomically) or failure records; yields each one's metrics or failure record."""
+    for job, metrics, files in results:
+        folder = job.folder(out)
+        if metrics.get("end_reason") == "error":
+            write_failure(folder, metrics)
+        else:
+            with atomic_directory(folder, "metrics.json") as tmp:
+                write_files(tmp, files)
+        yield metrics
+
+
 def _run_job(args: tuple[Job, Path, EpisodeConfig, bool | str]) -> dict[str, Any]:
     job, out, config, mcap = args
-    folder = job.folder(out)
-    done = finished_metrics(folder)
-    if done is not None:
-        return done
-    try:
-        metrics = write_run(folder, resolve_scene(job.scene), job.explorer, job.seed, config,
-                            mcap, spec=job.spec)
-    except Exception as exc:  # noqa: BLE001 - one broken episode must not end the sweep
-        if isinstance(exc, UserInputError):  # Its message says it all.
-            log.error("episode %s/%s/seed%d failed: %s", job.label, job.explorer, job.seed, exc)
-        else:
-            log.exception("episode %s failed", job)
-        failure = {"scene": job.label, "explorer": job.explorer, "seed": job.seed,
-                   "end_reason": "error", "error": f"{type(exc).__name__}: {exc}"}
-        folder.parent.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(folder.parent / f"{folder.name}.failed.json",
-                          json.dumps(failure, indent=2) + "\n")
-        return failure
-    metrics["scene"] = job.label
+    metrics = run_job(job, job.folder(out), config, mcap)
+    if metrics.get("end_reason") == "error":
+        write_failure(job.folder(out), metrics)
     return metrics
 
 
 def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Path,
               config: EpisodeConfig, workers: int = 2, mcap: bool | str = False,
-              progress: bool = True, command: str | None = None) -> list[dict[str, Any]]:
+              progress: bool = True, command: str | None = None,
+              ray_address: str | None = None) -> list[dict[str, Any]]:
     """Runs (or resumes) a sweep and writes its summary; returns every episode's metrics.
 
     ``explorers`` are method specs (:func:`mjexplore.eval.methods.parse_method`); each
@@ -139,6 +174,10 @@ def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Pa
 
     ``progress``: a bar of finished episodes on a terminal, a line per episode elsewhere
     (:class:`~mjexplore.io.progress.Progress`); False shows nothing.
+
+    ``ray_address``: run the episodes as Ray tasks (:mod:`mjexplore.eval.remote`) on the
+    cluster there ('local': a Ray instance on this machine with ``workers`` CPUs) instead
+    of ``workers`` processes; the run folders are the same.
 
     Raises:
         UserInputError: a bad scene or explorer spec, or a learned explorer's weights that
@@ -165,16 +204,25 @@ def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Pa
         {"command": command, "git_revision": git_revision(), "scenes": scenes,
          "explorers": [spec.label for spec in specs], "specs": [spec.text for spec in specs],
          "seeds": seeds}, indent=2) + "\n")
-    args = [(job, out, config, mcap) for job in jobs]
-    results = []
+    earlier = {job: finished_metrics(job.folder(out)) for job in jobs}
+    results = [m for m in earlier.values() if m is not None]
+    todo = [job for job, m in earlier.items() if m is None]
     with (Progress(len(jobs), "bench", "episodes", enabled=progress, every=0) as bar,
           contextlib.ExitStack() as stack):
-        if workers <= 1:
-            finished = map(_run_job, args)
+        if results:
+            bar.update(len(results), detail=f"{len(results)} finished earlier")
+        if ray_address is not None:
+            from mjexplore.eval.remote import run_remote
+
+            finished = file_results(out, run_remote(
+                todo, functools.partial(run_job, config=config, mcap=mcap), episode_failure,
+                ray_address, workers))
+        elif workers <= 1:
+            finished = map(_run_job, [(job, out, config, mcap) for job in todo])
         else:
             ctx = multiprocessing.get_context("spawn")
             pool = stack.enter_context(ctx.Pool(workers, initializer=init_episode_worker))
-            finished = pool.imap_unordered(_run_job, args)
+            finished = pool.imap_unordered(_run_job, [(job, out, config, mcap) for job in todo])
         for metrics in finished:
             results.append(metrics)
             bar.update(detail=_episode_note(metrics))

@@ -194,7 +194,7 @@ def write_team_run(out_dir: str | os.PathLike, scene: SceneFiles, spec: str, n: 
         metrics = {"scene": name, "explorer": label, "seed": seed, **result.metrics}
         write_text_atomic(tmp / "metrics.json", json.dumps(metrics, indent=2) + "\n")
         write_text_atomic(tmp / "config.json", json.dumps({
-            "scene": str(scene.xml), "scene_metadata": scene.metadata, "explorer": label,
+            "scene": scene.source, "scene_metadata": scene.metadata, "explorer": label,
             "method": spec, "robots": n, "seed": seed,
             "starts": [list(p) for p in result.starts],
             "episode": dataclasses.asdict(config),

@@ -17,6 +17,7 @@ from __future__ import annotations
 import concurrent.futures
 import csv
 import dataclasses
+import functools
 import io
 import logging
 from pathlib import Path
@@ -28,10 +29,17 @@ from mjexplore.episode import EpisodeConfig
 from mjexplore.episode.team import TeamConfig
 from mjexplore.errors import UserInputError
 from mjexplore.eval.run import write_run
-from mjexplore.eval.sweep import finished_metrics, format_mean_std, markdown_table, scene_label
+from mjexplore.eval.sweep import (
+    file_results,
+    finished_metrics,
+    format_mean_std,
+    markdown_table,
+    scene_label,
+)
 from mjexplore.eval.team_run import team_starts, write_team_run
 from mjexplore.io.atomic import write_text_atomic
 from mjexplore.scenes.canonical import resolve_scene
+from mjexplore.scenes.scene import SceneFiles
 
 log = logging.getLogger(__name__)
 DRAWN = "drawn"
@@ -58,14 +66,20 @@ class TeamJob:
         return out / "runs" / scene_label(self.scene) / where / self.label / f"seed{self.seed}"
 
 
-def _run(args: tuple[TeamJob, Path, EpisodeConfig]) -> dict[str, Any]:
-    job, out, config = args
-    folder = job.folder(out)
-    done = finished_metrics(folder)
-    if done is not None:
-        return done
+def team_failure(job: TeamJob, exc: BaseException) -> dict[str, Any]:
+    """The record of a team sweep's episode that raised ``exc`` (logged here)."""
+    log.error("episode %s failed", job, exc_info=exc)
+    return {"scene": scene_label(job.scene), "explorer": job.label, "seed": job.seed,
+            "end_reason": "error", "error": f"{type(exc).__name__}: {exc}"}
+
+
+def run_team_job(job: TeamJob, folder: Path, config: EpisodeConfig,
+                 scene: SceneFiles | None = None, spec: str | None = None) -> dict[str, Any]:
+    """Runs ``job``'s episode into the run folder ``folder``; its metrics, or its failure
+    record if it raised. ``scene`` replaces the job's own (a Ray worker's copy of its
+    files); ``spec`` is unused (team methods are named by ``job.method``)."""
     try:
-        scene = resolve_scene(job.scene)
+        scene = scene or resolve_scene(job.scene)
         if job.robots == 1:
             return write_run(folder, scene, job.method, job.seed, config, mcap=False)
         starts = None if job.placement == DRAWN else team_starts(scene, job.placement,
@@ -74,8 +88,13 @@ def _run(args: tuple[TeamJob, Path, EpisodeConfig]) -> dict[str, Any]:
                               starts, mcap=False,
                               team_config=TeamConfig(unknown_starts=job.unknown_starts))
     except Exception as exc:  # noqa: BLE001 - one broken episode must not end the sweep
-        log.exception("episode %s failed", job)
-        return {"end_reason": "error", "error": f"{type(exc).__name__}: {exc}"}
+        return team_failure(job, exc)
+
+
+def _run(args: tuple[TeamJob, Path, EpisodeConfig]) -> dict[str, Any]:
+    job, out, config = args
+    done = finished_metrics(job.folder(out))
+    return done if done is not None else run_team_job(job, job.folder(out), config)
 
 
 def team_jobs(scenes: list[str], methods: list[str], robots: int, placements: list[str],
@@ -92,10 +111,11 @@ def team_jobs(scenes: list[str], methods: list[str], robots: int, placements: li
 
 def run_team_sweep(scenes: list[str], methods: list[str], robots: int, placements: list[str],
                    seeds: list[int], out: Path, config: EpisodeConfig, workers: int = 1,
-                   single: str | None = "nearest",
-                   unknown_starts: bool = False) -> list[dict[str, Any]]:
+                   single: str | None = "nearest", unknown_starts: bool = False,
+                   ray_address: str | None = None) -> list[dict[str, Any]]:
     """Runs (or resumes) a team sweep and writes its summary; returns every episode's
     metrics (``unknown_starts``: the teams merge their maps, as ``TeamConfig`` says).
+    ``ray_address`` as :func:`~mjexplore.eval.sweep.run_sweep`'s.
 
     Raises:
         UserInputError: a placement a scene does not define (checked before anything
@@ -110,7 +130,16 @@ def run_team_sweep(scenes: list[str], methods: list[str], robots: int, placement
     jobs = team_jobs(scenes, methods, robots, placements, seeds, single, unknown_starts)
     out.mkdir(parents=True, exist_ok=True)
     args = [(job, out, config) for job in jobs]
-    if workers <= 1:
+    if ray_address is not None:
+        from mjexplore.eval.remote import run_remote
+
+        results = [m for m in map(finished_metrics, (job.folder(out) for job in jobs))
+                   if m is not None]
+        todo = [job for job in jobs if finished_metrics(job.folder(out)) is None]
+        results += file_results(out, run_remote(
+            todo, functools.partial(run_team_job, config=config), team_failure, ray_address,
+            workers))
+    elif workers <= 1:
         results = [_run(a) for a in args]
     else:
         with concurrent.futures.ProcessPoolExecutor(workers) as pool:

@@ -148,8 +148,9 @@ class _Recorder:
         return self.base.select_goal(state)
 
 
-def collect_episode(config: PredictorTrainingConfig, index: int, folder: Path) -> int:
-    """Runs collection episode ``index`` and writes its shard; the maps it kept."""
+def record_episode(config: PredictorTrainingConfig, index: int) -> bytes:
+    """Runs collection episode ``index``; its shard (an ``.npz`` of the partial maps it
+    kept, the truth, the scene and the rule that drove)."""
     import torch
 
     from mjexplore.episode import Episode
@@ -168,23 +169,54 @@ def collect_episode(config: PredictorTrainingConfig, index: int, folder: Path) -
     buffer = io.BytesIO()
     np.savez_compressed(buffer, inputs=inputs, truth=truth, scene=np.array(str(scene.xml.parent)),
                         rule=np.array(rule))
-    write_bytes_atomic(folder / SHARD.format(index), buffer.getvalue())
-    return len(inputs)
+    return buffer.getvalue()
 
 
-def _collect_job(args: tuple[PredictorTrainingConfig, int, Path]) -> int:
-    return collect_episode(*args)
+def collect_episode(config: PredictorTrainingConfig, index: int, folder: Path) -> None:
+    """Runs collection episode ``index`` and writes its shard into ``folder``."""
+    write_bytes_atomic(folder / SHARD.format(index), record_episode(config, index))
+
+
+def _collect_job(args: tuple[PredictorTrainingConfig, int, Path]) -> None:
+    collect_episode(*args)
 
 
 def collect(config: PredictorTrainingConfig, folder: Path, workers: int = 1,
-            progress: Progress | None = None) -> None:
-    """Writes the shards of the episodes ``folder`` lacks."""
+            progress: Progress | None = None, ray_address: str | None = None) -> None:
+    """Writes the shards of the episodes ``folder`` lacks: in ``workers`` processes, or as
+    Ray tasks on the cluster at ``ray_address`` ('local': a Ray instance on this machine
+    with ``workers`` CPUs), whose shards come back as data.
+
+    Raises:
+        UserInputError: no Ray cluster at ``ray_address``; an episode that failed there.
+    """
     from mjexplore.episode.workers import init_episode_worker
 
     folder.mkdir(parents=True, exist_ok=True)
     todo = [i for i in range(config.episodes) if not (folder / SHARD.format(i)).exists()]
     if progress is not None:
         progress.update(config.episodes - len(todo))
+    if ray_address is not None and todo:
+        import ray
+
+        from mjexplore.io.ray_cluster import connect, map_unordered
+
+        joined = connect(ray_address, local_cpus=workers)
+        try:
+            for k, shard, error in map_unordered(record_episode, [(config, i) for i in todo],
+                                                 initializer=init_episode_worker):
+                if error is not None:
+                    raise UserInputError(
+                        f"collection episode {todo[k]} failed on Ray ({type(error).__name__}: "
+                        f"{error}); the shards written are kept: run the same command again "
+                        "to resume.") from None
+                write_bytes_atomic(folder / SHARD.format(todo[k]), shard)
+                if progress is not None:
+                    progress.update()
+        finally:
+            if joined:
+                ray.shutdown()
+        return
     jobs = [(config, i, folder) for i in todo]
     if workers > 1 and len(jobs) > 1:
         with mp.get_context("spawn").Pool(workers, initializer=init_episode_worker) as pool:
@@ -369,10 +401,11 @@ def _card(config: PredictorTrainingConfig, quality: dict, summary: dict) -> str:
 
 
 def train_predictor(config: PredictorTrainingConfig, out: str | Path, workers: int = 1,
-                    progress: bool = False) -> dict[str, Any]:
+                    progress: bool = False, ray_address: str | None = None) -> dict[str, Any]:
     """Collects, fits and writes the model folder ``out``; returns its summary. A folder
     of an interrupted run with the same settings is resumed (the shards it has are kept,
-    the fit goes on from its last epoch).
+    the fit goes on from its last epoch). ``ray_address``: collect on Ray (see
+    :func:`collect`).
 
     Raises:
         UserInputError: ``out`` holds a run with other settings, or other files.
@@ -395,7 +428,7 @@ def train_predictor(config: PredictorTrainingConfig, out: str | Path, workers: i
     write_text_atomic(saved, recipe)
     with Progress(config.episodes, "train-predictor", "episodes", enabled=progress,
                   phase="collecting") as shown:
-        collect(config, out / "data", workers, shown)
+        collect(config, out / "data", workers, shown, ray_address)
     collected = time.perf_counter()
     train, held = load_shards(config, out / "data")
     with Progress(config.epochs * steps_per_epoch(config, train), "train-predictor", "steps",

@@ -13,8 +13,6 @@ needs the same revision installed; :class:`RayVecEnv` refuses to start otherwise
 from __future__ import annotations
 
 import logging
-import os
-import socket
 from collections import Counter
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -33,83 +31,9 @@ from stable_baselines3.common.vec_env.subproc_vec_env import _stack_obs
 
 from mjexplore.errors import UserInputError
 from mjexplore.io.provenance import git_revision
+from mjexplore.io.ray_cluster import ray_cause
 
 log = logging.getLogger(__name__)
-
-LOCAL = "local"  # A fresh Ray instance on this machine.
-AUTO = "auto"  # The cluster this machine belongs to (the last `ray start` here).
-HOW_TO_START = ("start one with `ray start --head --port=6379` on the head machine and "
-                "`ray start --address=HEAD_IP:6379` on each other machine, then train on the "
-                "head with --ray auto (see the README, 'Training on more than one machine')")
-TOKEN_HELP = ("if the head uses token authentication (`ray start --head` says so), export "
-              "RAY_AUTH_MODE=token and RAY_AUTH_TOKEN=<what `ray get-auth-token` prints on the "
-              "head> here")
-CONNECT_TIMEOUT_S = 5.0  # Ray itself retries an unreachable address for minutes.
-
-
-def connect(address: str, n_envs: int) -> bool:
-    """Joins the Ray cluster at ``address`` or starts a local instance, for ``n_envs`` actors.
-
-    Args:
-        address: 'local' (a fresh instance on this machine, with at least ``n_envs`` CPUs
-            so that every env gets a worker, as ``SubprocVecEnv`` does), 'auto' (the cluster
-            this machine joined with ``ray start``) or a head's 'HOST:PORT'.
-        n_envs: Env actors to place (one CPU each).
-
-    Returns:
-        Whether this call initialised Ray (its caller then calls ``ray.shutdown()``); False
-        when this process had already joined a Ray instance, which is then used as it is.
-
-    Raises:
-        UserInputError: No cluster at ``address``, or too few CPUs in it.
-    """
-    if ray.is_initialized():
-        log.info("using the Ray instance this process already joined")
-        joined = False
-    elif address == LOCAL:
-        cpus = os.cpu_count() or 1
-        if n_envs > cpus:
-            log.warning("%d envs on %d CPUs: the envs share the cores", n_envs, cpus)
-        ray.init(address=LOCAL, num_cpus=max(cpus, n_envs), include_dashboard=False)
-        joined = True
-    else:
-        if address != AUTO:
-            _check_reachable(address)
-        try:
-            ray.init(address=address)
-        except (ConnectionError, ValueError, ray.exceptions.AuthenticationError) as exc:
-            raise UserInputError(f"--ray {address}: Ray could not join a cluster there "
-                                 f"({_cause(exc)}); {TOKEN_HELP}; without a cluster, "
-                                 f"{HOW_TO_START}.") from None
-        joined = True
-    resources = ray.cluster_resources()
-    nodes = [n for n in ray.nodes() if n["Alive"]]
-    cpus = resources.get("CPU", 0.0)
-    log.info("Ray: %d node(s) (%s), %g CPUs, %.1f GiB memory", len(nodes),
-             ", ".join(n["NodeManagerAddress"] for n in nodes), cpus,
-             resources.get("memory", 0.0) / 2**30)
-    if cpus < n_envs:
-        if joined:
-            ray.shutdown()
-        raise UserInputError(f"the Ray cluster has {cpus:g} CPUs and {n_envs} envs need one "
-                             "each: lower --n-envs, or add machines with `ray start "
-                             "--address=HEAD_IP:6379` on each.")
-    return joined
-
-
-def _check_reachable(address: str) -> None:
-    """Raises UserInputError unless something listens at ``address`` ('HOST:PORT')."""
-    host, _, port = address.rpartition(":")
-    if not host or not port.isdigit():
-        raise UserInputError(f"--ray {address!r} is not a Ray address: give the head's "
-                             "HOST:PORT (e.g. 10.0.0.1:6379), auto, or nothing for a local "
-                             f"instance. To make a cluster, {HOW_TO_START}.")
-    try:
-        socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT_S).close()
-    except OSError as exc:
-        raise UserInputError(f"--ray {address}: no Ray cluster answers there "
-                             f"({exc.strerror or exc}); {HOW_TO_START}.") from None
-
 
 @ray.remote(num_cpus=1)
 class _EnvActor:
@@ -180,8 +104,8 @@ class RayVecEnv(VecEnv):
             placed = ray.get([actor.describe.remote() for actor in self.actors])
         except ray.exceptions.RayActorError as exc:
             self.close()
-            raise UserInputError(f"a Ray worker could not build its env ({_cause(exc)}): every "
-                                 "machine needs the same mjexplore checkout installed "
+            raise UserInputError(f"a Ray worker could not build its env ({ray_cause(exc)}): "
+                                 "every machine needs the same mjexplore checkout installed "
                                  "(`make demo`).") from None
         mine = git_revision()
         others = {ip: rev for ip, rev in placed if rev != mine}
@@ -220,7 +144,7 @@ class RayVecEnv(VecEnv):
         try:
             ray.get(self._pending + [actor.close.remote() for actor in self.actors])
         except ray.exceptions.RayError as exc:
-            log.warning("closing the env actors: %s", _cause(exc))
+            log.warning("closing the env actors: %s", ray_cause(exc))
         for actor in self.actors:
             ray.kill(actor)
         if self._shutdown_ray:
@@ -243,9 +167,3 @@ class RayVecEnv(VecEnv):
                        indices: VecEnvIndices = None) -> list[bool]:
         return ray.get([self.actors[i].is_wrapped.remote(wrapper_class)
                         for i in self._get_indices(indices)])
-
-
-def _cause(exc: Exception) -> str:
-    """The last line of a Ray error (the remote exception), for one-paragraph messages."""
-    lines = [line for line in str(exc).splitlines() if line.strip()]
-    return lines[-1].strip() if lines else type(exc).__name__

@@ -406,9 +406,11 @@ def make_vec_env(config: TrainConfig, seed: int, ray_address: str | None = None)
     makers = [_make_env(config.env, own_process, reports and reports.path(i))
               for i in range(config.n_envs)]
     if ray_address is not None:
-        from mjexplore.learning.ray_vec_env import RayVecEnv, connect
+        from mjexplore.io.ray_cluster import connect
+        from mjexplore.learning.ray_vec_env import RayVecEnv
 
-        venv = RayVecEnv(makers, shutdown_ray=connect(ray_address, config.n_envs))
+        venv = RayVecEnv(makers, shutdown_ray=connect(ray_address, config.n_envs, what="envs",
+                                                      fewer="--n-envs"))
     elif reports is not None:
         try:
             with single_thread_children():  # The workers (and a forkserver) start here.

@@ -298,12 +298,20 @@ class SceneFiles:
         ground_truth: The ground-truth map, if the scene has one (None for a bare MJCF).
         start: Start pose (x, y, yaw) of ``base_link``, metres and radians.
         metadata: The contents of ``scene.json`` (empty for a bare MJCF).
+        origin: Where the scene was given, when these files are a copy of it (a Ray worker
+            runs a copy of the sweep's scene); None: ``xml`` itself.
     """
 
     xml: Path
     ground_truth: GridMap | None
     start: tuple[float, float, float]
     metadata: dict[str, Any]
+    origin: str | None = None
+
+    @property
+    def source(self) -> str:
+        """The scene as run records name it: where it was given."""
+        return self.origin or str(self.xml)
 
 
 def load_scene_files(path: str | os.PathLike) -> SceneFiles:
