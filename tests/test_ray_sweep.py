@@ -4,6 +4,7 @@ workers retried or reported, files that travel as data."""
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -17,6 +18,7 @@ from mjexplore.cli import main
 from mjexplore.errors import UserInputError
 from mjexplore.io.bundle import pack_folder, unpack, write_files
 from mjexplore.io.ray_cluster import map_unordered
+from mjexplore.policies.models import MODELS_DIR, WEIGHTS_NAME
 
 SWEEP = ["bench", "--scenes", "train_loop", "--explorers", "nearest,potential", "--seeds", "2",
          "--max-time", "15", "--no-progress"]
@@ -29,11 +31,15 @@ def _files(out: Path) -> dict[str, bytes]:
 
 @pytest.mark.slow
 def test_a_ray_sweep_writes_the_run_folders_the_process_pool_writes(tmp_path):
-    assert main(SWEEP + ["--workers", "2", "--out", str(tmp_path / "pool")]) == 0
-    assert main(SWEEP + ["--workers", "2", "--ray", "--out", str(tmp_path / "ray")]) == 0
+    mine = tmp_path / "mine"  # Weights given by path travel with the tasks.
+    mine.mkdir()
+    shutil.copy(MODELS_DIR / "gvn_v3" / WEIGHTS_NAME, mine / WEIGHTS_NAME)
+    sweep = SWEEP + ["--explorers", f"nearest,potential,gvn:{mine}"]
+    assert main(sweep + ["--workers", "2", "--out", str(tmp_path / "pool")]) == 0
+    assert main(sweep + ["--workers", "2", "--ray", "--out", str(tmp_path / "ray")]) == 0
     assert not ray.is_initialized()  # The instance it started is shut down.
     pool, on_ray = _files(tmp_path / "pool"), _files(tmp_path / "ray")
-    assert len(pool) == 4 * 8 and sorted(pool) == sorted(on_ray)
+    assert len(pool) == 6 * 8 and sorted(pool) == sorted(on_ray)
     different = [name for name in pool if pool[name] != on_ray[name]]
     assert not different  # Metrics, curves, config (the scene as given), figures.
     for name in ("results.md", "results.csv"):

@@ -24,7 +24,12 @@ from mjexplore.episode.workers import init_episode_worker
 from mjexplore.eval.methods import LEARNED, parse_method
 from mjexplore.io.bundle import Bundle, pack_folder, unpack
 from mjexplore.io.ray_cluster import connect, map_unordered
-from mjexplore.policies.models import WEIGHTS_NAME, resolve_policy, shipped_models
+from mjexplore.policies.models import (
+    WEIGHTS_NAME,
+    register_copy,
+    resolve_policy,
+    shipped_models,
+)
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.scenes.scene import load_scene_files
 
@@ -39,14 +44,23 @@ class _Scene:
     origin: str
 
 
-def _policy_files(spec_text: str) -> Bundle | None:
-    """The weights a spec names by path, as a bundle (None: a classic method, or a shipped
-    model, which every machine's checkout holds)."""
+@dataclasses.dataclass(frozen=True)
+class _Policy:
+    """Weights given by path, as they travel (the file goes beside): the spec's policy as
+    given and the name this machine resolves it to."""
+
+    policy: str
+    name: str
+
+
+def _policy_files(spec_text: str) -> tuple[_Policy, Bundle] | None:
+    """The weights a spec names by path (None: a classic method, or a shipped model, which
+    every machine's checkout holds)."""
     spec = parse_method(spec_text)
     if spec.method not in LEARNED or spec.policy is None or spec.policy in shipped_models():
         return None
-    _, path = resolve_policy(spec.policy, spec.method)
-    return {WEIGHTS_NAME: path.read_bytes()}
+    name, path = resolve_policy(spec.policy, spec.method)
+    return _Policy(spec.policy, name), {WEIGHTS_NAME: path.read_bytes()}
 
 
 class SweepJob(Protocol):
@@ -62,17 +76,17 @@ the run folder ``folder``; its metrics, or a failure record (``end_reason`` 'err
 
 
 def _episode_task(run: Runner, job: SweepJob, scene: _Scene, scene_files: Bundle,
-                  policy_files: Bundle | None) -> tuple[dict[str, Any], Bundle]:
+                  policy: _Policy | None, policy_files: Bundle | None
+                  ) -> tuple[dict[str, Any], Bundle]:
     """A Ray task: the episode's metrics (or failure record) and its run folder's files."""
     local = load_scene_files(unpack(scene_files, scene.folder) / scene.xml)
-    spec = getattr(job, "spec", None)
-    if policy_files is not None:
-        weights = unpack(policy_files, "policy") / WEIGHTS_NAME
-        spec = dataclasses.replace(parse_method(job.spec), policy=str(weights)).text
+    if policy is not None:
+        register_copy(policy.policy, policy.name,
+                      unpack(policy_files, "policy") / WEIGHTS_NAME)
     with tempfile.TemporaryDirectory(prefix="mjexplore-run-") as tmp:
         folder = Path(tmp) / "run"
         metrics = run(job, folder, scene=dataclasses.replace(local, origin=scene.origin),
-                      spec=spec)
+                      spec=getattr(job, "spec", None))
         files = pack_folder(folder, max_bytes=None) if folder.is_dir() else {}
     return metrics, files
 
@@ -101,12 +115,13 @@ def run_remote(jobs: Sequence[SweepJob], run: Runner,
             files = resolve_scene(name)
             scenes[name] = _Scene(files.xml.parent.name, files.xml.name, files.source)
             scene_files[name] = ray.put(pack_folder(files.xml.parent))
-        policies = {}
+        policies: dict[str | None, tuple[_Policy | None, Any]] = {}
         for spec in dict.fromkeys(getattr(job, "spec", None) for job in jobs):
             weights = None if spec is None else _policy_files(spec)
-            policies[spec] = None if weights is None else ray.put(weights)
+            policies[spec] = (None, None) if weights is None else (weights[0],
+                                                                   ray.put(weights[1]))
         calls = [(run, job, scenes[job.scene], scene_files[job.scene],
-                  policies[getattr(job, "spec", None)]) for job in jobs]
+                  *policies[getattr(job, "spec", None)]) for job in jobs]
         for index, result, error in map_unordered(_episode_task, calls,
                                                   initializer=init_episode_worker):
             if error is not None:

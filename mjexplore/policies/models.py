@@ -108,9 +108,20 @@ def shipped_models() -> dict[str, Model]:
     return models
 
 
+_COPIES: dict[str, tuple[str, Path]] = {}
+
+
+def register_copy(policy: str, name: str, path: str | os.PathLike) -> None:
+    """Makes :func:`resolve_policy` resolve ``policy``, as another machine gave it, to
+    ``(name, path)``: the name it has there and this machine's copy of its weights (a Ray
+    worker's), so that run records name the weights as the machine that sent them."""
+    _COPIES[policy] = (name, Path(path))
+
+
 def resolve_policy(policy: str | os.PathLike | None, kind: str) -> tuple[str, Path]:
     """(name, weights file) of ``policy``: a model name, a weights file, a folder holding
-    ``policy.safetensors``, or None for ``kind``'s default model. A file's name is its path.
+    ``policy.safetensors``, or None for ``kind``'s default model. A file's name is its path
+    (on the machine that gave it: see :func:`register_copy`).
 
     Raises:
         UserInputError: neither a model nor a file; the message lists the models.
@@ -118,6 +129,8 @@ def resolve_policy(policy: str | os.PathLike | None, kind: str) -> tuple[str, Pa
     if policy is None:
         policy = DEFAULT_MODEL[kind]
     text = str(policy)
+    if text in _COPIES:
+        return _COPIES[text]
     if (MODELS_DIR / text / WEIGHTS_NAME).is_file() and os.sep not in text:
         return text, MODELS_DIR / text / WEIGHTS_NAME
     path = Path(policy)
