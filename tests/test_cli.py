@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 
 from mjexplore.cli import main
+from mjexplore.io.provenance import file_sha256
+from mjexplore.policies.models import MODELS_DIR
 from mjexplore.maps import FREE, OCCUPIED, GridMap
 from mjexplore.scenes.map_server import write_map
 
@@ -244,8 +246,6 @@ def test_from_map_takes_the_name_given(tmp_path):
 
 
 def test_cnn_explorer_takes_a_policy_file(tmp_path):
-    from mjexplore.policies.models import MODELS_DIR
-
     weights = tmp_path / "mine.safetensors"
     weights.write_bytes((MODELS_DIR / "cnn_v2" / "policy.safetensors").read_bytes())
     assert main(["explore", "--scene", "train_loop", "--explorer", "cnn", "--policy",
@@ -253,8 +253,43 @@ def test_cnn_explorer_takes_a_policy_file(tmp_path):
                  "--out", str(tmp_path / "o")]) == 0
     config = json.loads((tmp_path / "o" / "config.json").read_text())
     metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
-    assert config["explorer"] == metrics["explorer"] == f"cnn:{weights}"
-    assert metrics["policy"] == str(weights)
+    sha = file_sha256(weights)
+    assert config["explorer"] == metrics["explorer"] == f"cnn_mine_{sha[:8]}"
+    assert metrics["policy"] == str(weights) and config["spec"] == f"cnn:{weights}"
+    assert config["policy"] == {"name": str(weights), "file": str(weights), "sha256": sha,
+                                "recipe": metrics["policy_recipe"]}
+
+
+def test_the_run_records_name_the_policy_that_ran(tmp_path):
+    assert main(["explore", "--scene", "train_loop", "--explorer", "gvn", "--policy",
+                 "gvn_paper", "--max-time", "3", "--no-mcap", "--out", str(tmp_path / "o")]) == 0
+    config = json.loads((tmp_path / "o" / "config.json").read_text())
+    assert config["explorer"] == "gvn"  # The paper's recipe keeps its label in the tables.
+    assert config["spec"] == "gvn:gvn_paper"
+    assert config["policy"]["name"] == "gvn_paper"
+    assert config["policy"]["file"] == "models/gvn_paper/policy.safetensors"
+    assert config["policy"]["sha256"] == file_sha256(MODELS_DIR / "gvn_paper" /
+                                                     "policy.safetensors")
+
+
+@pytest.mark.slow
+def test_a_sweep_of_policies_given_by_path_is_collected_completely(tmp_path):
+    run = tmp_path / "train" / "mine"  # Like a run folder of 'mjexplore train'.
+    run.mkdir(parents=True)
+    (run / "policy.safetensors").write_bytes(
+        (MODELS_DIR / "gvn_v3" / "policy.safetensors").read_bytes())
+    out = tmp_path / "bench"
+    assert main(["bench", "--scenes", "train_loop", "--explorers", f"nearest,gvn:{run}",
+                 "--seeds", "2", "--workers", "1", "--max-time", "5", "--no-progress",
+                 "--out", str(out)]) == 0
+    label = f"gvn_mine_{file_sha256(run / 'policy.safetensors')[:8]}"
+    assert sorted(p.name for p in (out / "runs" / "train_loop").iterdir()) == [label, "nearest"]
+    assert main(["collect", str(out), "--experiment", "table1", "--data",
+                 str(tmp_path / "data")]) == 0
+    summary = json.loads((tmp_path / "data" / "table1.json").read_text())
+    assert sorted((r["method"], r["seed"]) for r in summary["runs"]) == \
+        [(label, 0), (label, 1), ("nearest", 0), ("nearest", 1)]
+    assert summary["policies"][label]["sha256"] == file_sha256(run / "policy.safetensors")
 
 
 def test_an_unknown_gl_backend_is_a_clear_error(tmp_path, monkeypatch, capsys):

@@ -3,6 +3,7 @@ workers retried or reported, files that travel as data."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -118,6 +119,23 @@ def test_tasks_whose_worker_dies_are_retried_then_reported(local_ray, tmp_path):
     assert got[0] == (7, None)  # Its worker died once; the retry ran it.
     assert got[1][0] is None and isinstance(got[1][1], ray.exceptions.WorkerCrashedError)
     assert isinstance(got[2][1], UserInputError) and "no such scene" in str(got[2][1])
+
+
+def _kills_its_worker(job, folder, scene, spec):
+    os._exit(1)
+
+
+def test_a_sweep_episode_whose_worker_keeps_dying_lands_in_failed_json(local_ray, tmp_path):
+    from mjexplore.eval.remote import run_remote
+    from mjexplore.eval.sweep import Job, episode_failure, file_results
+
+    job = Job("train_loop", "nearest", 0, "nearest")
+    [failure] = file_results(tmp_path, run_remote([job], _kills_its_worker, episode_failure,
+                                                  "local"))
+    assert failure["end_reason"] == "error" and "WorkerCrashedError" in failure["error"]
+    record = tmp_path / "runs" / "train_loop" / "nearest" / "seed0.failed.json"
+    assert json.loads(record.read_text()) == failure
+    assert not (tmp_path / "runs" / "train_loop" / "nearest" / "seed0").exists()
 
 
 def test_a_result_from_another_revision_is_refused(local_ray, monkeypatch):

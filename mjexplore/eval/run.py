@@ -21,6 +21,7 @@ from mjexplore.eval.progress import EpisodeProgress
 from mjexplore.io.atomic import atomic_directory, write_text_atomic
 from mjexplore.io.mcap_log import FoxgloveEpisodeLog
 from mjexplore.io.provenance import git_revision
+from mjexplore.policies.models import MODELS_DIR, WEIGHTS_NAME, shipped_models
 from mjexplore.scenes.scene import SceneFiles
 
 
@@ -114,8 +115,20 @@ def run_episode(scene: SceneFiles, explorer: str, seed: int, config: EpisodeConf
 
 
 def resolved_config(scene: SceneFiles, explorer: str, seed: int, config: EpisodeConfig,
-                    explorer_kwargs: dict | None = None) -> dict[str, Any]:
+                    explorer_kwargs: dict | None = None, spec: str | None = None,
+                    metrics: dict[str, Any] | None = None) -> dict[str, Any]:
+    """A run's ``config.json``: the scene as given, the run label ``explorer`` and the method
+    spec that built it, the seed, every episode setting, the revision, and for a learned
+    explorer its policy (``name``: a shipped model or the weights file's path; ``file``;
+    ``sha256``, the first 16 hex digits; ``recipe``), from the episode's ``metrics``."""
+    policy = None
+    if metrics is not None and "weights_sha256" in metrics:
+        name = metrics["policy"]
+        policy = {"name": name, "file": str(Path(MODELS_DIR.name, name, WEIGHTS_NAME))
+                  if name in shipped_models() else name, "sha256": metrics["weights_sha256"],
+                  "recipe": metrics.get("policy_recipe")}
     return {"scene": scene.source, "scene_metadata": scene.metadata, "explorer": explorer,
+            "spec": spec or explorer, "policy": policy,
             "explorer_kwargs": explorer_kwargs or {}, "seed": seed,
             "episode": dataclasses.asdict(config), "git_revision": git_revision()}
 
@@ -152,8 +165,8 @@ def write_run(out_dir: str | os.PathLike, scene: SceneFiles, explorer: str, seed
                    "explorer": explorer, "seed": seed, **result.metrics}
         write_text_atomic(tmp / "metrics.json", json.dumps(metrics, indent=2) + "\n")
         write_text_atomic(tmp / "config.json", json.dumps(
-            resolved_config(scene, explorer, seed, config, explorer_kwargs), indent=2,
-            default=str) + "\n")
+            resolved_config(scene, explorer, seed, config, explorer_kwargs, spec, metrics),
+            indent=2, default=str) + "\n")
         write_text_atomic(tmp / "ratio.csv", "t,exploration_ratio\n" + "".join(
             f"{t:.3f},{r:.6f}\n" for t, r in result.ratio_curve))
         write_text_atomic(tmp / "kinematics.csv", result.kinematics.to_csv())

@@ -18,7 +18,7 @@ import re
 from pathlib import Path
 
 from mjexplore.errors import UserInputError
-from mjexplore.io.provenance import REPO
+from mjexplore.io.provenance import REPO, file_sha256
 
 MODELS_DIR = REPO / "models"
 WEIGHTS_NAME = "policy.safetensors"
@@ -207,9 +207,16 @@ def run_label(kind: str, name: str, masked: bool, trained: str) -> str:
 
     Shipped models are labelled by their name (the paper's recipe by its earlier labels,
     ``gvn`` and ``cnn``), with ``_unmasked`` when a policy trained with a mask runs
-    without; a user's file by ``kind:path``.
+    without; a user's file by ``KIND_NAME_SHA``: the name of the run folder that holds its
+    ``policy.safetensors`` (else the file's stem) and the first 8 hex digits of its sha256,
+    which make a safe folder name of one level that tells apart two files of one name.
     """
+    unmasked = not masked and trained != "none"
     if name not in shipped_models():
-        return f"{kind}:{name}" + ("" if masked or trained == "none" else ":unmasked")
+        _, path = resolve_policy(name, kind)  # This machine's copy where it has one.
+        given = Path(name)
+        stem = given.parent.name if given.name == WEIGHTS_NAME else given.stem
+        slug = re.sub(r"[^A-Za-z0-9_.-]+", "-", stem).strip("._-")[:40] or "policy"
+        return f"{kind}_{slug}_{file_sha256(path)[:8]}" + ("_unmasked" if unmasked else "")
     label = LEGACY_LABELS.get(name, name)
-    return label + ("_unmasked" if not masked and trained != "none" else "")
+    return label + ("_unmasked" if unmasked else "")
