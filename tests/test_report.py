@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 import subprocess
@@ -89,7 +90,9 @@ def test_report_has_the_tables_and_figures_of_collected_sweeps(sweep, tmp_path):
     # are the methods a collected sweep lacks (gvn and gvn_v3 here).
     assert "## Not yet run" in text and "--out runs/table1" in text
     assert ("Not in this sweep yet: gvn, gvn_v3. Add them with `mjexplore bench --scenes "
-            "lobby --explorers gvn,gvn_v3 --profile real") in text
+            "lobby --explorers gvn:gvn_paper,gvn:gvn_v3 --profile real") in text
+    assert "runs/lobby_real; mjexplore collect runs/lobby_real --experiment lobby_real --merge`" \
+        in text
 
 
 def _realistic_section(sweep, tmp_path, companion: str) -> tuple[str, str, dict]:
@@ -321,3 +324,61 @@ def test_collect_leaves_out_an_episode_cut_off_by_ctrl_c(sweep, tmp_path):
     assert len(summary["runs"]) == 3
     assert summary["unfinished"]["not_run"] == [
         {"scene": "train_loop", "method": "potential", "seed": 1}]
+
+
+class _Launched(Exception):
+    """Raised by the stand-in sweeps: the command got past every check before episodes."""
+
+
+def _suggested_commands() -> list[str]:
+    """Every command the report can suggest: each experiment's sweep and collect, and the
+    sweep that adds one of its methods."""
+    from mjexplore.eval.report import EXPERIMENTS
+
+    texts = []
+    for exp in EXPERIMENTS:
+        texts.append(exp.with_collect)
+        if "{explorers}" in exp.sweep:
+            texts.append(dataclasses.replace(exp, methods=exp.methods[-1:]).with_collect)
+    commands = []
+    for text in texts:
+        for part in text.split(";"):
+            part = part.split("#")[0].strip()
+            # ARiADNE's scenes come from a shell loop over its maps, outside this checkout.
+            if part.startswith("mjexplore") and "$" not in part:
+                commands.append(part)
+    return commands
+
+
+def test_every_command_the_report_suggests_runs_as_printed(tmp_path, monkeypatch):
+    """Each suggested bench command passes every check bench makes before its first
+    episode (methods, specs and weights, settings, repeated labels); each collect names an
+    experiment the report knows and reads the sweep folder the bench wrote."""
+    import shlex
+
+    import mjexplore.eval.sweep as sweep
+    import mjexplore.eval.team_sweep as team_sweep
+    from mjexplore.cli import main
+    from mjexplore.scenes.canonical import resolve_scene
+
+    def launched(scenes, *args, **kwargs):
+        for scene in scenes:
+            if not scene.startswith("../shared"):  # Present where the shared data are.
+                resolve_scene(scene)
+        raise _Launched
+
+    monkeypatch.setattr(sweep, "run_sweep", launched)
+    monkeypatch.setattr(team_sweep, "run_team_sweep", launched)
+    monkeypatch.chdir(tmp_path)
+    commands = _suggested_commands()
+    assert sum(c.startswith("mjexplore bench") for c in commands) >= 2 * 15
+    for command in commands:
+        argv = shlex.split(command)[1:]
+        if argv[0] == "bench":
+            with pytest.raises(_Launched):
+                main(argv)
+        else:
+            assert argv[0] == "collect", command
+            folder = tmp_path / argv[1]
+            assert main(argv) == 2  # No runs in it here: a clean refusal, nothing else.
+            assert not folder.exists()

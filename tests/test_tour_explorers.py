@@ -233,8 +233,8 @@ def test_episode_goes_on_while_a_frontier_is_reachable():
 
 
 def test_merged_summary_keeps_the_other_methods_runs():
-    def run(method, seed, et):
-        return {"scene": "maze", "method": method, "seed": seed,
+    def run(method, seed, et, scene="maze"):
+        return {"scene": scene, "method": method, "seed": seed,
                 "metrics": {"exploration_time_s": et}, "ratio": {}}
 
     old = {"command": "bench A", "run_revisions": ["a"], "episode": {"max_time": 1800},
@@ -248,6 +248,10 @@ def test_merged_summary_keeps_the_other_methods_runs():
     assert merged["run_revisions"] == ["a", "b"]
     assert merged["command"] == "bench A\nbench B"
     assert merged["policies"] == {"gvn": {"sha256": "x"}}
+    # A sweep of one more scene keeps the methods' runs on the others.
+    office = dict(new, runs=[run("nearest", 0, 5.0, "office")])
+    assert sorted((r["scene"], r["method"]) for r in merge_summaries(office, merged)["runs"]) \
+        == [("maze", "gvn"), ("maze", "nearest"), ("maze", "oracle"), ("office", "nearest")]
     other = json.loads(json.dumps(new))
     other["episode"] = {"max_time": 900}
     with pytest.raises(Exception, match="max_time"):

@@ -110,6 +110,15 @@ def _legacy_labels() -> dict[str, MethodSpec]:
     return specs
 
 
+def spec_of_label(label: str) -> str:
+    """The spec that runs what the run label ``label`` names, as ``bench --explorers``
+    takes it: a shipped model's label names its model (the paper's ``gvn`` is
+    ``gvn:gvn_paper``, while the method ``gvn`` runs today's default model); other
+    labels are their own spec."""
+    legacy = _legacy_labels()
+    return legacy[label].text if label in legacy else label
+
+
 def parse_method(spec: str) -> MethodSpec:
     """The :class:`MethodSpec` a spec names.
 

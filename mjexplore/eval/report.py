@@ -11,7 +11,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
 import types
+from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -20,6 +22,7 @@ import numpy as np
 
 from mjexplore.episode import MILESTONES
 from mjexplore.errors import UserInputError
+from mjexplore.eval.methods import spec_of_label
 from mjexplore.eval.plots import METHOD_LABELS, kinematics_figure, ratio_figure
 from mjexplore.eval.stats import compare_paired
 from mjexplore.eval.summaries import KINEMATIC_FIELDS, KINEMATICS_DT, ratio_curve, read_summary
@@ -75,8 +78,19 @@ class Experiment:
 
     @property
     def command(self) -> str:
-        """The sweep's command line."""
-        return self.sweep.format(explorers=",".join(self.methods))
+        """The sweep's command line (each method by the spec that runs it:
+        :func:`~mjexplore.eval.methods.spec_of_label`)."""
+        return self.sweep.format(explorers=",".join(spec_of_label(m) for m in self.methods))
+
+    @property
+    def with_collect(self) -> str:
+        """The sweep's command line, then the collect that files it for the report (with
+        ``--merge``: the runs already collected are kept)."""
+        if "mjexplore collect" in self.sweep:
+            return self.command
+        out = re.findall(r"--out (\S+)", self.sweep)[-1]
+        return (f"{self.command}; mjexplore collect {out} --experiment {self.name} "
+                "--merge")
 
 
 LADDER_BASELINE = "pocket_nearest"
@@ -124,8 +138,8 @@ EXPLORE_BENCH = ",".join(f"../shared/data/explore_bench/{m}.yaml" for m in (
 EXPERIMENTS = (
     Experiment("table1", "Table 1 and Fig. 5: the three evaluation scenes",
                "Every method on the paper's evaluation scenes (sim profile: 0.5 m/s, 6 m lidar, "
-               "full MuJoCo physics), 10 runs each; seeds vary the start pose and the sensor "
-               "noise. explore_lite is the port of ROS's m-explore, frontier_tsp a global "
+               "full MuJoCo physics); seeds vary the start pose and the sensor noise. "
+               "explore_lite is the port of ROS's m-explore, frontier_tsp a global "
                "tour over the known map's frontiers (TARE/FUEL style). The oracle is the "
                "ground-truth bound: it plans on the true map a set of viewpoints that see "
                "the target ratio and an OR-Tools tour through them, re-solved at each "
@@ -142,7 +156,7 @@ EXPERIMENTS = (
                "trained in the grid world on generated layouts, selected on held-out ones) "
                "beside nearest-frontier, the potential field and the CNN baseline trained "
                "with the same recipe and budget (training/cnn_v2.yaml), run by the same "
-               "revision in full physics on Table 1's scenes, 10 runs each.",
+               "revision in full physics on Table 1's scenes.",
                ("nearest", "potential", "cnn_v2", "gvn_v2"),
                f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 10 "
                "--workers 2 --out runs/gvn_v2"),
@@ -153,13 +167,12 @@ EXPERIMENTS = (
                "generated layouts, training/pockets.yaml; the actor is a residual on "
                "nearest-frontier that counts such nodes 50 m farther per unit of "
                "probability) beside nearest-frontier, the potential field and the v2 "
-               "policy, run by the same revision in full physics on Table 1's scenes, 10 "
-               "runs each.",
+               "policy, run by the same revision in full physics on Table 1's scenes.",
                ("nearest", "potential", "gvn_v2", "gvn_v3"),
                f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 10 "
                "--workers 2 --out runs/gvn_v3"),
     Experiment("ablation", "Table 2: invalid action masking",
-               "The ablation of the paper's Table 2 on the loop and maze scenes, 5 runs each: "
+               "The ablation of the paper's Table 2 on the loop and maze scenes: "
                "policies trained without masking (all TER nodes valid), with naive masking "
                "(masked sampling, unmasked gradient), with IAM; and the IAM policy run without "
                "its mask (masking removed).",
@@ -171,7 +184,7 @@ EXPERIMENTS = (
                "and its masking variants gvn_v2_naive.yaml and gvn_v2_none.yaml: the same "
                "reward, layouts, seed and budget: each policy's weights after the same "
                "number of decisions), on the loop and maze "
-               "scenes, 5 runs each. With every TER node valid, the nearest-node prior the "
+               "scenes. With every TER node valid, the nearest-node prior the "
                "v2 actor starts from favours the node with the shortest path from the "
                "robot, usually one within zeta of where it stands: such a goal is reached at "
                "once and the next decision follows at the next control period.",
@@ -183,14 +196,14 @@ EXPERIMENTS = (
                "and its masking variants gvn_v3_naive.yaml and gvn_v3_none.yaml: the same "
                "reward, pocket predictor, layouts, seed and budget, and the same model "
                "selection: each policy's weights at the held-out evaluation after 8,192 "
-               "decisions), on the loop and maze scenes, 5 runs each.",
+               "decisions), on the loop and maze scenes.",
                ("gvn_v3_none", "gvn_v3_naive", "gvn_v3_unmasked", "gvn_v3"),
                "mjexplore bench --scenes loop_with_corridor,maze --explorers {explorers} "
                "--seeds 5 --workers 2 --out runs/ablation_v3"),
     Experiment("lobby_real", "Table 3 and Fig. 9: the real-robot setting",
                "The paper's robot experiment in simulation: the 17.5 x 4 m lobby with the real "
-               "profile (0.18 m/s, 1.8 rad/s, 5 m lidar; decisions event-driven, as everywhere), "
-               "5 runs per method.",
+               "profile (0.18 m/s, 1.8 rad/s, 5 m lidar; decisions event-driven, as "
+               "everywhere).",
                ("nearest", "potential", "gvn", "gvn_v3"),
                "mjexplore bench --scenes lobby --explorers {explorers} --profile real --seeds 5 "
                "--workers 2 --out runs/lobby_real"),
@@ -201,7 +214,7 @@ EXPERIMENTS = (
                "slip) and the robot localising itself by scan matching: mapping, navigation, "
                "goals and the end of the episode all use its estimate. The exploration ratio "
                "is measured from the same scans at the true poses; IoU compares the robot's "
-               "own map with the ground truth, so its distortion shows. 5 runs each; the time cap "
+               "own map with the ground truth, so its distortion shows. The time cap "
                "is 3600 s (with the LDS-01's 3.5 m range nearest needs about 1700 s for the "
                "office even at the true pose: \"Realistic sensing at the true pose\" below). "
                "The oracle plans its paths on the ground-truth "
@@ -249,8 +262,8 @@ EXPERIMENTS = (
                "--lidar-range 7 --workers 2 --out runs/explore_bench"),
     Experiment("teams", "Several robots: the evaluation scenes",
                "Teams of 2 and 3 robots on the office (full physics, the CLI's defaults: 6 m "
-               "lidar with 0.01 m noise, target 98.5 %), 5 seeds, and of 2 robots on "
-               "loop_with_corridor and the maze, 3 seeds; robot 0 where the single "
+               "lidar with 0.01 m noise, target 98.5 %), and of 2 robots on "
+               "loop_with_corridor and the maze; robot 0 where the single "
                "robot of the same seed starts and the others drawn 1-3 m around it; each "
                "seed's single robot (nearest) beside. assign_greedy: frontier regions "
                "assigned greedily by path cost; naive_nearest: every robot runs nearest on "
@@ -268,10 +281,10 @@ EXPERIMENTS = (
                "--scenes office --robots 3 --explorers assign_greedy,oracle --seeds 5 "
                "--workers 1 --out runs/office3; mjexplore bench --scenes "
                "loop_with_corridor,maze --robots 2 --explorers assign_greedy,nearest --seeds 3 "
-               "--workers 1 --out runs/office2; then mjexplore collect runs/office3 "
-               "--experiment teams, and runs/office2 with --merge"),
+               "--workers 1 --out runs/office2; mjexplore collect runs/office3 --experiment "
+               "teams; mjexplore collect runs/office2 --experiment teams --merge"),
     Experiment("teams_explore_bench", "Several robots: the Explore-Bench maps",
-               "Two robots on the six Explore-Bench maps (7 m lidar, full physics, 3 seeds) "
+               "Two robots on the six Explore-Bench maps (7 m lidar, full physics) "
                "from the benchmark's close and far placements, the naive team (nearest) "
                "against greedy frontier assignment, and the single robot (nearest, from the "
                "map's own start) beside.",
@@ -282,7 +295,7 @@ EXPERIMENTS = (
                "--out runs/eb2; mjexplore collect runs/eb2 --experiment teams_explore_bench"),
     Experiment("ladder", "The ladder of bounds: what knowing more of the layout is worth",
                "Explorers that differ only in what they know, on Table 1's scenes in full "
-               "physics, 10 runs each: pocket_nearest (the learned pocket classifier on "
+               "physics: pocket_nearest (the learned pocket classifier on "
                "nearest-frontier); pocket_truth, the same rule with the true pockets; "
                "distance_advantage (Ericson et al. 2025) alone and on the pocket prior "
                "(pocket_advantage); oracle_2m/5m/10m, the oracle's planner given the truth "
@@ -705,7 +718,7 @@ def build_report(data_dir: str | os.PathLike, out: str | os.PathLike,
         summary = summaries[exp.name]
         groups = _groups(summary)
         lines += [f"## {exp.title}", "", exp.about, "", "Sweep:", "", "```bash",
-                  summary.get("command") or exp.command, "```", ""]
+                  summary.get("command") or exp.command, "```", "", what_ran(summary), ""]
         policies = {m: rec for m, rec in (summary.get("policies") or {}).items() if rec}
         used = summary.get("run_weights") or {}
         if policies:
@@ -733,10 +746,13 @@ def build_report(data_dir: str | os.PathLike, out: str | os.PathLike,
                       ""]
         ran = {m for methods in groups.values() for m in methods}
         absent = tuple(m for m in exp.methods if m not in ran)
-        if absent:
+        if absent and "{explorers}" in exp.sweep:
             lines += [f"Not in this sweep yet: {', '.join(absent)}. Add them with "
-                      f"`{dataclasses.replace(exp, methods=absent).command}`, then collect the "
-                      "folder again and rerun the report.", ""]
+                      f"`{dataclasses.replace(exp, methods=absent).with_collect}`, then rerun "
+                      "the report.", ""]
+        elif absent:
+            lines += [f"Not in this sweep yet: {', '.join(absent)} (the commands above make "
+                      "them).", ""]
         stills = summary.get("stills") or {}
         if stills:
             method = summary.get("stills_method", "gvn")
@@ -747,14 +763,38 @@ def build_report(data_dir: str | os.PathLike, out: str | os.PathLike,
     lines += training_section(data, figures, rel)
     lines += revisions_section(summaries)
     if missing:
-        lines += ["## Not yet run", "",
-                  "Run the sweep, then `mjexplore collect runs/NAME --experiment NAME` and "
-                  "`mjexplore report`:", ""]
+        lines += ["## Not yet run", "", "Run the sweep and collect it, then `mjexplore report`:",
+                  ""]
         for exp in missing:
-            lines += [f"- **{exp.title}** ({exp.name}): `{exp.command}`"]
+            lines += [f"- **{exp.title}** ({exp.name}): `{exp.with_collect}`"]
         lines.append("")
     write_text_atomic(out, "\n".join(lines))
     return out
+
+
+def what_ran(summary: dict[str, Any]) -> str:
+    """What a summary's runs are, from the runs themselves: how many, per scene and method,
+    the world, the time cap, lidar, localisation and target, and the revisions."""
+    runs = summary["runs"]
+    per = Counter((r["scene"], r["method"]) for r in runs)
+    low, high = min(per.values()), max(per.values())
+    each = f"{low} run{'s' if low > 1 else ''}" if low == high else f"{low} to {high} runs"
+    episode = summary.get("episode") or {}
+    sim = episode.get("sim") or {}
+    lidar = sim.get("lidar") or {}
+    facts = [f"{len(runs)} runs: {each} of each of {len(per)} scene and method pairs",
+             f"{sim.get('dynamics', 'physics')} world",
+             f"{sim.get('profile', 'sim')} profile"]
+    if lidar:
+        facts.append(f"{lidar.get('model', 'ideal')} lidar to {lidar['range_max']:g} m")
+    if "max_time" in episode:
+        facts.append(f"time cap {episode['max_time']:g} s")
+    if "target_ratio" in episode:
+        facts.append(f"target {100 * episode['target_ratio']:g} %")
+    facts.append(f"localisation {episode.get('localization', 'ground_truth')}")
+    revisions = summary.get("run_revisions") or ["not recorded"]
+    facts.append("revision " + ", ".join(f"`{r[:7]}`" for r in revisions))
+    return "Ran: " + "; ".join(facts) + "."
 
 
 def _paired_lines(groups) -> list[str]:

@@ -202,8 +202,9 @@ def collect_sweep(sweep: str | os.PathLike, experiment: str, command: str | None
 
 
 def merge_summaries(new: dict[str, Any], old: dict[str, Any]) -> dict[str, Any]:
-    """``new`` with the runs of ``old`` whose methods ``new`` lacks (a sweep that adds or
-    re-runs methods of an experiment whose other runs are kept as they were measured).
+    """``new`` with the runs of ``old`` of the scene and method pairs ``new`` lacks (a sweep
+    that adds or re-runs methods or scenes of an experiment whose other runs are kept as
+    they were measured).
 
     The merged summary lists both sweeps' commands and every run's revision.
 
@@ -214,11 +215,11 @@ def merge_summaries(new: dict[str, Any], old: dict[str, Any]) -> dict[str, Any]:
     if clash:
         raise UserInputError(f"the existing summary ran with another {clash} than the sweep: "
                              "a summary mixes no settings; collect without --merge.")
-    fresh = {r["method"] for r in new["runs"]}
-    kept = [r for r in old["runs"] if r["method"] not in fresh]
+    fresh = {(r["scene"], r["method"]) for r in new["runs"]}
+    kept = [r for r in old["runs"] if (r["scene"], r["method"]) not in fresh]
     if not kept:
         return new
-    kept_methods = {r["method"] for r in kept}
+    kept_methods = {r["method"] for r in kept} - {r["method"] for r in new["runs"]}
     commands = [c for c in (old.get("command"), new.get("command")) if c]
     merged = dict(new)
     merged["command"] = "\n".join(dict.fromkeys(commands)) or None
