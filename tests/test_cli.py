@@ -412,3 +412,21 @@ def test_an_all_wall_map_and_a_text_file_as_weights_are_one_line(tmp_path, capsy
         err = capsys.readouterr().err
         assert says in err and err.count("\n") == 1 and "Traceback" not in err, err
         assert not (tmp_path / "o").exists()
+
+
+def test_a_sweep_started_again_with_fewer_methods_keeps_both_commands(tmp_path):
+    out = tmp_path / "bench"
+    first = ["bench", "--scenes", "train_loop", "--explorers", "nearest,potential", "--seeds",
+             "1", "--workers", "1", "--max-time", "5", "--no-progress", "--out", str(out)]
+    again = first[:4] + ["nearest"] + first[5:]
+    assert main(first) == 0 and main(again) == 0
+    sweep = json.loads((out / "sweep.json").read_text())
+    assert [plan["explorers"] for plan in sweep["history"]] == [["nearest", "potential"],
+                                                                ["nearest"]]
+    assert sweep["explorers"] == ["nearest"]  # The last start's plan.
+    assert main(["collect", str(out), "--experiment", "table1", "--data",
+                 str(tmp_path / "data")]) == 0
+    summary = json.loads((tmp_path / "data" / "table1.json").read_text())
+    # potential's runs were made by the first command: the summary names it.
+    assert "nearest,potential" in summary["command"]
+    assert {r["method"] for r in summary["runs"]} == {"nearest", "potential"}

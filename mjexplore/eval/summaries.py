@@ -21,7 +21,13 @@ import numpy as np
 
 from mjexplore.errors import UserInputError
 from mjexplore.eval.plots import resample
-from mjexplore.eval.sweep import Job, finished_metrics, read_kinematics, read_ratio_curve
+from mjexplore.eval.sweep import (
+    Job,
+    finished_metrics,
+    read_kinematics,
+    read_ratio_curve,
+    sweep_history,
+)
 from mjexplore.io.atomic import write_text_atomic
 from mjexplore.io.provenance import git_revision
 
@@ -94,6 +100,27 @@ def _unfinished(sweep: Path, info: dict[str, Any]) -> dict[str, list[dict[str, A
         else:
             not_run.append(record)
     return {"failed": failed, "not_run": not_run}
+
+
+def _commands_of_runs(folders: list[Path], history: list[dict[str, Any]]) -> list[str]:
+    """The commands that made the runs in ``folders``, in the order the sweep was started:
+    each run's own (its ``config.json``), else those of the sweep's starts whose plan holds
+    its scene, method and seed."""
+    planned = [(plan["command"], {(Job(s, e, int(k)).label, e, f"seed{k}")
+                                  for s in plan.get("scenes", [])
+                                  for e in plan.get("explorers", [])
+                                  for k in plan.get("seeds", [])})
+               for plan in history if plan.get("command")]
+    made = set()
+    for folder in folders:
+        config = json.loads((folder / "config.json").read_text())
+        if config.get("command"):
+            made.add(config["command"])
+            continue
+        key = (folder.parent.parent.name, folder.parent.name, folder.name)
+        made |= {command for command, jobs in planned if key in jobs}
+    ordered = [plan["command"] for plan in history if plan.get("command") in made]
+    return list(dict.fromkeys(ordered + sorted(made - set(ordered))))
 
 
 def _ratio(folder: Path) -> dict[str, Any]:
@@ -181,8 +208,10 @@ def collect_sweep(sweep: str | os.PathLike, experiment: str, command: str | None
                      _kinematics(folder, kinematics_series)})
     methods = sorted({r["method"] for r in runs})
     specs = dict(zip(info.get("explorers", []), info.get("specs", []), strict=False))
+    made_by = _commands_of_runs(folders, sweep_history(sweep))
     summary = {"format": FORMAT, "version": VERSION, "experiment": experiment,
-               "command": command or info.get("command"),
+               # The commands that made the runs collected (not merely the last start's).
+               "command": command or "\n".join(made_by) or info.get("command"),
                "collected_at_revision": git_revision(),
                "run_revisions": sorted(r for r in revisions if r),
                # By the spec each label ran (sweep.json): a label such as gvn may have run

@@ -157,6 +157,19 @@ def _run_job(args: tuple[Job, Path, EpisodeConfig, bool | str]) -> dict[str, Any
     return metrics
 
 
+def sweep_history(out: Path) -> list[dict[str, Any]]:
+    """The plans (command, revision, scenes, explorers, specs, seeds) of every earlier start
+    of the sweep in ``out``, oldest first, from its ``sweep.json`` (a sweep.json written
+    before the history was kept counts as one start)."""
+    try:
+        info = json.loads((out / "sweep.json").read_text())
+    except (OSError, ValueError):
+        return []
+    if not isinstance(info, dict):
+        return []
+    return info.get("history") or [{k: v for k, v in info.items() if k != "history"}]
+
+
 def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Path,
               config: EpisodeConfig, workers: int = 2, mcap: bool | str = False,
               progress: bool = True, command: str | None = None,
@@ -170,7 +183,9 @@ def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Pa
     episode (see :func:`mjexplore.eval.run.write_run`).
 
     ``command`` (the command line that started the sweep) is kept in ``OUT/sweep.json`` with
-    the code revision, for the reports made from the sweep.
+    the code revision and the plan, for the reports made from the sweep; ``history`` there
+    keeps every earlier start's, so that runs made by an earlier command of the same
+    folder are not credited to the last one.
 
     ``progress``: a bar of finished episodes on a terminal, a line per episode elsewhere
     (:class:`~mjexplore.io.progress.Progress`); False shows nothing.
@@ -200,10 +215,11 @@ def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Pa
             for seed in seeds]
     _check_settings(jobs, out, config)
     out.mkdir(parents=True, exist_ok=True)
+    plan = {"command": command, "git_revision": git_revision(), "scenes": scenes,
+            "explorers": [spec.label for spec in specs], "specs": [spec.text for spec in specs],
+            "seeds": seeds}
     write_text_atomic(out / "sweep.json", json.dumps(
-        {"command": command, "git_revision": git_revision(), "scenes": scenes,
-         "explorers": [spec.label for spec in specs], "specs": [spec.text for spec in specs],
-         "seeds": seeds}, indent=2) + "\n")
+        {**plan, "history": sweep_history(out) + [plan]}, indent=2) + "\n")
     earlier = {job: finished_metrics(job.folder(out)) for job in jobs}
     results = [m for m in earlier.values() if m is not None]
     todo = [job for job, m in earlier.items() if m is None]
