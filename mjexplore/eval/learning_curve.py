@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from mjexplore.config import to_dict
+from mjexplore.errors import UserInputError
 from mjexplore.eval.stats import compare_paired
 from mjexplore.io.atomic import write_text_atomic
 from mjexplore.learning.training import TrainConfig, eval_score, heldout_env
@@ -49,16 +50,27 @@ def layout_name(scene: str) -> str:
 
 def read_evaluations(run: str | Path) -> list[dict[str, Any]]:
     """The rows of ``RUN/eval.csv`` with typed values (steps int; seconds, metres and ratio
-    float); [] without the file."""
+    float); [] without the file.
+
+    Raises:
+        UserInputError: a row that lacks a column or holds a value of the wrong kind.
+    """
     path = Path(run) / "eval.csv"
     if not path.is_file():
         return []
-    with open(path) as f:
-        return [{"steps": int(r["steps"]), "scene": r["scene"],
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    try:
+        return [{"steps": int(r["steps"]), "scene": str(r["scene"]),
                  "exploration_time_s": float(r["exploration_time_s"]),
                  "path_length_m": float(r["path_length_m"]),
                  "exploration_ratio": float(r["exploration_ratio"]),
-                 "end_reason": r["end_reason"]} for r in csv.DictReader(f)]
+                 "end_reason": str(r["end_reason"])} for r in rows]
+    except (KeyError, TypeError, ValueError) as exc:
+        raise UserInputError(
+            f"{str(path)!r} is not an eval.csv of 'mjexplore train' ({type(exc).__name__}: "
+            f"{exc}): it needs the columns steps, scene, exploration_time_s, path_length_m, "
+            "exploration_ratio and end_reason with a number in each numeric one.") from None
 
 
 def learning_curve(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:

@@ -72,6 +72,14 @@ def _run_folders(sweep: Path) -> list[Path]:
                   for p in sweep.glob(pattern) if finished_metrics(p.parent) is not None)
 
 
+def team_runs(sweep: str | os.PathLike) -> dict[Path, bool]:
+    """Each finished run of a sweep folder: whether it is a team sweep's
+    (``runs/SCENE/PLACEMENT/METHOD/seedN``, ``bench --robots``)."""
+    sweep = Path(sweep)
+    return {folder: len(folder.relative_to(sweep / "runs").parts) == 4
+            for folder in _run_folders(sweep)}
+
+
 def _team_run(folder: Path, config: dict[str, Any]) -> dict[str, Any]:
     """A team sweep's run keys: scene, its placement ('single' for the single robot beside),
     robots, revision, and as its method the folder's with both (``assign_greedy x2 far``),
@@ -177,7 +185,8 @@ def collect_sweep(sweep: str | os.PathLike, experiment: str, command: str | None
         UserInputError: ``sweep`` holds no finished episode, or the reference is unreadable.
     """
     sweep = Path(sweep)
-    folders = _run_folders(sweep)
+    kinds = team_runs(sweep)
+    folders = list(kinds)
     if not folders:
         raise UserInputError(f"{str(sweep)!r} holds no finished episode (no "
                              "runs/SCENE/METHOD/seedN/metrics.json): give the --out folder of "
@@ -195,7 +204,7 @@ def collect_sweep(sweep: str | os.PathLike, experiment: str, command: str | None
                                  "episode: a summary mixes no settings; sweep it into its own "
                                  "--out folder.")
         metrics = json.loads((folder / "metrics.json").read_text())
-        team = len(folder.relative_to(sweep / "runs").parts) == 4
+        team = kinds[folder]
         keys = _team_run(folder, config) if team else \
             {"scene": folder.parent.parent.name, "method": folder.parent.name}
         runs.append({**keys, "seed": int(config["seed"]),

@@ -47,12 +47,15 @@ def collect_training(run: str | Path, data_dir: str | Path, name: str | None = N
     Raises:
         UserInputError: ``run`` has no evaluations, or ``name`` is not a plain name.
     """
-    from mjexplore.eval.learning_curve import run_facts
+    from mjexplore.eval.learning_curve import read_evaluations, run_facts
 
     run = Path(run)
     if not (run / "eval.csv").is_file():
         raise UserInputError(f"{str(run)!r} holds no eval.csv: give a run folder of "
                              "'mjexplore train --out' once it has evaluated (eval.every).")
+    if not read_evaluations(run):  # Also refuses a damaged one, before anything is kept.
+        raise UserInputError(f"{str(run / 'eval.csv')!r} holds no evaluation yet: collect the "
+                             "run once it has evaluated (eval.every).")
     name = name or run.resolve().name
     if not re.fullmatch(r"[A-Za-z0-9_.-]+", name) or name.startswith("."):
         raise UserInputError(f"--name {name!r}: use letters, digits, '_', '-' and '.' (it "

@@ -199,3 +199,29 @@ def atomic_directory(path: str | os.PathLike, marker: str) -> Iterator[Path]:
     os.replace(tmp, path)
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def staged_files(folder: str | os.PathLike) -> Iterator[Path]:
+    """Yields a temporary folder beside ``folder`` whose files move into ``folder`` (made if
+    missing; files of the same names replaced, others kept) when the block succeeds; if it
+    raises, they are removed and ``folder`` is left as it was.
+    """
+    folder = Path(folder)
+    made = make_folders(folder.parent)
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
+    except BaseException:
+        remove_made_folders(made)
+        raise
+    try:
+        yield tmp
+        folder.mkdir(exist_ok=True)
+        for path in tmp.iterdir():
+            give_usual_permissions(path)
+            os.replace(path, folder / path.name)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        remove_made_folders(made)
+        raise
+    shutil.rmtree(tmp, ignore_errors=True)

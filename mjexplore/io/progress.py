@@ -3,8 +3,9 @@
 On a terminal, a tqdm bar with the work's phase ("collecting", "updating", ...) and details
 after it, redrawn at most a few times a second, whose clock keeps ticking while a phase runs
 without updates (a PPO update, a held-out evaluation). Anywhere else (a pipe, a log file)
-no bar and no carriage returns: a plain line at most every ``every`` seconds and one at the
-end, or nothing at all (``every=None``, as ``explore`` does). ``enabled=False`` (the
+no bar and no carriage returns: a plain line at most every ``every`` seconds, at least every
+``every`` seconds while the work runs (also through a phase without updates), and one at
+the end, or nothing at all (``every=None``, as ``explore`` does). ``enabled=False`` (the
 commands' ``--no-progress``) shows nothing anywhere.
 """
 
@@ -17,6 +18,7 @@ from typing import TextIO
 
 from tqdm import tqdm
 
+HEARTBEAT_S = 30.0  # Off a terminal, the longest silence of lines at every update (every=0).
 DEFAULT_FORMAT = ("{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} {unit} "
                   "[{elapsed}<{remaining}{postfix}]")
 
@@ -45,7 +47,7 @@ class Progress:
         stream: Where it goes (default: ``sys.stderr`` at construction time).
         enabled: False shows nothing.
         every: Off a terminal, seconds between plain lines (0: a line at every update or
-            phase); None: no lines at all.
+            phase, and one after ``HEARTBEAT_S`` without any); None: no lines at all.
         bar_format: tqdm's format of the bar on a terminal.
         min_interval: Seconds between redraws of the bar.
         tick: Seconds between redraws of a bar that gets no updates (its clock); 0: none.
@@ -68,20 +70,28 @@ class Progress:
         self._last_line = self.start
         self._printed = ""  # The last line's text; the first comes at once.
         self._closed = False
+        self._lock = threading.Lock()
         self.bar = tqdm(total=total, initial=initial, file=self.stream,
                         disable=not self.terminal, desc=desc, unit=unit,
                         mininterval=min_interval, bar_format=bar_format, dynamic_ncols=True)
         self._line()  # Off a terminal, the first line says at once that the work started.
         self._stop = threading.Event()
         self._ticker = None
-        if self.terminal and tick > 0:
-            self._ticker = threading.Thread(target=self._tick, args=(tick,), daemon=True,
+        # A bar's clock keeps ticking, and off a terminal a line comes at least every
+        # `every` seconds, through a phase without updates too (a PPO update, an evaluation).
+        period = tick if self.terminal else min(1.0, self.every or 1.0) if self.lines else 0.0
+        if period > 0:
+            self._ticker = threading.Thread(target=self._tick, args=(period,), daemon=True,
                                             name=f"{desc}-progress")
             self._ticker.start()
 
     def _tick(self, period: float) -> None:
         while not self._stop.wait(period):
-            self.bar.refresh()
+            if self.terminal:
+                self.bar.refresh()
+            elif self.lines:
+                with self._lock:
+                    self._write_line(False, self.every or HEARTBEAT_S)
 
     def _postfix(self) -> str:
         return ", ".join(t for t in (self.phase_text, self.detail_text) if t)
@@ -89,8 +99,14 @@ class Progress:
     def _line(self, force: bool = False) -> None:
         if not self.lines:
             return
+        with self._lock:  # The ticker's thread writes lines too.
+            self._write_line(force, self.every)
+
+    def _write_line(self, force: bool, gap: float) -> None:
+        """A line unless one came less than ``gap`` seconds ago (``force``: a line, unless
+        the last said the same)."""
         now = time.monotonic()
-        if not force and now - self._last_line < self.every and self._printed:
+        if not force and now - self._last_line < gap and self._printed:
             return
         done = f"{self.n:g}/{self.total:g} {self.unit}"
         if self.total:
