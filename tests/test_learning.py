@@ -690,6 +690,29 @@ def test_training_saves_resumes_and_loads(tmp_path):
     assert second["wall_s"] > 0 and second["learner_cpu_s"] > 0
 
 
+@pytest.mark.slow
+def test_train_refuses_other_files_and_clears_a_start_that_made_no_checkpoint(tmp_path):
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text(TINY.format(total=8, n_envs=1))
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    r = _train_cli(["--config", str(cfg), "--out", str(out)])
+    assert r.returncode == 2 and "notes.txt" in r.stderr, r.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
+    (out / "notes.txt").unlink()
+    # What a start interrupted before its first checkpoint leaves: its events would mix
+    # with the next run's in TensorBoard.
+    stale = out / "tb" / "ppo_0" / "events.out.tfevents.1.abandoned"
+    stale.parent.mkdir(parents=True)
+    stale.write_bytes(b"old")
+    (out / "config.yaml").write_text("# an earlier start\n")
+    r = _train_cli(["--config", str(cfg), "--out", str(out)])
+    assert r.returncode == 0, r.stderr
+    assert not stale.exists() and [p.name for p in (out / "tb").iterdir()] == ["ppo_0"]
+    assert "earlier start" in r.stderr
+
+
 def test_training_starts_from_init_weights_and_refuses_another_network(tmp_path):
     from mjexplore.learning.training import _fresh_policy, _policy_kwargs, train
     from mjexplore.policies.registry import layout_of

@@ -31,7 +31,7 @@ from mjexplore.errors import UserInputError
 from mjexplore.eval.methods import LEARNED, parse_method
 from mjexplore.eval.plots import kinematics_figure, ratio_figure
 from mjexplore.eval.run import write_run
-from mjexplore.io.atomic import atomic_directory, write_text_atomic
+from mjexplore.io.atomic import atomic_directory, refuse_foreign_files, write_text_atomic
 from mjexplore.io.bundle import Bundle, write_files
 from mjexplore.io.progress import Progress
 from mjexplore.io.provenance import git_revision
@@ -39,6 +39,9 @@ from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.scenes.scene import SceneFiles
 from mjexplore.sim.kinematics import KinematicsLog
 
+# What a sweep folder holds (run_sweep and the team sweep), as shell patterns.
+SWEEP_OUTPUTS = ("sweep.json", "runs", "results.md", "results.csv", "ratio_*.png",
+                 "kinematics_*.png", ".*.tmp")
 METRICS = (("iou", "IoU"), ("exploration_ratio", "ER"), ("exploration_time_s", "ET (s)"),
            ("path_length_m", "PL (m)"), ("t80_s", "T80 (s)"), ("t985_s", "T98.5 (s)"))
 
@@ -213,6 +216,7 @@ def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Pa
             spec.build()  # Fail early, in the parent: the weights are read and checked.
     jobs = [Job(s, spec.label, seed, spec.text) for s in scenes for spec in specs
             for seed in seeds]
+    refuse_foreign_files(out, SWEEP_OUTPUTS, "a bench sweep")
     _check_settings(jobs, out, config)
     out.mkdir(parents=True, exist_ok=True)
     plan = {"command": command, "git_revision": git_revision(), "scenes": scenes,

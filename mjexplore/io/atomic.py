@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import fnmatch
 import os
 import shutil
 import tempfile
@@ -77,6 +78,33 @@ def check_output_folder(path: str | os.PathLike, flag: str = "--out") -> Path:
                              "can be made below it: choose another path.")
     _probe_writable(existing, flag, path)
     return path
+
+
+def foreign_entries(path: str | os.PathLike, ours: Iterable[str]) -> list[str]:
+    """The names in the folder ``path`` (none if it does not exist) that match none of the
+    shell patterns ``ours`` (a command's own outputs), sorted."""
+    path = Path(path)
+    if not path.is_dir():
+        return []
+    patterns = tuple(ours)
+    return sorted(p.name for p in path.iterdir()
+                  if not any(fnmatch.fnmatchcase(p.name, pattern) for pattern in patterns))
+
+
+def refuse_foreign_files(path: str | os.PathLike, ours: Iterable[str], what: str,
+                         flag: str = "--out") -> None:
+    """Refuses an output folder that holds files other than the outputs of ``what`` (the
+    shell patterns ``ours``): resuming into it would mix them in.
+
+    Raises:
+        UserInputError: naming up to three of the other files.
+    """
+    others = foreign_entries(path, ours)
+    if others:
+        named = ", ".join(others[:3]) + (f" and {len(others) - 3} more" if len(others) > 3
+                                         else "")
+        raise UserInputError(f"{flag} {str(path)!r} holds files that are not {what}'s outputs "
+                             f"({named}): choose a new folder, or empty that one.")
 
 
 def check_output_file(path: str | os.PathLike, flag: str,

@@ -56,7 +56,7 @@ from mjexplore.episode.workers import (
     thread_counts,
 )
 from mjexplore.errors import UserInputError
-from mjexplore.io.atomic import write_bytes_atomic, write_text_atomic
+from mjexplore.io.atomic import refuse_foreign_files, write_bytes_atomic, write_text_atomic
 from mjexplore.io.provenance import git_revision
 from mjexplore.learning.imitation import ImitationConfig
 from mjexplore.policies.registry import layout_of
@@ -815,6 +815,9 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
     if resume and latest is None:
         raise UserInputError(f"nothing to resume in {str(out)!r}: it has no checkpoint yet; run "
                              "without --resume to start.")
+    if latest is None:  # A fresh run: into a new folder, or one an earlier start abandoned.
+        refuse_foreign_files(out, ABANDONED_START, "an earlier start of 'mjexplore train' that "
+                             "made no checkpoint")
     state = load_checkpoint(latest) if latest is not None else None
     if state is not None:
         # Settings added since the run started read as their defaults (which keep the
@@ -830,7 +833,29 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
     torch.set_num_threads(config.torch_threads)
     init = _initial_weights(config, init_weights) if init_weights is not None else None
     venv = make_vec_env(config, config.seed + done, ray_address)  # Before writing: may refuse.
+    if latest is None:
+        _clear_abandoned_start(out)
     return _train(config, out, ckpt, state, latest, venv, progress, device, recipe, init)
+
+
+# What a start of `train` writes before its first checkpoint (shell patterns).
+ABANDONED_START = ("config.yaml", "tb", "checkpoints", "sessions.json", "eval.csv", "init.json",
+                   "imitation.json", ".*.tmp")
+
+
+def _clear_abandoned_start(out: Path) -> None:
+    """Removes what an earlier start that made no checkpoint left in ``out`` (its TensorBoard
+    events would mix with the new run's in ``tb/``); :func:`train` checked there is no
+    other file."""
+    left = sorted(out.iterdir()) if out.is_dir() else []
+    if left:
+        log.warning("removing what an earlier start left in %s without a checkpoint: %s", out,
+                    ", ".join(p.name for p in left))
+    for path in left:
+        if path.is_dir():
+            shutil.rmtree(path)
+        else:
+            path.unlink()
 
 
 def _fixed_settings(config: dict[str, Any]) -> dict[str, Any]:
