@@ -38,6 +38,7 @@ from mjexplore.io.provenance import git_revision
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.scenes.scene import SceneFiles
 from mjexplore.sim.kinematics import KinematicsLog
+from mjexplore.sim.simulator import compile_scene
 
 # What a sweep folder holds (run_sweep and the team sweep), as shell patterns.
 SWEEP_OUTPUTS = ("sweep.json", "runs", "results.md", "results.csv", "ratio_*.png",
@@ -202,7 +203,7 @@ def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Pa
             are missing, damaged or of another kind (checked here, before any episode).
     """
     for scene in scenes:
-        resolve_scene(scene)  # Fail early, in the parent, on a bad scene.
+        compile_scene(resolve_scene(scene))  # Fail early, in the parent, on a bad scene.
     labels: dict[str, str] = {}
     for scene in scenes:
         other = labels.setdefault(scene_label(scene), scene)

@@ -188,6 +188,19 @@ def keep_awake(model: mujoco.MjModel, body: int) -> None:
     model.tree_sleep_policy[model.body_treeid[body]] = mujoco.mjtSleepPolicy.mjSLEEP_NEVER
 
 
+def compile_scene(scene: SceneFiles) -> mujoco.MjModel:
+    """The scene's compiled MJCF.
+
+    Raises:
+        UserInputError: it does not compile (the message has MuJoCo's reason and the fix).
+    """
+    try:
+        return mujoco.MjModel.from_xml_path(str(scene.xml))
+    except ValueError as exc:
+        raise UserInputError(f"MJCF {str(scene.xml)!r} failed to compile: {exc}. Fix the "
+                             "file or regenerate it with 'mjexplore scene-gen'.") from None
+
+
 class Simulator(RobotWorld):
     """Steps a scene's MuJoCo model with the robot driven by (v, omega) commands.
 
@@ -209,11 +222,7 @@ class Simulator(RobotWorld):
     def __init__(self, scene: str | os.PathLike | SceneFiles, config: SimConfig | None = None):
         self.config = config or SimConfig()
         self.scene = scene if isinstance(scene, SceneFiles) else load_scene_files(scene)
-        try:
-            self.model = mujoco.MjModel.from_xml_path(str(self.scene.xml))
-        except ValueError as exc:
-            raise UserInputError(f"MJCF {str(self.scene.xml)!r} failed to compile: {exc}. Fix the "
-                                 "file or regenerate it with 'mjexplore scene-gen'.") from None
+        self.model = compile_scene(self.scene)
         self.data = mujoco.MjData(self.model)
         self.profile: MotionProfile = motion_profile(self.config.profile)
         m = self.model
