@@ -9,6 +9,7 @@ summary is missing is listed with the command that would make it.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import os
 import re
@@ -55,6 +56,171 @@ TARGET_METHOD = "gvn_v3"
 
 
 @dataclasses.dataclass(frozen=True)
+class Section:
+    """What the parts of an experiment's section are made from.
+
+    Attributes:
+        name: The experiment's name (figure files are named after it).
+        summary: Its sweep summary (``mjexplore collect``).
+        groups: Its runs by scene, then method (:func:`_groups`).
+        figures: The folder figures are written to.
+        rel: That folder as the report links it.
+        summaries: Every experiment's summary, for parts that set one beside another.
+    """
+
+    name: str
+    summary: dict[str, Any]
+    groups: dict[str, dict[str, list[dict[str, Any]]]]
+    figures: Path
+    rel: str
+    summaries: dict[str, dict[str, Any]]
+
+
+def results(s: Section, rename: dict[str, str] | None = None,
+            verdict: str | None = None) -> list[str]:
+    """Table 1's columns per scene and method, how episodes ended, the masking verdict on
+    ``verdict`` (an ablation's IAM method) and the runs the sweep has not finished."""
+    lines = [_table(s.groups, rename), "",
+             _other_ends(s.groups, rename, s.summary.get("episode")), ""]
+    if verdict is not None:
+        lines += [masking_verdict(s.groups, verdict), ""]
+    note = _unfinished_note(s.summary)
+    return lines + ([note, ""] if note else [])
+
+
+def ablation_results(s: Section) -> list[str]:
+    """:func:`results` with the ablation's names and its masking verdict."""
+    return results(s, ABLATION_NAMES, ABLATIONS[s.name])
+
+
+def table1_verdicts(s: Section) -> list[str]:
+    """The target method against the best classic, every method paired against
+    nearest-frontier, and the paper's claims (gvn against the potential field)."""
+    lines = []
+    if any(TARGET_METHOD in methods for methods in s.groups.values()):
+        lines += [target_verdict(s.groups, TARGET_METHOD), ""]
+    lines += _paired_lines(s.groups)
+    claims, faster = claims_table(s.groups)
+    if faster:
+        lines += ["### The paper's claims", "",
+                  "gvn's time to 80 % and to 98.5 % against the potential field's (mean "
+                  "over the runs that reached the level; (k/n) when fewer did). The paper "
+                  "reports gvn 7.0-11.1 % faster to 80 % and 4.0-16.2 % faster to 98.5 %.",
+                  "", claims, "", _verdict(s.groups, faster), "",
+                  "What differs from the paper's setting, whatever the numbers: " + SETTING, ""]
+    return lines
+
+
+def target_claims(s: Section) -> list[str]:
+    """The target method against the best classic and the paper's claims for it."""
+    claims, faster = claims_table(s.groups, TARGET_METHOD)
+    return [target_verdict(s.groups, TARGET_METHOD), "",
+            "The paper's claims, for gvn_v3: its time to 80 % and to 98.5 % against the "
+            "potential field's, beside the range the paper reports for its gvn.", "",
+            claims, "", _verdict(s.groups, faster, TARGET_METHOD), ""]
+
+
+def ratio_figures(s: Section) -> list[str]:
+    """Fig. 5: the exploration ratio over time per scene, milestones marked."""
+    lines = []
+    for scene, methods in s.groups.items():
+        fig = f"{s.name}_ratio_{scene}.png"
+        reached = {m: {level: [r["metrics"][key] for r in runs
+                               if r["metrics"][key] is not None]
+                       for level, key in MILESTONES}
+                   for m, runs in methods.items()}
+        ratio_figure({m: [ratio_curve(r) for r in runs] for m, runs in methods.items()},
+                     s.figures / fig, f"{scene}: exploration ratio over time",
+                     mark_times=reached)
+        lines += [f"![{scene}: exploration ratio]({s.rel}/{fig})", ""]
+    return lines
+
+
+def kinematics_figures(s: Section) -> list[str]:
+    """Fig. 9: velocity and acceleration over time per scene (runs collected with their
+    series)."""
+    lines = []
+    for scene, methods in s.groups.items():
+        with_series = {m: runs for m, runs in methods.items()
+                       if all("series" in r["kinematics"] for r in runs)}
+        if with_series:
+            fig = f"{s.name}_kinematics_{scene}.png"
+            kinematics_figure({m: _kinematics_logs(runs) for m, runs in with_series.items()},
+                              s.figures / fig, f"{scene}: velocity and acceleration "
+                              f"({KINEMATICS_DT} s bin means; mean and min-max over runs)")
+            lines += [f"![{scene}: kinematics]({s.rel}/{fig})", ""]
+    return lines
+
+
+def smoothness(s: Section) -> list[str]:
+    """Table 3's kinematic fluctuation per method."""
+    return ["Kinematic fluctuation per run (then mean +- std over runs):", "",
+            smoothness_table(s.groups), ""]
+
+
+def relative_to_nearest(s: Section, places: str = "scenes") -> list[str]:
+    """Each method relative to nearest-frontier, averaged over the ``places``."""
+    return [f"Averaged over the {places}, relative to nearest-frontier on the same "
+            f"{places[:-1]} (ratios of means; below 1 is faster):", "",
+            relative_table(s.groups, places=places), ""]
+
+
+def paired_with_nearest(s: Section) -> list[str]:
+    """Every method paired per seed against nearest-frontier."""
+    return _paired_lines(s.groups)
+
+
+def teams(s: Section) -> list[str]:
+    """A team sweep's section (:mod:`mjexplore.eval.team_report`)."""
+    return team_section(s.name, s.summary)
+
+
+def ariadne(s: Section) -> list[str]:
+    """ARiADNE's maps: relative and paired tables, the greedy planner's reference paths."""
+    note = _unfinished_note(s.summary)
+    return [relative_table(s.groups), "", *_paired_lines(s.groups), reference_table(s.summary),
+            "", _other_ends(s.groups, episode=s.summary.get("episode")), ""] + \
+        ([note, ""] if note else [])
+
+
+def localisation(s: Section) -> list[str]:
+    """A sweep whose robot localises itself: its table and the pose error of its estimate."""
+    aligned = ("; the aligned RMSE after the rotation and translation that fit the "
+               "estimated trajectory best to the true one, the absolute trajectory error "
+               "of SLAM benchmarks: the distortion of the trajectory and its map without "
+               "the offset of their frame, which IoU counts in full"
+               ) if _aligned_column(s.groups) else ""
+    return [_table(s.groups), "", _other_ends(s.groups, episode=s.summary.get("episode")), "",
+            "Pose error of the robot's estimate (metres; RMSE and maximum over each "
+            f"run's scans{aligned}):", "", _pose_table(s.groups), ""]
+
+
+def beside_ideal(s: Section) -> list[str]:
+    """The realistic setting's times beside Table 1's (ideal sensing, true pose)."""
+    if "table1" not in s.summaries:
+        return []
+    return ["Beside the ideal setting (Table 1's runs: ideal lidar, ground-truth "
+            "pose):", "", _beside_ideal(s.groups, _groups(s.summaries["table1"])), ""]
+
+
+def by_localisation(s: Section) -> list[str]:
+    """nearest in the realistic setting by where the robot believes it is (the companion
+    sweeps of :data:`LOCALIZATION_RUNS`)."""
+    if not LOCALIZATION_RUNS.keys() & s.summaries.keys():
+        return []
+    return ["nearest with the same sensing, by where the robot believes it is "
+            "(the companion sweeps below):", "",
+            _by_localization({"scan matching": s.groups} | {
+                label: _groups(s.summaries[name])
+                for name, label in LOCALIZATION_RUNS.items() if name in s.summaries}), ""]
+
+
+def ladder(s: Section) -> list[str]:
+    """The ladder of bounds against pocket_nearest (:func:`ladder_lines`)."""
+    return ladder_lines(s.groups)
+
+
+@dataclasses.dataclass(frozen=True)
 class Experiment:
     """One section of the report.
 
@@ -65,8 +231,8 @@ class Experiment:
         methods: The explorers it compares, in the report's order.
         sweep: The sweep that makes it (then ``mjexplore collect`` of its folder), with
             ``{explorers}`` where the comma-joined methods go.
-        sections: Lines the experiment adds after its table, each from the runs grouped by
-            scene and method.
+        parts: What its section shows after the sweep's command, in order: each part makes
+            lines (tables, verdicts, figures) from the :class:`Section`.
     """
 
     name: str
@@ -74,7 +240,7 @@ class Experiment:
     about: str
     methods: tuple[str, ...]
     sweep: str
-    sections: tuple[Callable[[dict], list[str]], ...] = ()
+    parts: tuple[Callable[[Section], list[str]], ...]
 
     @property
     def command(self) -> str:
@@ -149,7 +315,8 @@ EXPERIMENTS = (
                ("nearest", "explore_lite", "frontier_tsp", "rrt", "potential", "cnn", "gvn",
                 "gvn_v3", "oracle"),
                f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 10 "
-               "--workers 2 --out runs/table1"),
+               "--workers 2 --out runs/table1",
+               parts=(results, table1_verdicts, ratio_figures, smoothness, relative_to_nearest)),
     Experiment("gvn_v2", "The v2 recipe on the evaluation scenes",
                "The v2 recipe's policy (training/gvn_v2.yaml: time-to-explore reward, path "
                "costs and reachability per node, a residual on the nearest-node rule; "
@@ -159,7 +326,8 @@ EXPERIMENTS = (
                "revision in full physics on Table 1's scenes.",
                ("nearest", "potential", "cnn_v2", "gvn_v2"),
                f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 10 "
-               "--workers 2 --out runs/gvn_v2"),
+               "--workers 2 --out runs/gvn_v2",
+               parts=(results, relative_to_nearest)),
     Experiment("gvn_v3", "The v3 recipe on the evaluation scenes",
                "The v3 recipe's policy (training/gvn_v3.yaml: the v2 recipe with each "
                "frontier node's predicted pocket, the probability that the unseen free space "
@@ -170,7 +338,8 @@ EXPERIMENTS = (
                "policy, run by the same revision in full physics on Table 1's scenes.",
                ("nearest", "potential", "gvn_v2", "gvn_v3"),
                f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 10 "
-               "--workers 2 --out runs/gvn_v3"),
+               "--workers 2 --out runs/gvn_v3",
+               parts=(results, relative_to_nearest, target_claims)),
     Experiment("ablation", "Table 2: invalid action masking",
                "The ablation of the paper's Table 2 on the loop and maze scenes: "
                "policies trained without masking (all TER nodes valid), with naive masking "
@@ -178,7 +347,8 @@ EXPERIMENTS = (
                "its mask (masking removed).",
                ("gvn_none", "gvn_naive", "gvn_unmasked", "gvn"),
                "mjexplore bench --scenes loop_with_corridor,maze --explorers {explorers} "
-               "--seeds 5 --workers 2 --out runs/ablation"),
+               "--seeds 5 --workers 2 --out runs/ablation",
+               parts=(ablation_results,)),
     Experiment("ablation_v2", "Table 2 under the v2 recipe",
                "The same ablation with policies trained by the v2 recipe (training/gvn_v2.yaml "
                "and its masking variants gvn_v2_naive.yaml and gvn_v2_none.yaml: the same "
@@ -190,7 +360,8 @@ EXPERIMENTS = (
                "once and the next decision follows at the next control period.",
                ("gvn_v2_none", "gvn_v2_naive", "gvn_v2_unmasked", "gvn_v2"),
                "mjexplore bench --scenes loop_with_corridor,maze --explorers {explorers} "
-               "--seeds 5 --workers 2 --out runs/ablation_v2"),
+               "--seeds 5 --workers 2 --out runs/ablation_v2",
+               parts=(ablation_results,)),
     Experiment("ablation_v3", "Table 2 under the v3 recipe",
                "The same ablation with policies trained by the v3 recipe (training/gvn_v3.yaml "
                "and its masking variants gvn_v3_naive.yaml and gvn_v3_none.yaml: the same "
@@ -199,14 +370,16 @@ EXPERIMENTS = (
                "decisions), on the loop and maze scenes.",
                ("gvn_v3_none", "gvn_v3_naive", "gvn_v3_unmasked", "gvn_v3"),
                "mjexplore bench --scenes loop_with_corridor,maze --explorers {explorers} "
-               "--seeds 5 --workers 2 --out runs/ablation_v3"),
+               "--seeds 5 --workers 2 --out runs/ablation_v3",
+               parts=(ablation_results,)),
     Experiment("lobby_real", "Table 3 and Fig. 9: the real-robot setting",
                "The paper's robot experiment in simulation: the 17.5 x 4 m lobby with the real "
                "profile (0.18 m/s, 1.8 rad/s, 5 m lidar; decisions event-driven, as "
                "everywhere).",
                ("nearest", "potential", "gvn", "gvn_v3"),
                "mjexplore bench --scenes lobby --explorers {explorers} --profile real --seeds 5 "
-               "--workers 2 --out runs/lobby_real"),
+               "--workers 2 --out runs/lobby_real",
+               parts=(results, ratio_figures, kinematics_figures, smoothness, paired_with_nearest)),
     Experiment("realistic", "Sensing and localisation as on the real robot",
                "Every method on the evaluation scenes as in Table 1 but with the Turtlebot3's "
                "LDS-01 lidar (5 Hz, 1 degree, 0.12-3.5 m, 3.5 % range noise, dropouts, "
@@ -224,21 +397,24 @@ EXPERIMENTS = (
                 "gvn_v3", "oracle"),
                f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 5 "
                "--lidar-model lds01 --odometry-error typical --localization scan_matching "
-               "--max-time 3600 --workers 2 --out runs/realistic"),
+               "--max-time 3600 --workers 2 --out runs/realistic",
+               parts=(localisation, beside_ideal, by_localisation)),
     Experiment("realistic_truth", "Realistic sensing at the true pose",
                "nearest with the realistic setting's LDS-01 and odometry error, but mapping, "
                "navigating and ending the episode at the true pose: what a perfect localiser "
                "would give (the IoU the realistic runs are measured against).", ("nearest",),
                f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 5 "
                "--lidar-model lds01 --odometry-error typical --localization ground_truth "
-               "--max-time 3600 --workers 2 --out runs/realistic_truth"),
+               "--max-time 3600 --workers 2 --out runs/realistic_truth",
+               parts=(results,)),
     Experiment("realistic_odometry", "Realistic sensing with odometry alone",
                "nearest with the realistic setting's LDS-01 and odometry error, the robot "
                "dead-reckoning its pose from the wheel odometry (no scan matching): how much "
                "worse it gets without localisation.", ("nearest",),
                f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 5 "
                "--lidar-model lds01 --odometry-error typical --localization odometry "
-               "--max-time 3600 --workers 2 --out runs/realistic_odometry"),
+               "--max-time 3600 --workers 2 --out runs/realistic_odometry",
+               parts=(localisation,)),
     Experiment("realistic_imu", "Realistic sensing with the gyro's heading",
                "nearest in the realistic setting (LDS-01, typical odometry error, scan "
                "matching) with the odometry's heading from the IMU's gyro, as the real "
@@ -252,14 +428,17 @@ EXPERIMENTS = (
                f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 5 "
                "--lidar-model lds01 --odometry-error typical --odometry-heading imu "
                "--localization scan_matching --max-time 3600 --workers 2 "
-               "--out runs/realistic_imu"),
+               "--out runs/realistic_imu",
+               parts=(localisation,)),
     Experiment("explore_bench", "Generalisation: the Explore-Bench maps",
                "The six Explore-Bench maps (ROS map_server maps imported as MJCF, 7 m lidar), "
                "which no policy was trained on.",
                ("nearest", "explore_lite", "frontier_tsp", "rrt", "potential", "cnn", "cnn_v2",
                 "gvn", "gvn_v2", "gvn_v3", "oracle"),
                f"mjexplore bench --scenes {EXPLORE_BENCH} --explorers {{explorers}} --seeds 2 "
-               "--lidar-range 7 --workers 2 --out runs/explore_bench"),
+               "--lidar-range 7 --workers 2 --out runs/explore_bench",
+               parts=(results, functools.partial(relative_to_nearest, places="maps"),
+                      paired_with_nearest)),
     Experiment("teams", "Several robots: the evaluation scenes",
                "Teams of 2 and 3 robots on the office (full physics, the CLI's defaults: 6 m "
                "lidar with 0.01 m noise, target 98.5 %), and of 2 robots on "
@@ -282,7 +461,8 @@ EXPERIMENTS = (
                "--workers 1 --out runs/office3; mjexplore bench --scenes "
                "loop_with_corridor,maze --robots 2 --explorers assign_greedy,nearest --seeds 3 "
                "--workers 1 --out runs/office2; mjexplore collect runs/office3 --experiment "
-               "teams; mjexplore collect runs/office2 --experiment teams --merge"),
+               "teams; mjexplore collect runs/office2 --experiment teams --merge",
+               parts=(teams,)),
     Experiment("teams_explore_bench", "Several robots: the Explore-Bench maps",
                "Two robots on the six Explore-Bench maps (7 m lidar, full physics) "
                "from the benchmark's close and far placements, the naive team (nearest) "
@@ -292,7 +472,8 @@ EXPERIMENTS = (
                 "assign_greedy x2 close", "assign_greedy x2 far"),
                f"mjexplore bench --scenes {EXPLORE_BENCH} --lidar-range 7 --robots 2 --starts "
                "close,far --explorers nearest,assign_greedy --seeds 3 --workers 1 "
-               "--out runs/eb2; mjexplore collect runs/eb2 --experiment teams_explore_bench"),
+               "--out runs/eb2; mjexplore collect runs/eb2 --experiment teams_explore_bench",
+               parts=(teams,)),
     Experiment("ladder", "The ladder of bounds: what knowing more of the layout is worth",
                "Explorers that differ only in what they know, on Table 1's scenes in full "
                "physics: pocket_nearest (the learned pocket classifier on "
@@ -305,7 +486,7 @@ EXPERIMENTS = (
                 "pocket_advantage", "oracle_2m", "oracle_5m", "oracle_10m", "oracle"),
                f"mjexplore bench --scenes {EVAL_SCENES} --explorers {{explorers}} --seeds 10 "
                "--workers 2 --out runs/ladder",
-               sections=(ladder_lines,)),
+               parts=(results, ladder)),
     Experiment("ariadne", "Generalisation: the ARiADNE test maps",
                "ARiADNE's 100 test maps at 0.1 m per pixel (64 x 48 m) with an 8 m lidar, which "
                "no policy was trained on. Path lengths are set beside the greedy planner's, "
@@ -319,7 +500,8 @@ EXPERIMENTS = (
                "--from-map $f --resolution 0.1 --out runs/ariadne_scenes/$(basename $f .png); "
                "done; mjexplore bench --scenes $(ls -d runs/ariadne_scenes/* | paste -sd,) "
                "--explorers {explorers} --seeds 1 --lidar-range 8 --workers 2 "
-               "--out runs/ariadne"),
+               "--out runs/ariadne",
+               parts=(ariadne,)),
 )
 
 
@@ -740,19 +922,9 @@ def _report_lines(summaries: dict[str, dict[str, Any]], data: Path, out: Path, f
                 lines += ["The runs used other weights than the shipped ones: " + ", ".join(
                     f"{m} {', '.join(f'`{h}`' for h in hashes)}"
                     for m, hashes in stale.items()) + ".", ""]
-        lines += _section(exp.name, summary, groups, figures, rel)
-        for section in exp.sections:
-            lines += section(groups)
-        if exp.name == "realistic" and "table1" in summaries:
-            lines += ["Beside the ideal setting (Table 1's runs: ideal lidar, ground-truth "
-                      "pose):", "", _beside_ideal(groups, _groups(summaries["table1"])), ""]
-        if exp.name == "realistic" and LOCALIZATION_RUNS.keys() & summaries.keys():
-            lines += ["nearest with the same sensing, by where the robot believes it is "
-                      "(the companion sweeps below):", "",
-                      _by_localization({"scan matching": groups} | {
-                          label: _groups(summaries[name])
-                          for name, label in LOCALIZATION_RUNS.items() if name in summaries}),
-                      ""]
+        section = Section(exp.name, summary, groups, figures, rel, summaries)
+        for part in exp.parts:
+            lines += part(section)
         ran = {m for methods in groups.values() for m in methods}
         absent = tuple(m for m in exp.methods if m not in ran)
         if absent and "{explorers}" in exp.sweep:
@@ -815,84 +987,6 @@ def _paired_lines(groups) -> list[str]:
             "exploration times; the interval resamples the seeds; the sign test counts the "
             "seeds it was faster and slower on). The best is picked on these same runs, "
             "which favours the classics most where a scene has few seeds:", "", table, ""]
-
-
-def _section(name: str, summary, groups, figures: Path, rel: str) -> list[str]:
-    if name in TEAM_EXPERIMENTS:
-        return team_section(name, summary)
-    if name == "ariadne":
-        note = _unfinished_note(summary)
-        return [relative_table(groups), "", *_paired_lines(groups), reference_table(summary),
-                "", _other_ends(groups, episode=summary.get("episode")), ""] + \
-            ([note, ""] if note else [])
-    # The setting and its companions that localise themselves (at the true pose: no error).
-    if name == "realistic" or name in LOCALIZATION_RUNS.keys() - {"realistic_truth"}:
-        aligned = ("; the aligned RMSE after the rotation and translation that fit the "
-                   "estimated trajectory best to the true one, the absolute trajectory error "
-                   "of SLAM benchmarks: the distortion of the trajectory and its map without "
-                   "the offset of their frame, which IoU counts in full"
-                   ) if _aligned_column(groups) else ""
-        return [_table(groups), "", _other_ends(groups, episode=summary.get("episode")), "",
-                "Pose error of the robot's estimate (metres; RMSE and maximum over each "
-                f"run's scans{aligned}):", "", _pose_table(groups), ""]
-    rename = ABLATION_NAMES if name in ABLATIONS else None
-    lines = [_table(groups, rename), "", _other_ends(groups, rename, summary.get("episode")),
-             ""]
-    if name in ABLATIONS:
-        lines += [masking_verdict(groups, ABLATIONS[name]), ""]
-    note = _unfinished_note(summary)
-    if note:
-        lines += [note, ""]
-    if name == "table1":
-        if any(TARGET_METHOD in methods for methods in groups.values()):
-            lines += [target_verdict(groups, TARGET_METHOD), ""]
-        lines += _paired_lines(groups)
-        claims, faster = claims_table(groups)
-        if faster:
-            lines += ["### The paper's claims", "",
-                      "gvn's time to 80 % and to 98.5 % against the potential field's (mean "
-                      "over the runs that reached the level; (k/n) when fewer did). The paper "
-                      "reports gvn 7.0-11.1 % faster to 80 % and 4.0-16.2 % faster to 98.5 %.",
-                      "", claims, "", _verdict(groups, faster), "",
-                      "What differs from the paper's setting, whatever the numbers: " + SETTING, ""]
-    if name in ("table1", "lobby_real"):
-        for scene, methods in groups.items():
-            fig = f"{name}_ratio_{scene}.png"
-            reached = {m: {level: [r["metrics"][key] for r in runs
-                                   if r["metrics"][key] is not None]
-                           for level, key in MILESTONES}
-                       for m, runs in methods.items()}
-            ratio_figure({m: [ratio_curve(r) for r in runs] for m, runs in methods.items()},
-                         figures / fig, f"{scene}: exploration ratio over time",
-                         mark_times=reached)
-            lines += [f"![{scene}: exploration ratio]({rel}/{fig})", ""]
-    if name == "lobby_real":
-        for scene, methods in groups.items():
-            with_series = {m: runs for m, runs in methods.items()
-                           if all("series" in r["kinematics"] for r in runs)}
-            if with_series:
-                fig = f"{name}_kinematics_{scene}.png"
-                kinematics_figure({m: _kinematics_logs(runs) for m, runs in with_series.items()},
-                                  figures / fig, f"{scene}: velocity and acceleration "
-                                  f"({KINEMATICS_DT} s bin means; mean and min-max over runs)")
-                lines += [f"![{scene}: kinematics]({rel}/{fig})", ""]
-    if name in ("table1", "lobby_real"):
-        lines += ["Kinematic fluctuation per run (then mean +- std over runs):", "",
-                  smoothness_table(groups), ""]
-    if name in ("table1", "gvn_v2", "gvn_v3", "explore_bench"):
-        where = "maps" if name == "explore_bench" else "scenes"
-        lines += [f"Averaged over the {where}, relative to nearest-frontier on the same "
-                  f"{where[:-1]} (ratios of means; below 1 is faster):", "",
-                  relative_table(groups, places=where), ""]
-    if name in ("explore_bench", "lobby_real"):
-        lines += _paired_lines(groups)
-    if name == "gvn_v3":
-        claims, faster = claims_table(groups, TARGET_METHOD)
-        lines += [target_verdict(groups, TARGET_METHOD), "",
-                  "The paper's claims, for gvn_v3: its time to 80 % and to 98.5 % against the "
-                  "potential field's, beside the range the paper reports for its gvn.", "",
-                  claims, "", _verdict(groups, faster, TARGET_METHOD), ""]
-    return lines
 
 
 def _run_key(summary: dict[str, Any], run: dict[str, Any]) -> tuple:
