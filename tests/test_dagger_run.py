@@ -123,9 +123,10 @@ def test_dagger_fit_holds_out_whole_episodes_and_reports_departures(recipe, tmp_
     config = dataclasses.replace(config, imitation=dataclasses.replace(config.imitation,
                                                                        episodes=2))
     record = imitate(config, tmp_path / "run")
-    tool = Path(__file__).resolve().parents[1] / "tools" / "dagger_fit.py"
-    done = subprocess.run([sys.executable, str(tool), str(tmp_path / "run"), "--holdout", "0.5",
-                           "--epochs", "1"], capture_output=True, text=True, check=True)
+    done = subprocess.run([sys.executable, "-m", "tools.research.dagger_fit",
+                           str(tmp_path / "run"), "--holdout", "0.5", "--epochs", "1"],
+                          cwd=Path(__file__).resolve().parents[1], capture_output=True,
+                          text=True, check=True)
     report = json.loads(done.stdout)
     assert report["episodes"] == 2 and report["held_out_episodes"] == 1
     sizes = [report["fitted"][s]["decisions"] for s in ("fitted", "held_out")]
@@ -137,20 +138,18 @@ def test_dagger_fit_holds_out_whole_episodes_and_reports_departures(recipe, tmp_
 
 
 def test_episodes_start_where_the_memory_is_empty():
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
-    from dagger_fit import episode_ids
+    from tools.research.dagger_fit import episode_ids
 
     mask = np.array([[0, 0], [0, 1], [1, 1], [0, 0], [0, 1], [0, 0]], np.float32)
     assert episode_ids(mask).tolist() == [0, 0, 0, 1, 1, 2]
 
 
 def test_the_linear_models_terms_measure_each_node_against_the_cheapest_valid_one():
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
     import torch
-    from dagger_fit import node_terms
 
     from mjexplore.envs.observation import PATH, POCKET
     from mjexplore.policies.gvn import path_prior
+    from tools.research.v3_prior import node_terms
 
     features = np.zeros((1, 4, 10), np.float32)
     features[0, :, PATH] = [3.0, 8.0, 20.0, 1.0]

@@ -1,4 +1,4 @@
-"""tools/es_residual.py: evolution strategies on a linear residual of the prior."""
+"""tools/research/es_residual.py: evolution strategies on a linear residual of the prior."""
 
 import json
 import subprocess
@@ -10,11 +10,9 @@ import pytest
 
 from mjexplore.envs.observation import BLACKLISTED, PATH, POCKET, UNREACHABLE
 from mjexplore.learning.training import NearestNodeRule
+from tools.research.es_residual import SCALES, LinearResidualRule
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "tools"))
-
-from es_residual import SCALES, LinearResidualRule  # noqa: E402
 
 RECIPE = """
 kind: gvn
@@ -72,7 +70,7 @@ def test_an_iteration_logs_the_centre_against_the_prior_and_resumes(tmp_path):
     recipe = tmp_path / "recipe.yaml"
     recipe.write_text(RECIPE)
     out = tmp_path / "es"
-    cmd = [sys.executable, str(REPO / "tools" / "es_residual.py"), "--config", str(recipe),
+    cmd = [sys.executable, "-m", "tools.research.es_residual", "--config", str(recipe),
            "--out", str(out), "--iterations", "1", "--pairs", "1", "--layouts", "1",
            "--fixed", "--workers", "1"]
     subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, check=True)

@@ -1,4 +1,4 @@
-"""tools/iou_sensitivity.py: a map built at the true poses and moved as a whole loses IoU,
+"""tools/research/iou_sensitivity.py: a map built at the true poses and moved as a whole loses IoU,
 and more the farther it is moved."""
 
 import json
@@ -6,12 +6,13 @@ import subprocess
 import sys
 from pathlib import Path
 
-TOOL = Path(__file__).resolve().parents[1] / "tools" / "iou_sensitivity.py"
+REPO = Path(__file__).resolve().parents[1]
 
 
 def test_a_rigidly_moved_map_loses_iou():
-    out = subprocess.run([sys.executable, str(TOOL), "--scene", "train_loop", "--max-time",
-                          "100"], capture_output=True, text=True, check=True, timeout=300)
+    out = subprocess.run([sys.executable, "-m", "tools.research.iou_sensitivity", "--scene",
+                          "train_loop", "--max-time", "100"], cwd=REPO, capture_output=True,
+                         text=True, check=True, timeout=300)
     result = json.loads(out.stdout.strip().splitlines()[-1])
     # Mapped again unmoved, the scans give the episode's own map.
     assert abs(result["iou"] - result["episode_iou"]) < 1e-3 and result["scans"] > 400

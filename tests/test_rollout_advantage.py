@@ -1,4 +1,4 @@
-"""tools/rollout_advantage.py: the exact effect of departing from the prior, by forked
+"""tools/research/rollout_advantage.py: the exact effect of departing from the prior, by forked
 rollouts, and a fit of it on what the actor observes."""
 
 import json
@@ -11,11 +11,7 @@ import pytest
 from test_es_residual import RECIPE, _observation
 
 from mjexplore.learning.training import NearestNodeRule
-
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "tools"))
-
-from rollout_advantage import (  # noqa: E402
+from tools.research.rollout_advantage import (
     CONTEXT,
     PAIRWISE,
     PRIVILEGED,
@@ -23,6 +19,8 @@ from rollout_advantage import (  # noqa: E402
     _ridge,
     _tour,
 )
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 def test_a_fit_predicting_no_gain_is_the_prior_and_one_predicting_gain_departs():
@@ -69,7 +67,7 @@ def test_forked_departures_are_measured_and_fitted(tmp_path):
     recipe = tmp_path / "recipe.yaml"
     recipe.write_text(RECIPE)
     out = tmp_path / "rollouts"
-    tool = [sys.executable, str(REPO / "tools" / "rollout_advantage.py"), "--config",
+    tool = [sys.executable, "-m", "tools.research.rollout_advantage", "--config",
             str(recipe), "--out", str(out)]
     subprocess.run(tool + ["--layouts", "2", "--share", "1.0", "--alternatives", "1",
                            "--nudge", "0.001", "--workers", "1"], cwd=REPO,
@@ -119,9 +117,9 @@ def test_forked_departures_are_measured_and_fitted(tmp_path):
     assert validation["validate"] == 1 and np.isfinite(validation["times"]).all()
 
 
-@pytest.mark.parametrize("tool", ["rollout_advantage.py", "es_residual.py"])
+@pytest.mark.parametrize("tool", ["rollout_advantage", "es_residual"])
 def test_a_recipe_without_the_v3_prior_is_refused(tool, tmp_path):
-    result = subprocess.run([sys.executable, str(REPO / "tools" / tool), "--config",
+    result = subprocess.run([sys.executable, "-m", f"tools.research.{tool}", "--config",
                              str(REPO / "training" / "gvn.yaml"), "--out", str(tmp_path / "o")],
                             cwd=REPO, capture_output=True, text=True)
     assert result.returncode == 2

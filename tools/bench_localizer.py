@@ -28,7 +28,7 @@ import time  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-from bench_topology import stats  # noqa: E402 (tools/, beside this script)
+from replay_timing import median_p99_ms  # noqa: E402
 
 from mjexplore.episode.metrics import pose_errors  # noqa: E402
 from mjexplore.mapping.localization import FusedLocalizer, LocalizerConfig  # noqa: E402
@@ -98,9 +98,9 @@ def main() -> None:
     coarse_ms, _, *coarse_track = replay(sim, run, coarse)
     fine_rmse, fine_final = track_errors(*fine_track)
     coarse_rmse, coarse_final = track_errors(*coarse_track)
-    f_med, f_p99 = stats(fine_ms)
-    c_med, c_p99 = stats(coarse_ms)
-    i_med, i_p99 = stats(integrate_ms)
+    f_med, f_p99 = median_p99_ms(fine_ms)
+    c_med, c_p99 = median_p99_ms(coarse_ms)
+    i_med, i_p99 = median_p99_ms(integrate_ms)
     print(json.dumps({
         "scene": args.scene,
         "scans": len(run),

@@ -29,7 +29,7 @@ import time  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-from bench_topology import record, stats  # noqa: E402 (tools/, beside this script)
+from replay_timing import median_p99_ms, record_wander  # noqa: E402
 
 from mjexplore.mapping.occupancy import OccupancyMapper  # noqa: E402
 from mjexplore.mapping.scan_matching import match_scan, scan_points  # noqa: E402
@@ -48,7 +48,7 @@ def main() -> None:
     parser.add_argument("--offset-deg", type=float, default=4.0)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    sim, scans = record(args.scene, args.seconds, args.seed, SimConfig(
+    sim, scans = record_wander(args.scene, args.seconds, args.seed, SimConfig(
         dynamics="kinematic", lidar=LidarConfig(noise_std=0.01), seed=args.seed))
     gt = sim.scene.ground_truth
     rng = np.random.default_rng(args.seed)
@@ -78,8 +78,8 @@ def main() -> None:
             accepted += 1
             trans.append(float(np.hypot(*(result.pose[:2] - scan.pose[:2]))))
             yaw.append(abs(math.degrees(wrap_angle(result.pose[2] - scan.pose[2]))))
-    m_med, m_p99 = stats(matching)
-    i_med, i_p99 = stats(integrating)
+    m_med, m_p99 = median_p99_ms(matching)
+    i_med, i_p99 = median_p99_ms(integrating)
     print(json.dumps({
         "scene": args.scene,
         "beams": int(len(scans[0].ranges)),

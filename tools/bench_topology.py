@@ -31,32 +31,15 @@ import time  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
+from replay_timing import median_p99_ms, record_wander  # noqa: E402
 from scipy import ndimage  # noqa: E402
 from skimage.morphology import skeletonize  # noqa: E402
 
 from mjexplore.mapping.metrics import exploration_ratio, observable_ground_truth  # noqa: E402
 from mjexplore.mapping.occupancy import OccupancyMapper  # noqa: E402
-from mjexplore.navigation.wander import WanderController  # noqa: E402
-from mjexplore.scenes.canonical import resolve_scene  # noqa: E402
-from mjexplore.sim.simulator import SimConfig, Simulator  # noqa: E402
 from mjexplore.topology.pipeline import TopologyTracker  # noqa: E402
 
 cv2.setNumThreads(1)
-
-
-def record(scene: str, seconds: float, seed: int, config: SimConfig | None = None):
-    sim = Simulator(resolve_scene(scene), config)
-    controller = WanderController(rng=np.random.default_rng(seed))
-    scans = [sim.latest_scan]
-    while sim.time < seconds - 1e-9:
-        sim.command(*controller(sim.latest_scan, sim.pose))
-        scans += sim.step(0.1)
-    return sim, scans
-
-
-def stats(values_s: list[float]) -> tuple[float, float]:
-    ms = np.asarray(values_s) * 1e3
-    return round(float(np.median(ms)), 3), round(float(np.percentile(ms, 99)), 3)
 
 
 def main() -> None:
@@ -67,7 +50,7 @@ def main() -> None:
     parser.add_argument("--full-every", type=int, default=50)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    sim, scans = record(args.scene, args.seconds, args.seed)
+    sim, scans = record_wander(args.scene, args.seconds, args.seed)
     gt = sim.scene.ground_truth
 
     # Warm-up on a copy, so that numba compilation is not timed.
@@ -104,10 +87,10 @@ def main() -> None:
                 skeletonize(free)
                 full.append(time.perf_counter() - t4)
     er = exploration_ratio(mapper.grid, observable_ground_truth(gt))
-    m_med, m_p99 = stats(mapping)
-    d_med, d_p99 = stats(decisions)
-    g_med, g_p99 = stats(gvd_updates)
-    f_med, f_p99 = stats(full)
+    m_med, m_p99 = median_p99_ms(mapping)
+    d_med, d_p99 = median_p99_ms(decisions)
+    g_med, g_p99 = median_p99_ms(gvd_updates)
+    f_med, f_p99 = median_p99_ms(full)
     print(json.dumps({
         "scene": args.scene,
         "grid_cells": int(gt.data.size),

@@ -55,15 +55,13 @@ import argparse
 import io
 import json
 import multiprocessing as mp
-import sys
 from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+from probe_episodes import probe_episode  # noqa: E402
 
 from mjexplore.eval.learning_curve import (  # noqa: E402
     BASELINES,
@@ -83,7 +81,7 @@ from mjexplore.eval.plots import draw_learning_curve  # noqa: E402
 from mjexplore.eval.training_record import DEPARTURES_FILE  # noqa: E402
 from mjexplore.io.atomic import write_bytes_atomic, write_text_atomic  # noqa: E402
 
-# probe_policy's modes for the baselines.
+# probe_episode's modes for the baselines.
 PROBE_MODES = {"pocket_nearest": "prior", "nearest": "nearest", "oracle": "oracle"}
 
 
@@ -126,10 +124,8 @@ def wall_times(run: Path) -> dict[str, float]:
 
 
 def _probe_job(job: tuple[str, str, int, str]) -> dict:
-    import probe_policy
-
     config_path, mode, seed, scene = job
-    return probe_policy._episode((config_path, "", mode, seed, scene))
+    return probe_episode((config_path, "", mode, seed, scene))
 
 
 def applicable_baselines(config) -> list[str]:

@@ -40,76 +40,9 @@ import argparse
 import json
 import multiprocessing as mp
 
-MODES = ("policy", "random", "greedy", "prior")
+from probe_episodes import MODES, probe_config, probe_episode
+
 DEFAULT_MODES = ("policy", "random", "greedy")
-
-
-def _config(config_path: str | None, weights: str):
-    """The training config of ``--config``, or the one the weights were trained with."""
-    from mjexplore.config import from_dict
-    from mjexplore.learning.training import TrainConfig, load_train_config
-    from mjexplore.policies.weights import read_policy_weights
-
-    if config_path is not None:
-        return load_train_config(config_path)
-    return from_dict(TrainConfig, read_policy_weights(weights)[1]["provenance"]["config"])
-
-
-def _episode(job: tuple[str | None, str, str, int, str | None]) -> dict:
-    import numpy as np
-    import torch
-
-    from mjexplore.envs import ExplorationEnv
-    from mjexplore.envs.observation import POSED
-    from mjexplore.learning.training import NearestNodeRule, heldout_env
-    from mjexplore.policies.weights import load_policy
-
-    config_path, weights, mode, seed, scene = job
-    torch.set_num_threads(1)
-    config = _config(config_path, weights)
-    env = ExplorationEnv(config.env) if scene is None else heldout_env(config, scene)
-    if mode not in MODES:  # A classic explorer on the episode the env would run.
-        from mjexplore.episode import Episode
-        from mjexplore.explorers import make_explorer
-
-        env.reset(seed=seed)
-        ep = env.episode
-        metrics = Episode(ep.scene, make_explorer(mode), ep.sim.config.seed,
-                          ep.config).run().metrics
-        return _row(mode, seed, scene, None, metrics)
-    policy = load_policy(weights, expected_kind=config.kind)[0] if mode == "policy" else None
-    along_map = config.env.observation.features in POSED and config.kind == "gvn"
-    rng = np.random.default_rng(seed)
-    obs, info = env.reset(seed=seed)
-    total = 0.0
-    done = info["end_reason"] is not None
-    while not done:
-        mask = env.action_masks()
-        if mode == "policy":
-            action, _ = policy.predict(obs, deterministic=True, action_masks=mask)
-        elif mode == "random":
-            action = rng.choice(np.flatnonzero(mask))
-        elif mode == "prior":
-            rule = NearestNodeRule(config.policy.prior_pocket_m)
-            action, _ = rule.predict(obs, action_masks=mask)
-        elif along_map:
-            action, _ = NearestNodeRule().predict(obs, action_masks=mask)
-        else:
-            distance = np.linalg.norm(env.decisions.action_positions()
-                                      - env.episode.sim.pose[:2], axis=1)
-            action = np.argmin(np.where(mask, distance, np.inf))
-        obs, reward, terminated, truncated, info = env.step(int(action))
-        total += reward
-        done = terminated or truncated
-    return _row(mode, seed, scene, total, env.episode.result().metrics)
-
-
-def _row(mode: str, seed: int, scene: str | None, total: float | None,
-         metrics: dict) -> dict:
-    return {"mode": mode, "seed": seed, "scene": scene, "return": total,
-            "exploration_time_s": metrics["exploration_time_s"],
-            "path_length_m": metrics["path_length_m"],
-            "explored": metrics["end_reason"] == "explored"}
 
 
 def main() -> None:
@@ -135,7 +68,7 @@ def main() -> None:
     if "prior" in modes:
         from mjexplore.envs.observation import POSED
 
-        config = _config(args.config, args.weights)
+        config = probe_config(args.config, args.weights)
         if config.kind != "gvn" or config.env.observation.features not in POSED:
             parser.error("--modes prior needs a GVN with v2 or v3 observations")
     if explorers and not (args.heldout or args.unseen):
@@ -150,7 +83,7 @@ def main() -> None:
             parser.error(f"--modes: {exc}")
 
     if args.heldout or args.unseen:
-        evaluation = _config(args.config, args.weights).eval
+        evaluation = probe_config(args.config, args.weights).eval
         scenes = (evaluation.unseen_scenes(args.unseen) if args.unseen
                   else evaluation.scene_list())
         episodes = [(evaluation.seed, scene) for scene in scenes]
@@ -159,7 +92,7 @@ def main() -> None:
     jobs = [(args.config, args.weights, mode, seed, scene)
             for seed, scene in episodes for mode in modes]
     with mp.get_context("spawn").Pool(args.workers) as pool:
-        rows = pool.map(_episode, jobs, chunksize=1)
+        rows = pool.map(probe_episode, jobs, chunksize=1)
     layouts = (f"{args.unseen} past model selection" if args.unseen else
                "heldout" if args.heldout else f"seeds from {args.seed_base}")
     figures: dict = {"config": args.config or "stored with the weights",

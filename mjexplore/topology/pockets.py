@@ -7,7 +7,7 @@ passes over them still reaches the episode's target ratio (the lidar sees them o
 to other goals, or they stay within what the target leaves unseen). Knowing the pocket's
 size is most of what the ground-truth oracle knows: on 16 generated layouts
 nearest-frontier that skips frontiers whose *true* pocket is below 0.5 m^2 explores in
-0.78 x nearest's time, the oracle in 0.72 x (``tools/pocket_headroom.py``).
+0.78 x nearest's time, the oracle in 0.72 x (``python -m tools.research.pocket_headroom``).
 
 The true pocket of a frontier (:func:`pocket_areas`: the unexplored free space of the
 ground truth connected to it, the paper's information gain in m^2) needs the ground truth.

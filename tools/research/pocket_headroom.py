@@ -12,8 +12,8 @@ settings of a training config's evaluation, as ``tools/probe_policy.py --unseen`
   predictor's probability that its pocket is small (the v3 GVN's prior, on frontiers);
 * any explorer's name (``oracle``, ``potential``, ...).
 
-Usage: python tools/pocket_headroom.py [--config training/gvn_v3.yaml] [--unseen 16]
-    [--modes nearest,truth:0.5,predicted:50,oracle] [--workers 2]
+Usage: python -m tools.research.pocket_headroom [--config training/gvn_v3.yaml]
+    [--unseen 16] [--modes nearest,truth:0.5,predicted:50,oracle] [--workers 2]
 """
 
 from __future__ import annotations

@@ -27,9 +27,9 @@ exploration time (simulated s) and how many episodes explored, and per pair ``po
 each other mode the paired per-layout ratio of exploration times (mean, bootstrap 95 %
 interval over layouts, layouts faster / slower).
 
-Usage: python tools/dagger_probe.py --config training/gvn_dagger.yaml --out runs/dagger_probe
-    [--layouts 16] [--modes policy,prior,greedy,untrained,expert] [--workers 2]
-    [--weights runs/dagger_probe/policy_warm.safetensors  (skip the warm start)]
+Usage: python -m tools.research.dagger_probe --config training/gvn_dagger.yaml
+    --out runs/dagger_probe [--layouts 16] [--modes policy,prior,greedy,untrained,expert]
+    [--workers 2] [--weights runs/dagger_probe/policy_warm.safetensors  (skip the warm start)]
 """
 
 from __future__ import annotations
@@ -38,13 +38,10 @@ import argparse
 import functools
 import json
 import multiprocessing as mp
-import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import probe_policy  # noqa: E402  (tools/probe_policy.py: its episode runner)
+from tools.probe_episodes import episode_row, probe_config, probe_episode
 
 
 def _warm_start(config_path: str, out: Path) -> tuple[Path, Path, dict]:
@@ -105,11 +102,11 @@ def _via(oracle, state, candidates, mask) -> int:
 
 
 def _job(job: tuple[str, str, str, int, str]) -> dict:
-    """One episode: ``expert`` and ``expert_via`` here, every other mode by
-    ``tools/probe_policy.py``."""
+    """One episode: the ``expert*`` modes here, every other mode by
+    :func:`~tools.probe_episodes.probe_episode`."""
     config_path, weights, mode, seed, scene = job
     if not mode.startswith("expert"):
-        return probe_policy._episode(job)
+        return probe_episode(job)
     import numpy as np
     import torch
 
@@ -118,7 +115,7 @@ def _job(job: tuple[str, str, str, int, str]) -> dict:
     from mjexplore.learning.training import NearestNodeRule, heldout_env
 
     torch.set_num_threads(1)
-    config = probe_policy._config(config_path, weights)
+    config = probe_config(config_path, weights)
     env = heldout_env(config, scene)
     oracle = lookahead_expert() if mode == "expert_tour" else make_explorer("oracle")
     oracle.reset(np.random.default_rng(seed))
@@ -141,7 +138,7 @@ def _job(job: tuple[str, str, str, int, str]) -> dict:
             break
         obs, _, terminated, truncated, info = env.step(action)
         done = terminated or truncated
-    return probe_policy._row(mode, seed, scene, None, env.episode.result().metrics)
+    return episode_row(mode, seed, scene, None, env.episode.result().metrics)
 
 
 def _paired(mine: list[float], theirs: list[float], rng) -> dict:
@@ -174,7 +171,7 @@ def main() -> None:
     else:
         fresh, warm, report = _warm_start(args.config, out)
         print(json.dumps({"warm_start": report}), flush=True)
-    evaluation = probe_policy._config(args.config, str(warm)).eval
+    evaluation = probe_config(args.config, str(warm)).eval
     scenes = evaluation.scene_list()[:args.layouts]
     labels, jobs = [], []
     for scene in scenes:

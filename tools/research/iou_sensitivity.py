@@ -8,7 +8,8 @@ what an early heading error of a localiser does to a map (see ``pose_error_align
 in metrics.json). ``iou`` is the episode's metric (the mean of the free and the occupied
 IoU, 5 cm cells); ``iou_drop`` each offset's loss against the unmoved map of the same run.
 
-Usage: python tools/iou_sensitivity.py [--scene loop_with_corridor] [--seed 0] [--max-time 3600]
+Usage: python -m tools.research.iou_sensitivity [--scene loop_with_corridor] [--seed 0]
+    [--max-time 3600]
 """
 
 from __future__ import annotations

@@ -3,8 +3,8 @@ residual of pocket_nearest's prior, judged by exploration time on paired layouts
 
 The policy at a decision takes the valid TER node of greatest ``prior + phi(node) . w``:
 ``prior`` is gvn_v3's path prior (minus the path cost, 50 m per unit of pocket probability,
-1 nat a metre) and ``phi`` the per-node terms of ``tools/dagger_fit.py``'s linear model
-(:func:`dagger_fit.node_terms`), scaled by ``SCALES`` so that a unit of ``theta`` moves a
+1 nat a metre) and ``phi`` the per-node terms of ``dagger_fit``'s linear model
+(:func:`v3_prior.node_terms`), scaled by ``SCALES`` so that a unit of ``theta`` moves a
 logit by metres that matter (``w = SCALES * theta``). ``theta = 0`` is the prior.
 
 Each iteration draws ``--layouts`` training layouts (the training stream of the recipe's
@@ -24,7 +24,7 @@ JSON line per iteration goes to ``OUT/log.jsonl``; the state (theta, Adam moment
 iteration, the prior's kept times) to ``OUT/state.json`` after each, so ``--resume`` goes
 on.
 
-Usage: python tools/es_residual.py --config training/gvn_anchor.yaml --out runs/es/a
+Usage: python -m tools.research.es_residual --config training/gvn_anchor.yaml --out runs/es/a
     [--iterations 30] [--pairs 6] [--layouts 6] [--fixed] [--sigma 0.5] [--lr 0.1]
     [--validate K] [--test N] [--workers 2] [--resume]
 """
@@ -35,14 +35,13 @@ import argparse
 import json
 import multiprocessing as mp
 import os
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+from tools.research.v3_prior import load_v3_recipe, node_terms, paired, penalised_time
 
-# Metres of logit per unit of theta, per term of dagger_fit.node_terms: gain share,
+# Metres of logit per unit of theta, per term of v3_prior.node_terms: gain share,
 # heading difference (rad), TER distance (m), frontier flag, pocket probability, cost beyond
 # the cheapest (per 10 m), straight-line distance (per 10 m), beyond < 5 m, beyond < 15 m,
 # gain when beyond < 15 m.
@@ -57,7 +56,6 @@ class LinearResidualRule:
 
     def predict(self, obs, deterministic=True, action_masks=None):
         import torch
-        from dagger_fit import node_terms
 
         mask = np.asarray(action_masks, bool)
         features = np.asarray(obs["node_features"], np.float32).reshape(1, len(mask), -1)
@@ -83,40 +81,6 @@ def _episode(job) -> float:
     theta, scene = job
     config = _WORKER["config"]
     return penalised_time(heldout_episode(LinearResidualRule(theta), config, scene), config)
-
-
-def penalised_time(metrics: dict, config) -> float:
-    """An episode's exploration time, seconds; one that does not explore counts the
-    evaluation's time limit plus 1000 s per unit of coverage missing."""
-    if metrics["end_reason"] == "explored":
-        return float(metrics["exploration_time_s"])
-    return float(config.eval.episode.max_time + 1000.0 * (1.0 - metrics["exploration_ratio"]))
-
-
-def paired(times: np.ndarray, base: np.ndarray) -> dict:
-    """Mean times and :func:`~mjexplore.eval.stats.compare_paired`'s figures of per-layout
-    ratios (times / base)."""
-    from mjexplore.eval.stats import compare_paired
-
-    c = compare_paired(times, base)
-    return {"mean": float(np.mean(times)), "base": float(np.mean(base)), "ratio": c.mean,
-            "ci95": [c.low, c.high], "faster": c.faster, "slower": c.slower,
-            "p_value": c.p_value}
-
-
-def load_v3_recipe(parser: argparse.ArgumentParser, path: str):
-    """The training recipe at ``path``; ``parser.error`` (exit 2) unless it has what the
-    prior's rule needs: generated training layouts, v3 features and the v3 prior."""
-    from mjexplore.config import load_yaml_config
-    from mjexplore.learning.training import TrainConfig
-
-    config = load_yaml_config(TrainConfig, path)
-    if (config.env.procedural is None or config.env.observation.features != "v3"
-            or config.policy.prior_pocket_m != 50.0):
-        parser.error(f"{path}: needs generated training layouts (env.procedural), v3 "
-                     "features and the v3 prior (policy.prior_pocket_m: 50), as "
-                     "training/gvn_batch.yaml has")
-    return config
 
 
 def main() -> None:

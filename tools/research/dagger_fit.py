@@ -15,10 +15,10 @@ No env runs: a variant of the fit is judged in minutes, before a DAgger run uses
 node's logit is the prior's plus ``w . phi(node)``, with ``phi`` the node's information gain,
 heading difference, distance and flag features, its pocket probability, its cost beyond the
 cheapest valid node's (per 10 m, and whether under 5 m or 15 m), its straight-line distance
-and gain near the robot (:func:`node_terms`); ``w`` by maximum likelihood (L-BFGS). Does any
-per-node signature tell the teacher's departures apart?
+and gain near the robot (:func:`v3_prior.node_terms`); ``w`` by maximum likelihood (L-BFGS).
+Does any per-node signature tell the teacher's departures apart?
 
-Usage: python tools/dagger_fit.py runs/dagger/long [--holdout 0.25] [--loss margin]
+Usage: python -m tools.research.dagger_fit runs/dagger/long [--holdout 0.25] [--loss margin]
     [--epochs 2] [--learning-rate 0.001] [--margin 1.0] [--seed 0]
 """
 
@@ -32,32 +32,13 @@ from pathlib import Path
 
 import numpy as np
 
+from tools.research.v3_prior import node_terms
+
 
 def episode_ids(memory_mask: np.ndarray) -> np.ndarray:
     """(n,) episode index of each decision of a round, from its (n, E) memory mask: an
     episode starts at a decision with no remembered TER."""
     return np.cumsum(memory_mask.sum(1) == 0) - 1
-
-
-def node_terms(node_features, valid):
-    """(n, N, 10) the linear model's terms of each node and the prior's logits (n, N) at
-    1 m per nat, from v3 node features (n, N, 10) and the valid mask (n, N)."""
-    import torch
-
-    from mjexplore.envs.observation import POCKET
-    from mjexplore.policies.gvn import path_prior
-
-    f = torch.as_tensor(node_features)
-    valid = torch.as_tensor(valid)
-    prior = path_prior(f, 1.0, 50.0)  # The v3 recipes' prior: 50 m per unit of pocket.
-    cost = -prior
-    cheapest = torch.where(valid, cost, torch.inf).min(1, keepdim=True).values
-    beyond = torch.clamp(cost - cheapest, max=200.0)
-    near = (beyond < 15).float()
-    terms = torch.stack([f[..., 2], f[..., 3], f[..., 4], f[..., 5], f[..., POCKET],
-                         beyond / 10, torch.hypot(f[..., 0], f[..., 1]) / 10,
-                         (beyond < 5).float(), near, f[..., 2] * near], -1)
-    return terms, prior
 
 
 def _linear_fit(node_features, masks, labels, fitted, seed):

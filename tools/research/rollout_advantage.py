@@ -18,9 +18,10 @@ all would give.
 
 A learner that beats its prior has to find departures of ``d < 0`` from what it observes.
 ``--fit`` reads the collected rows and asks whether the observable per-node terms of
-``tools/dagger_fit.py`` (:func:`dagger_fit.node_terms`; the departure's terms minus the prior
-node's) predict ``d`` on layouts held out (ridge regression, folds by layout): the held-out
-correlation, and how the departures predicted to gain, and the tenth predicted best, fared.
+``dagger_fit``'s linear model (:func:`v3_prior.node_terms`; the departure's terms minus the
+prior node's) predict ``d`` on layouts held out (ridge regression, folds by layout): the
+held-out correlation, and how the departures predicted to gain, and the tenth predicted best,
+fared.
 With ``--validate`` it then runs the rule that the fit on every layout implies (depart to the
 node of least predicted ``d`` where that is below ``-margin``) on the recipe's validation
 layouts beside the prior.
@@ -42,11 +43,12 @@ One JSON line per departure goes to ``OUT/rows.jsonl`` (appended layout by layou
 that stops keeps what it measured; ``--resume`` skips the layouts done), and one per start,
 with the git revision and the arguments, to ``OUT/sessions.jsonl`` (``--observe`` too).
 
-Usage: python tools/rollout_advantage.py --config training/gvn_batch.yaml --out runs/rollout/a
-    [--layouts 40] [--share 0.08] [--alternatives 2] [--nudge 0.0] [--workers 2] [--resume]
-       python tools/rollout_advantage.py --config ... --out runs/rollout/a --fit
+Usage: python -m tools.research.rollout_advantage --config training/gvn_batch.yaml
+    --out runs/rollout/a [--layouts 40] [--share 0.08] [--alternatives 2] [--nudge 0.0]
+    [--workers 2] [--resume]
+       python -m tools.research.rollout_advantage --config ... --out runs/rollout/a --fit
     [--context] [--privileged] [--folds 5] [--ridge 1.0] [--validate] [--margin 0.0]
-       python tools/rollout_advantage.py --config ... --out runs/rollout/a --observe
+       python -m tools.research.rollout_advantage --config ... --out runs/rollout/a --observe
 """
 
 from __future__ import annotations
@@ -55,14 +57,11 @@ import argparse
 import json
 import multiprocessing as mp
 import os
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from es_residual import load_v3_recipe, paired, penalised_time  # noqa: E402
+from tools.research.v3_prior import load_v3_recipe, node_terms, paired, penalised_time
 
 _WORKER: dict = {}
 
@@ -76,8 +75,6 @@ def _init(config) -> None:
 
 def _terms(obs, mask):
     """(N, 10) node terms and (N,) prior logits of one observation."""
-    from dagger_fit import node_terms
-
     features = np.asarray(obs["node_features"], np.float32).reshape(1, len(mask), -1)
     terms, prior = node_terms(features, np.asarray(mask, bool)[None])
     return terms[0].numpy(), prior[0].numpy()
