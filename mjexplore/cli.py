@@ -11,6 +11,7 @@ import dataclasses
 import difflib
 import json
 import logging
+import math
 import os
 import shlex
 import sys
@@ -47,8 +48,9 @@ def _size(text: str) -> tuple[float, float]:
     except ValueError:
         raise argparse.ArgumentTypeError(f"size {text!r} is not WIDTHxHEIGHT in metres, "
                                          "e.g. 40x25") from None
-    if w <= 0 or h <= 0:
-        raise argparse.ArgumentTypeError(f"size {text!r} must be positive, e.g. 40x25")
+    if not (0 < w < math.inf and 0 < h < math.inf):
+        raise argparse.ArgumentTypeError(f"size {text!r} must be positive and finite, e.g. "
+                                         "40x25")
     return w, h
 
 
@@ -57,8 +59,9 @@ def _pose(text: str) -> tuple[float, float, float]:
         values = [float(v) for v in text.split(",")]
     except ValueError:
         values = []
-    if len(values) not in (2, 3):
-        raise argparse.ArgumentTypeError(f"pose {text!r} is not X,Y[,YAW] in metres and radians")
+    if len(values) not in (2, 3) or not all(map(math.isfinite, values)):
+        raise argparse.ArgumentTypeError(f"pose {text!r} is not X,Y[,YAW] in metres and "
+                                         "radians (finite numbers)")
     return (values[0], values[1], values[2] if len(values) == 3 else 0.0)
 
 
@@ -67,13 +70,13 @@ def _positive(text: str) -> float:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"{text!r} must be positive")
+    if not 0 < value < math.inf:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a positive finite number")
     return value
 
 
 def _port(text: str) -> int:
-    if not text.isdigit() or not 0 <= int(text) <= 65535:
+    if not (text.isascii() and text.isdigit()) or not 0 <= int(text) <= 65535:
         raise argparse.ArgumentTypeError(f"port {text!r} is not a TCP port (0 to 65535; 0 "
                                          "takes a free one)")
     return int(text)
@@ -292,44 +295,55 @@ def _explore_team(args: argparse.Namespace) -> int:
 
 def cmd_explore(args: argparse.Namespace) -> int:
     from mjexplore.eval.methods import LEARNED, MethodSpec, parse_method
-    from mjexplore.eval.run import write_run
+    from mjexplore.eval.run import RunInterrupted, write_run
     from mjexplore.scenes.canonical import resolve_scene
 
     if args.robots > 1 or args.starts is not None or args.unknown_starts:
         return _explore_team(args)
-    spec = parse_method(args.explorer)
-    if args.policy is not None or args.no_masking:
-        if spec.method not in LEARNED:
-            raise UserInputError("--policy and --no-masking apply to the learned explorers "
-                                 f"only ({', '.join(LEARNED)}), not {args.explorer!r}.")
-        if args.policy is not None and spec.policy is not None:
-            _check_policy_fits_label(args.explorer, spec.method, spec.policy, args.policy)
-        spec = MethodSpec(spec.method, args.policy or spec.policy,
-                          False if args.no_masking else spec.masking)
-    check_output_folder(args.out)
+    try:
+        spec = parse_method(args.explorer)
+        if args.policy is not None or args.no_masking:
+            if spec.method not in LEARNED:
+                raise UserInputError("--policy and --no-masking apply to the learned explorers "
+                                     f"only ({', '.join(LEARNED)}), not {args.explorer!r}.")
+            if args.policy is not None and spec.policy is not None:
+                _check_policy_fits_label(args.explorer, spec.method, spec.policy, args.policy)
+            spec = MethodSpec(spec.method, args.policy or spec.policy,
+                              False if args.no_masking else spec.masking)
+        check_output_folder(args.out)
+        if args.video is not None:
+            _check_video_path(Path(args.video), Path(args.out))
+        explorer = spec.build()  # Fails early on a bad name or weights file.
+        label = getattr(explorer, "label", spec.method)
+        video = _video_config(args) if args.video is not None else None
+        if video is not None:
+            from mjexplore.render.gl import check_rendering
+
+            check_rendering()  # Fails now, not after the episode, if GL cannot load.
+        scene, config = resolve_scene(args.scene), _episode_config(args)
+        with _live_server(args) as live:
+            metrics = write_run(args.out, scene, label, args.seed, config, spec=spec.text,
+                                mcap=False if args.no_mcap else args.mcap_profile or "foxglove",
+                                video=video, video_path=args.video,
+                                progress=not args.no_progress, live=live)
+    except KeyboardInterrupt as exc:  # Ctrl-C: say what was kept (see eval/run.py).
+        kept = exc.kept if isinstance(exc, RunInterrupted) else []
+        if not kept:
+            said = f"nothing was kept: the run folder {str(args.out)!r}" + (
+                f" and the video {args.video!r} were" if args.video is not None else " was"
+            ) + " not written"
+        else:
+            m = exc.metrics
+            said = (f"the run folder {str(args.out)!r} is complete (end_reason {m['end_reason']!r} "
+                    f"at {m['exploration_time_s']:g} s simulated)")
+            if args.video is not None:
+                upto = "up to then" if m["end_reason"] == "interrupted" else "whole"
+                said += (f"; the video {args.video!r} holds the episode {upto}"
+                         if Path(args.video) in kept else f"; no video {args.video!r} was kept")
+        print(f"mjexplore explore: interrupted; {said}.", file=sys.stderr)
+        return 130
     if args.video is not None:
-        _check_video_path(Path(args.video), Path(args.out))
-    explorer = spec.build()  # Fails early on a bad name or weights file.
-    label = getattr(explorer, "label", spec.method)
-    video = _video_config(args) if args.video is not None else None
-    if video is not None:
-        from mjexplore.render.gl import check_rendering
-
-        check_rendering()  # Fails now, not after the episode, if GL cannot load.
-    scene, config = resolve_scene(args.scene), _episode_config(args)
-    with _live_server(args) as live:
-        metrics = write_run(args.out, scene, label, args.seed, config, spec=spec.text,
-                            mcap=False if args.no_mcap else args.mcap_profile or "foxglove",
-                            video=video,
-                            progress=not args.no_progress, live=live)
-    if video is not None:
-        target = Path(args.video)
-        inside = Path(args.out) / "video.mp4"
-        if target.resolve() != inside.resolve():
-            from mjexplore.io.atomic import write_bytes_atomic
-
-            write_bytes_atomic(target, inside.read_bytes())
-        metrics["video"] = str(target)
+        metrics["video"] = str(Path(args.video))
     print(json.dumps(metrics))
     return 0
 
@@ -587,7 +601,13 @@ def cmd_train_predictor(args: argparse.Namespace) -> int:
 
 def cmd_collect(args: argparse.Namespace) -> int:
     from mjexplore.eval.report import EXPERIMENTS
-    from mjexplore.eval.summaries import collect_sweep, merge_summaries, read_summary, write_summary
+    from mjexplore.eval.summaries import (
+        collect_sweep,
+        merge_summaries,
+        read_summary,
+        skipped_runs,
+        write_summary,
+    )
 
     known = [exp.name for exp in EXPERIMENTS]
     if args.experiment not in known:
@@ -598,6 +618,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
     check_output_folder(args.data, "--data")
     if args.stills is not None:
         check_output_folder(args.figures, "--figures")
+    _check_sweep_kind(args.sweep, args.experiment)
     summary = collect_sweep(args.sweep, args.experiment, command=args.sweep_command,
                             kinematics_series=args.kinematics, reference=args.reference,
                             stills=args.stills, media_dir=args.figures)
@@ -605,9 +626,40 @@ def cmd_collect(args: argparse.Namespace) -> int:
     if args.merge and path.is_file():
         summary = merge_summaries(summary, read_summary(path))
     path = write_summary(summary, path)
+    skipped = skipped_runs(args.sweep)
+    listed = {where for where, _ in skipped}
+    skipped += [(where, "not run yet") for r in summary["unfinished"]["not_run"]
+                if (where := f"runs/{r['scene']}/{r['method']}/seed{r['seed']}") not in listed]
     print(json.dumps({"summary": str(path), "runs": len(summary["runs"]),
-                      "methods": sorted({r["method"] for r in summary["runs"]})}))
-    return 0
+                      "methods": sorted({r["method"] for r in summary["runs"]}),
+                      "skipped": len(skipped)}))
+    for where, why in skipped[:20]:
+        print(f"mjexplore collect: skipped {where}: {why}", file=sys.stderr)
+    if len(skipped) > 20:
+        print(f"mjexplore collect: skipped {len(skipped) - 20} more", file=sys.stderr)
+    return 1 if skipped and args.strict else 0
+
+
+def _check_sweep_kind(sweep: Path, experiment: str) -> None:
+    """Refuses a team sweep (``bench --robots``) filed as a single-robot experiment, and
+    the other way round: the report would lay it out as the other kind."""
+    from mjexplore.eval.report import EXPERIMENTS, TEAM_EXPERIMENTS
+    from mjexplore.eval.summaries import team_runs
+
+    teams = set(team_runs(sweep).values())
+    if not teams:
+        return  # No finished runs: collect says so.
+    wanted = experiment in TEAM_EXPERIMENTS
+    if teams != {wanted}:
+        kind = "a team sweep (bench --robots)" if True in teams else "a single-robot sweep"
+        if teams == {True, False}:
+            kind = "a folder of team and single-robot sweeps"
+        fits = TEAM_EXPERIMENTS if True in teams else \
+            [e.name for e in EXPERIMENTS if e.name not in TEAM_EXPERIMENTS]
+        raise UserInputError(f"{str(sweep)!r} is {kind}, and --experiment {experiment} takes "
+                             f"{'team' if wanted else 'single-robot'} sweeps: collect it as "
+                             f"one of {', '.join(fits)}" + (", each kind from its own --out "
+                             "folder." if len(teams) == 2 else "."))
 
 
 def cmd_collect_training(args: argparse.Namespace) -> int:
@@ -685,6 +737,14 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {_one_line(message)} (see {self.prog} --help)\n")
+
+    def _get_values(self, action: argparse.Action, arg_strings: list[str]):
+        # Python 3.11's argparse drops the value of ``--max-time=--`` as if it were the
+        # '--' separator and stores an empty list, which no check expects.
+        if action.option_strings and action.nargs in (None, "?") and arg_strings == ["--"]:
+            self.error(f"argument {'/'.join(action.option_strings)}: expected a value, not "
+                       "'--'")
+        return super()._get_values(action, arg_strings)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -817,11 +877,12 @@ def build_parser() -> argparse.ArgumentParser:
                          "map; --explorer then takes a team method (assign_greedy, "
                          "assign_optimal, mmpf) or any single-robot one, run by every robot "
                          "on its own (the naive team) (default: 1)")
-    explore.add_argument("--starts", default=None, metavar="X,Y,YAW;...|close|far",
+    explore.add_argument("--starts", default=None, metavar="X,Y,YAW;...|close|far|drawn",
                          help="the team's start poses, one per robot separated by ';' "
-                         "(metres, radians, map frame), or Explore-Bench's 'close' or 'far' "
-                         "placement on its maps (2 robots) (default: robot 0 at the scene's "
-                         "start, the others drawn 1-3 m around it from the seed)")
+                         "(metres, radians, map frame), Explore-Bench's 'close' or 'far' "
+                         "placement on its own maps (2 robots), or 'drawn' (default: drawn, "
+                         "robot 0 at the scene's start, the others drawn 1-3 m around it "
+                         "from the seed; --robots is bounded by the room there)")
     explore.add_argument("--unknown-starts", action="store_true",
                          help="with --robots: the robots do not know their relative start "
                          "poses; each maps in its own frame until its map is merged into the "
@@ -876,8 +937,8 @@ def build_parser() -> argparse.ArgumentParser:
                        "nearest for the time beside (default: 1, single-robot sweeps)")
     bench.add_argument("--starts", default=None, metavar="PLACEMENTS",
                        help="with --robots: comma-separated start placements, 'close' and "
-                       "'far' (Explore-Bench's, on its maps) or 'drawn' (robot 0 at the "
-                       "scene's start, the others around it) (default: drawn)")
+                       "'far' (Explore-Bench's, on its own maps) or 'drawn' (robot 0 at the "
+                       "scene's start, the others drawn 1-3 m around it) (default: drawn)")
     bench.add_argument("--unknown-starts", action="store_true",
                        help="with --robots: unknown relative start poses, maps merged by "
                        "matching (see explore --unknown-starts) (default: known starts)")
@@ -928,8 +989,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "cuda, cuda:1 ... (default: auto); may change on --resume")
     tr.add_argument("--init-weights", type=Path, default=None, metavar="WEIGHTS",
                     help="start a fresh run from these weights (of the config's network, e.g. "
-                    "a warm start saved by tools/dagger_probe.py) instead of the config's "
-                    "imitation warm start (default: none, the config's own)")
+                    "a warm start saved by python -m tools.research.dagger_probe) instead of "
+                    "the config's imitation warm start (default: none, the config's own)")
     tr.add_argument("--no-progress", action="store_true",
                     help="no progress bar on a terminal, no progress lines elsewhere")
     tr.set_defaults(func=cmd_train)
@@ -1019,8 +1080,13 @@ def build_parser() -> argparse.ArgumentParser:
                     "none)")
     co.add_argument("--figures", type=Path, default=Path("docs/results"),
                     help="report figures folder, for --stills")
+    co.add_argument("--strict", action="store_true",
+                    help="exit 1 when any episode is left out (failed, cut off by Ctrl-C, not "
+                    "run yet, or metrics outside a run folder); each is listed on stderr "
+                    "either way")
     co.add_argument("--merge", action="store_true",
-                    help="keep the existing summary's runs of methods this sweep lacks")
+                    help="keep the existing summary's runs of the scene and method pairs this "
+                    "sweep lacks")
     co.set_defaults(func=cmd_collect)
 
     ct = sub.add_parser(

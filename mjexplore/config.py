@@ -11,6 +11,7 @@ merged result.
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 import types
 import typing
@@ -51,7 +52,13 @@ def _convert(tp: Any, value: Any, where: str) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise UserInputError(f"{where}: expected a number, got {value!r}.")
-        return float(value)
+        try:
+            number = float(value)
+        except OverflowError:  # A whole number too large for a float.
+            number = math.inf
+        if not math.isfinite(number):
+            raise UserInputError(f"{where}: expected a finite number, got {value!r}.")
+        return number
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise UserInputError(f"{where}: expected a whole number, got {value!r}.")
@@ -79,9 +86,9 @@ def from_dict(cls: type[T], data: Any, where: str = "config") -> T:
         raise UserInputError(f"{where}: expected a mapping of keys to values, got {data!r}.")
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
-    unknown = sorted(set(data) - set(fields))
+    unknown = sorted(map(str, set(data) - set(fields)))  # YAML keys may be numbers too.
     if unknown:
-        raise UserInputError(f"{where}: unknown key(s) {', '.join(map(str, unknown))}; valid keys "
+        raise UserInputError(f"{where}: unknown key(s) {', '.join(unknown)}; valid keys "
                              f"are {', '.join(fields)}.")
     kwargs = {k: _convert(hints[k], v, f"{where}.{k}") for k, v in data.items()}
     try:
@@ -123,10 +130,13 @@ def _read_layers(path: Path, chain: tuple[Path, ...] = ()) -> list[tuple[str, di
             mapping, or an ``extends`` that is not a file name or leads back to itself.
     """
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise UserInputError(f"cannot read config {str(path)!r}: {exc.strerror}; give the path "
                              "of a YAML file such as training/gvn.yaml.") from None
+    except UnicodeDecodeError as exc:
+        raise UserInputError(f"config {str(path)!r} is not UTF-8 text ({exc.reason} at byte "
+                             f"{exc.start}): give a YAML file, saved as UTF-8.") from None
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
@@ -139,7 +149,7 @@ def _read_layers(path: Path, chain: tuple[Path, ...] = ()) -> list[tuple[str, di
     if EXTENDS not in data:
         return [(path.name, data)]
     base_name = data.pop(EXTENDS)
-    if not isinstance(base_name, str) or not base_name:
+    if not isinstance(base_name, str) or not base_name or "\0" in base_name:
         raise UserInputError(f"{path.name}: {EXTENDS} must name the YAML file this one starts "
                              f"from (relative to {str(path.parent)!r}), got {base_name!r}.")
     chain = (*chain, path.resolve())

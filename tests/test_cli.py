@@ -9,8 +9,8 @@ import pytest
 
 from mjexplore.cli import main
 from mjexplore.io.provenance import file_sha256
-from mjexplore.policies.models import MODELS_DIR
 from mjexplore.maps import FREE, OCCUPIED, GridMap
+from mjexplore.policies.models import MODELS_DIR
 from mjexplore.scenes.map_server import write_map
 
 
@@ -401,7 +401,12 @@ def test_an_all_wall_map_and_a_text_file_as_weights_are_one_line(tmp_path, capsy
     image = cv2.imread(str(scene / "map.pgm"), cv2.IMREAD_UNCHANGED)
     cv2.imwrite(str(scene / "map.pgm"), np.zeros_like(image))
     (tmp_path / "w.safetensors").write_text("not weights")
+    corrupt = tmp_path / "corrupt"
+    shutil.copytree(resolve_scene("train_loop").xml.parent, corrupt)
+    (corrupt / "scene.xml").write_text("<mujoco><worldbody><bad")
     for argv, says in (
+            (["bench", "--scenes", f"train_loop,{corrupt}", "--explorers", "nearest",
+              "--seeds", "1", "--out", str(tmp_path / "o")], "failed to compile"),
             (["explore", "--scene", str(scene), "--out", str(tmp_path / "o")], "no free cell"),
             (["bench", "--scenes", str(scene), "--explorers", "nearest", "--seeds", "1",
               "--out", str(tmp_path / "o")], "no free cell"),
@@ -427,6 +432,87 @@ def test_a_sweep_started_again_with_fewer_methods_keeps_both_commands(tmp_path):
     assert main(["collect", str(out), "--experiment", "table1", "--data",
                  str(tmp_path / "data")]) == 0
     summary = json.loads((tmp_path / "data" / "table1.json").read_text())
-    # potential's runs were made by the first command: the summary names it.
+    # potential's runs were made by the first command: the summary names it, and so does
+    # each run.
     assert "nearest,potential" in summary["command"]
+    made = json.loads((out / "runs" / "train_loop" / "potential" / "seed0" /
+                       "config.json").read_text())["command"]
+    assert made == " ".join(["mjexplore"] + first)
     assert {r["method"] for r in summary["runs"]} == {"nearest", "potential"}
+
+
+@pytest.mark.parametrize("team, experiment, says", [
+    (True, "table1", "collect it as one of teams, teams_explore_bench"),
+    (False, "teams", "is a single-robot sweep"),
+])
+def test_collect_refuses_a_sweep_of_the_other_kind(tmp_path, capsys, team, experiment, says):
+    run = tmp_path / "sweep" / "runs" / "office" / (Path("drawn") if team else Path()) / \
+        "nearest" / "seed0"
+    run.mkdir(parents=True)
+    (run / "metrics.json").write_text('{"end_reason": "explored"}')
+    assert main(["collect", str(tmp_path / "sweep"), "--experiment", experiment, "--data",
+                 str(tmp_path / "data")]) == 2
+    err = capsys.readouterr().err
+    assert says in err and err.count("\n") == 1, err
+    assert not (tmp_path / "data").exists()
+
+
+def test_collect_training_refuses_a_damaged_eval_csv_and_the_report_keeps_its_outputs(
+        tmp_path, capsys):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "eval.csv").write_text("steps,scene\nten,office\n")
+    assert main(["collect-training", str(run), "--data", str(tmp_path / "data")]) == 2
+    err = capsys.readouterr().err
+    assert "not an eval.csv" in err and err.count("\n") == 1, err
+    assert not (tmp_path / "data").exists()
+    # A damaged record already in a data folder: the report fails and writes nothing.
+    (tmp_path / "data" / "training" / "run").mkdir(parents=True)
+    (tmp_path / "data" / "training" / "run" / "eval.csv").write_text("steps\n1\n")
+    out = tmp_path / "report" / "results.md"
+    assert main(["report", "--data", str(tmp_path / "data"), "--out", str(out)]) == 2
+    assert "not an eval.csv" in capsys.readouterr().err
+    assert not (tmp_path / "report").exists()
+
+
+@pytest.mark.parametrize("argv", [
+    ["bench", "--scenes", "train_loop", "--explorers", "nearest", "--seeds", "1"],
+    ["bench", "--scenes", "train_loop", "--seeds", "1", "--robots", "2"],
+    ["train-pockets", "--config", "training/pockets.yaml"],
+    ["imitate", "--config", "training/gvn_dagger.yaml"],
+    ["train-predictor", "--config", "training/predictor.yaml"],
+])
+def test_commands_refuse_an_out_folder_of_other_files(tmp_path, capsys, argv):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    repo = Path(__file__).resolve().parents[1]
+    argv = [str(repo / a) if a.startswith("training/") else a for a in argv]
+    assert main(argv + ["--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "notes.txt" in err and err.count("\n") == 1, err
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
+
+
+def test_collect_lists_every_episode_it_leaves_out_and_can_be_strict(tmp_path, capsys):
+    out = tmp_path / "bench"
+    assert main(["bench", "--scenes", "train_loop", "--explorers", "nearest", "--seeds", "2",
+                 "--workers", "1", "--max-time", "3", "--no-progress", "--out", str(out)]) == 0
+    runs = out / "runs" / "train_loop" / "nearest"
+    cut = json.loads((runs / "seed1" / "metrics.json").read_text()) | {
+        "end_reason": "interrupted"}
+    (runs / "seed1" / "metrics.json").write_text(json.dumps(cut))
+    (runs / "seed2.failed.json").write_text(json.dumps({"error": "ValueError: boom"}))
+    stray = out / "runs" / "train_loop" / "nearest" / "seed0" / "extra" / "seed9"
+    stray.mkdir(parents=True)
+    (stray / "metrics.json").write_text('{"end_reason": "explored"}')
+    capsys.readouterr()
+    argv = ["collect", str(out), "--experiment", "table1", "--data", str(tmp_path / "d")]
+    assert main(argv) == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["skipped"] == 3 and json.loads(captured.out)["runs"] == 1
+    for text in ("runs/train_loop/nearest/seed1: interrupted",
+                 "runs/train_loop/nearest/seed2: failed: ValueError: boom",
+                 "runs/train_loop/nearest/seed0/extra/seed9: not a run folder"):
+        assert text in captured.err, captured.err
+    assert main(argv + ["--strict"]) == 1

@@ -26,8 +26,24 @@ SWEEP = ["bench", "--scenes", "train_loop", "--explorers", "nearest,potential", 
 
 
 def _files(out: Path) -> dict[str, bytes]:
-    return {p.relative_to(out / "runs").as_posix(): p.read_bytes()
-            for p in sorted((out / "runs").rglob("*")) if p.is_file()}
+    """Every run folder's files; config.json without the command that made the run (which
+    differs: one says --ray)."""
+    files = {}
+    for path in sorted((out / "runs").rglob("*")):
+        if path.is_file():
+            data = path.read_bytes()
+            if path.name == "config.json":
+                config = json.loads(data)
+                assert config.pop("command", None) in (None, *[
+                    plan["command"] for plan in _history(out)])
+                data = json.dumps(config).encode()
+            files[path.relative_to(out / "runs").as_posix()] = data
+    return files
+
+
+def _history(out: Path) -> list[dict]:
+    sweep = out / "sweep.json"
+    return json.loads(sweep.read_text())["history"] if sweep.is_file() else []
 
 
 @pytest.mark.slow

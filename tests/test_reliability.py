@@ -123,10 +123,10 @@ def test_a_failing_episode_does_not_end_the_sweep(tmp_path, monkeypatch):
 
     real = sweep.write_run
 
-    def flaky(folder, scene, explorer, seed, config, mcap, spec=None):
+    def flaky(folder, scene, explorer, seed, config, mcap, **kwargs):
         if seed == 1:
             raise FloatingPointError("solver diverged")
-        return real(folder, scene, explorer, seed, config, mcap, spec=spec)
+        return real(folder, scene, explorer, seed, config, mcap, **kwargs)
 
     monkeypatch.setattr(sweep, "write_run", flaky)
     results = sweep.run_sweep(["train_loop"], ["nearest"], [0, 1], tmp_path,

@@ -141,7 +141,7 @@ class EpisodeResult:
     goals: np.ndarray
 
 
-class _SigintFlag:
+class SigintFlag:
     """Within the block, the first SIGINT sets ``raised`` instead of raising (main thread
     only; elsewhere SIGINT keeps its usual effect)."""
 
@@ -154,7 +154,7 @@ class _SigintFlag:
             raise KeyboardInterrupt
         self.raised = True
 
-    def __enter__(self) -> _SigintFlag:
+    def __enter__(self) -> SigintFlag:
         if threading.current_thread() is threading.main_thread():
             self._previous = signal.signal(signal.SIGINT, self._handle)
         return self
@@ -622,7 +622,7 @@ class Episode:
         code): the episode ends as ``interrupted`` and :class:`Interrupted`, carrying the
         result so far, is raised. A second Ctrl-C interrupts at once.
         """
-        with _SigintFlag() as flag:
+        with SigintFlag() as flag:
             while not flag.raised and self.step():
                 pass
         if flag.raised:

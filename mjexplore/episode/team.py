@@ -72,7 +72,7 @@ from mjexplore.episode.engine import (
     Episode,
     EpisodeConfig,
     Interrupted,
-    _SigintFlag,
+    SigintFlag,
 )
 from mjexplore.episode.explorer import ExplorationState, Explorer
 from mjexplore.episode.metrics import KnownCounter, first_time_at
@@ -829,7 +829,7 @@ class TeamEpisode:
     def run(self) -> TeamEpisodeResult:
         """Steps to the end; Ctrl-C ends the episode as ``interrupted`` (as
         :meth:`Episode.run`)."""
-        with _SigintFlag() as flag:
+        with SigintFlag() as flag:
             while not flag.raised and self.step():
                 pass
         if flag.raised:

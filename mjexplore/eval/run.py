@@ -4,6 +4,12 @@ Run folder: ``metrics.json`` (the paper's metrics), ``config.json`` (resolved se
 git revision), ``ratio.csv`` (exploration ratio over simulated time), ``kinematics.csv``,
 ``ratio.png``, ``kinematics.png``, ``map.png`` (final map and trajectory) and
 ``episode.mcap``. The folder appears complete or not at all.
+
+Ctrl-C (SIGINT, main thread) during :func:`write_run`: before the episode starts it stops the
+job at once, with nothing written; from then on the first one only ends the episode
+(:meth:`~mjexplore.episode.Episode.run`) and the outputs of the run so far are finished, then
+:class:`RunInterrupted` says what was kept. A second Ctrl-C stops at once (the atomic writes
+leave nothing half-written).
 """
 
 from __future__ import annotations
@@ -11,18 +17,54 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from mjexplore.episode import Episode, EpisodeConfig, EpisodeResult, Interrupted
+from mjexplore.episode.engine import SigintFlag
 from mjexplore.eval.methods import make_explorer
 from mjexplore.eval.plots import kinematics_figure, map_figure, ratio_figure
 from mjexplore.eval.progress import EpisodeProgress
-from mjexplore.io.atomic import atomic_directory, write_text_atomic
+from mjexplore.io.atomic import atomic_directory, write_bytes_atomic, write_text_atomic
 from mjexplore.io.mcap_log import FoxgloveEpisodeLog
 from mjexplore.io.provenance import git_revision
 from mjexplore.policies.models import MODELS_DIR, WEIGHTS_NAME, shipped_models
 from mjexplore.scenes.scene import SceneFiles
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`write_run`, raised once the outputs that could be were finished.
+
+    Attributes:
+        metrics: The run's metrics (``end_reason`` 'interrupted' if the episode was cut
+            short), or None if the episode had not started or its outputs were not finished.
+        kept: The outputs finished and in place: the run folder, then the video at the
+            path asked for; empty if nothing was kept.
+    """
+
+    def __init__(self, metrics: dict[str, Any] | None, kept: list[Path]) -> None:
+        super().__init__("run interrupted")
+        self.metrics = metrics
+        self.kept = kept
+
+
+class _HeldSigint(SigintFlag):
+    """Ctrl-C during a run: at once until :meth:`hold` (called when the episode starts),
+    then the first one is only noted (``raised``) and a second one stops at once; while the
+    episode runs, its own handler of the same kind takes over."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.holding = False
+
+    def hold(self) -> None:
+        self.holding = True
+
+    def _handle(self, signum, frame) -> None:
+        if not self.holding:
+            raise KeyboardInterrupt
+        super()._handle(signum, frame)
 
 
 class Observers:
@@ -75,13 +117,14 @@ def run_episode(scene: SceneFiles, explorer: str, seed: int, config: EpisodeConf
                 video_path: str | os.PathLike | None = None,
                 video: Any = None, stills_dir: str | os.PathLike | None = None,
                 progress: bool = False, mcap_profile: str = "foxglove",
-                live: Any = None) -> EpisodeResult:
+                live: Any = None, on_start: Callable[[], None] | None = None) -> EpisodeResult:
     """Runs one episode, optionally logging it to MCAP (``mcap_profile``: ``foxglove`` or
     ``ros2`` messages), streaming it (``live``: a started
     :class:`~mjexplore.io.live.LiveServer`, which may hold the start until a client
     subscribes), filming it (``video_path`` with a
     :class:`~mjexplore.render.recorder.VideoConfig`), writing still figures and showing a
-    progress bar on stderr (``progress``; drawn only when stderr is a terminal)."""
+    progress bar on stderr (``progress``; drawn only when stderr is a terminal).
+    ``on_start``: called with no arguments once the episode is built, as it starts."""
     title = f"{scene.metadata.get('name', Path(scene.xml).parent.name)} / {explorer} / seed {seed}"
     film = None
     if video_path is not None:
@@ -97,6 +140,8 @@ def run_episode(scene: SceneFiles, explorer: str, seed: int, config: EpisodeConf
         built = make_explorer(spec or explorer, **(explorer_kwargs or {}))
         episode = Episode(scene, built, seed,
                           config, observer=observers)
+        if on_start is not None:
+            on_start()
         result = episode.run()
     except Interrupted as exc:  # Stills of the run so far, then on up.
         interrupted, result = exc, exc.result
@@ -116,11 +161,13 @@ def run_episode(scene: SceneFiles, explorer: str, seed: int, config: EpisodeConf
 
 def resolved_config(scene: SceneFiles, explorer: str, seed: int, config: EpisodeConfig,
                     explorer_kwargs: dict | None = None, spec: str | None = None,
-                    metrics: dict[str, Any] | None = None) -> dict[str, Any]:
+                    metrics: dict[str, Any] | None = None,
+                    command: str | None = None) -> dict[str, Any]:
     """A run's ``config.json``: the scene as given, the run label ``explorer`` and the method
     spec that built it, the seed, every episode setting, the revision, and for a learned
     explorer its policy (``name``: a shipped model or the weights file's path; ``file``;
-    ``sha256``, the first 16 hex digits; ``recipe``), from the episode's ``metrics``."""
+    ``sha256``, the first 16 hex digits; ``recipe``), from the episode's ``metrics``; the
+    ``command`` that made it (a sweep's; None for a run of ``explore``)."""
     policy = None
     if metrics is not None and "weights_sha256" in metrics:
         name = metrics["policy"]
@@ -130,14 +177,16 @@ def resolved_config(scene: SceneFiles, explorer: str, seed: int, config: Episode
     return {"scene": scene.source, "scene_metadata": scene.metadata, "explorer": explorer,
             "spec": spec or explorer, "policy": policy,
             "explorer_kwargs": explorer_kwargs or {}, "seed": seed,
-            "episode": dataclasses.asdict(config), "git_revision": git_revision()}
+            "episode": dataclasses.asdict(config), "git_revision": git_revision(),
+            "command": command}
 
 
 def write_run(out_dir: str | os.PathLike, scene: SceneFiles, explorer: str, seed: int,
               config: EpisodeConfig, mcap: bool | str = True,
               explorer_kwargs: dict | None = None, video: Any = None,
-              progress: bool = False, live: Any = None,
-              spec: str | None = None) -> dict[str, Any]:
+              progress: bool = False, live: Any = None, spec: str | None = None,
+              video_path: str | os.PathLike | None = None,
+              command: str | None = None) -> dict[str, Any]:
     """Runs an episode and writes its run folder atomically; returns the metrics.
 
     ``mcap``: a false value for no ``episode.mcap``, True or ``"foxglove"`` for one with
@@ -147,9 +196,39 @@ def write_run(out_dir: str | os.PathLike, scene: SceneFiles, explorer: str, seed
     ``video.mp4`` and the 3D still ``scene.png``; ``ter.png`` (final map, trajectory and TER)
     is always written. ``progress`` as :func:`run_episode`. ``explorer`` is the run's
     label; ``spec`` the method spec that builds the explorer, if not the label
-    (:mod:`mjexplore.eval.methods`).
+    (:mod:`mjexplore.eval.methods`). ``video_path``: the video's path, if not (only) the
+    folder's ``video.mp4``; copied there atomically once the folder is in place.
+    ``command``: the command line that made the run (a sweep's), kept in ``config.json``.
+
+    Raises:
+        RunInterrupted: Ctrl-C (see the module docstring); it says what was kept.
     """
-    interrupted = None
+    out_dir = Path(out_dir)
+    kept: list[Path] = []
+    metrics = None
+    try:
+        with _HeldSigint() as sigint:
+            metrics = _write_run_folder(out_dir, scene, explorer, seed, config, mcap,
+                                        explorer_kwargs, video, progress, live, spec, sigint,
+                                        command)
+            kept.append(out_dir)
+            film = out_dir / "video.mp4"
+            if video_path is not None and film.is_file():
+                if Path(video_path).resolve() != film.resolve():
+                    write_bytes_atomic(video_path, film.read_bytes())
+                kept.append(Path(video_path))
+    except KeyboardInterrupt:  # Before the episode, or a second Ctrl-C.
+        raise RunInterrupted(metrics if kept else None, kept) from None
+    if sigint.raised:  # During the episode (its end_reason says so) or after it.
+        raise RunInterrupted(metrics, kept)
+    return metrics
+
+
+def _write_run_folder(out_dir: Path, scene: SceneFiles, explorer: str, seed: int,
+                      config: EpisodeConfig, mcap: bool | str, explorer_kwargs: dict | None,
+                      video: Any, progress: bool, live: Any, spec: str | None,
+                      sigint: _HeldSigint, command: str | None) -> dict[str, Any]:
+    """:func:`write_run`'s folder; holds Ctrl-C (``sigint``) from the episode's start."""
     with atomic_directory(out_dir, "metrics.json") as tmp:
         try:
             result = run_episode(scene, explorer, seed, config,
@@ -157,16 +236,16 @@ def write_run(out_dir: str | os.PathLike, scene: SceneFiles, explorer: str, seed
                                  video_path=tmp / "video.mp4" if video is not None else None,
                                  video=video, stills_dir=tmp, progress=progress,
                                  mcap_profile=mcap if isinstance(mcap, str) else "foxglove",
-                                 live=live, spec=spec)
+                                 live=live, spec=spec, on_start=sigint.hold)
         except Interrupted as exc:
             # Ctrl-C: the run so far becomes a complete folder (end_reason 'interrupted').
-            interrupted, result = exc, exc.result
+            sigint.raised, result = True, exc.result  # A second Ctrl-C stops at once.
         metrics = {"scene": scene.metadata.get("name", Path(scene.xml).parent.name),
                    "explorer": explorer, "seed": seed, **result.metrics}
         write_text_atomic(tmp / "metrics.json", json.dumps(metrics, indent=2) + "\n")
         write_text_atomic(tmp / "config.json", json.dumps(
-            resolved_config(scene, explorer, seed, config, explorer_kwargs, spec, metrics),
-            indent=2, default=str) + "\n")
+            resolved_config(scene, explorer, seed, config, explorer_kwargs, spec, metrics,
+                            command), indent=2, default=str) + "\n")
         write_text_atomic(tmp / "ratio.csv", "t,exploration_ratio\n" + "".join(
             f"{t:.3f},{r:.6f}\n" for t, r in result.ratio_curve))
         write_text_atomic(tmp / "kinematics.csv", result.kinematics.to_csv())
@@ -174,9 +253,7 @@ def write_run(out_dir: str | os.PathLike, scene: SceneFiles, explorer: str, seed
         ratio_figure({explorer: [result.ratio_curve]}, tmp / "ratio.png", title)
         kinematics_figure({explorer: [result.kinematics]}, tmp / "kinematics.png", title)
         map_figure(result.grid, result.kinematics.pose[:, :2], result.goals, tmp / "map.png", title)
-    if interrupted is not None:
-        raise interrupted
     return metrics
 
 
-__all__ = ["run_episode", "write_run"]
+__all__ = ["RunInterrupted", "run_episode", "write_run"]

@@ -72,6 +72,32 @@ def _run_folders(sweep: Path) -> list[Path]:
                   for p in sweep.glob(pattern) if finished_metrics(p.parent) is not None)
 
 
+def skipped_runs(sweep: str | os.PathLike) -> list[tuple[str, str]]:
+    """What a collect of ``sweep`` leaves out, and why: (path under the sweep, reason) for
+    each episode that failed (``seedN.failed.json``), was cut off by Ctrl-C, or wrote its
+    metrics where no run folder belongs (``runs/SCENE/METHOD/seedN``, or a team sweep's
+    ``runs/SCENE/PLACEMENT/METHOD/seedN``)."""
+    sweep = Path(sweep)
+    finished = set(_run_folders(sweep))
+    skipped = []
+    for path in sorted((sweep / "runs").rglob("*")):
+        where = str(path.relative_to(sweep))
+        if path.name.endswith(".failed.json") and path.is_file():
+            try:
+                error = json.loads(path.read_text()).get("error")
+            except (OSError, ValueError, AttributeError):
+                error = None
+            skipped.append((where.removesuffix(".failed.json"), f"failed: {error}"))
+        elif path.name == "metrics.json" and path.parent not in finished and \
+                not any(part.startswith(".") for part in path.relative_to(sweep).parts):
+            run = str(path.parent.relative_to(sweep))
+            depth = len(path.parent.relative_to(sweep / "runs").parts)
+            skipped.append((run, "interrupted (Ctrl-C): a re-run of the sweep runs it again"
+                            if depth in (3, 4) and path.parent.name.startswith("seed") else
+                            "not a run folder of a sweep (runs/SCENE/METHOD/seedN)"))
+    return skipped
+
+
 def team_runs(sweep: str | os.PathLike) -> dict[Path, bool]:
     """Each finished run of a sweep folder: whether it is a team sweep's
     (``runs/SCENE/PLACEMENT/METHOD/seedN``, ``bench --robots``)."""

@@ -125,13 +125,15 @@ def write_failure(folder: Path, failure: dict[str, Any]) -> None:
 
 
 def run_job(job: Job, folder: Path, config: EpisodeConfig, mcap: bool | str,
-            scene: SceneFiles | None = None, spec: str | None = None) -> dict[str, Any]:
+            scene: SceneFiles | None = None, spec: str | None = None,
+            command: str | None = None) -> dict[str, Any]:
     """Runs ``job``'s episode into the run folder ``folder``; its metrics, or its failure
     record (:func:`episode_failure`) if it raised. ``scene`` and ``spec`` replace the job's
-    own (a Ray worker's copies of its files)."""
+    own (a Ray worker's copies of its files); ``command`` (the sweep's) goes in its
+    ``config.json``."""
     try:
         metrics = write_run(folder, scene or resolve_scene(job.scene), job.explorer, job.seed,
-                            config, mcap, spec=spec or job.spec)
+                            config, mcap, spec=spec or job.spec, command=command)
     except Exception as exc:  # noqa: BLE001 - one broken episode must not end the sweep
         return episode_failure(job, exc)
     metrics["scene"] = job.label
@@ -153,9 +155,9 @@ def file_results(out: Path, results: Iterable[tuple[Any, dict[str, Any], Bundle]
         yield metrics
 
 
-def _run_job(args: tuple[Job, Path, EpisodeConfig, bool | str]) -> dict[str, Any]:
-    job, out, config, mcap = args
-    metrics = run_job(job, job.folder(out), config, mcap)
+def _run_job(args: tuple[Job, Path, EpisodeConfig, bool | str, str | None]) -> dict[str, Any]:
+    job, out, config, mcap, command = args
+    metrics = run_job(job, job.folder(out), config, mcap, command=command)
     if metrics.get("end_reason") == "error":
         write_failure(job.folder(out), metrics)
     return metrics
@@ -236,14 +238,15 @@ def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Pa
             from mjexplore.eval.remote import run_remote
 
             finished = file_results(out, run_remote(
-                todo, functools.partial(run_job, config=config, mcap=mcap), episode_failure,
-                ray_address, workers))
+                todo, functools.partial(run_job, config=config, mcap=mcap, command=command),
+                episode_failure, ray_address, workers))
         elif workers <= 1:
-            finished = map(_run_job, [(job, out, config, mcap) for job in todo])
+            finished = map(_run_job, [(job, out, config, mcap, command) for job in todo])
         else:
             ctx = multiprocessing.get_context("spawn")
             pool = stack.enter_context(ctx.Pool(workers, initializer=init_episode_worker))
-            finished = pool.imap_unordered(_run_job, [(job, out, config, mcap) for job in todo])
+            finished = pool.imap_unordered(_run_job, [(job, out, config, mcap, command)
+                                                      for job in todo])
         for metrics in finished:
             results.append(metrics)
             bar.update(detail=_episode_note(metrics))

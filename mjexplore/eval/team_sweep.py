@@ -30,19 +30,20 @@ from mjexplore.episode.team import TeamConfig
 from mjexplore.errors import UserInputError
 from mjexplore.eval.run import write_run
 from mjexplore.eval.sweep import (
+    SWEEP_OUTPUTS,
     file_results,
     finished_metrics,
     format_mean_std,
     markdown_table,
     scene_label,
 )
-from mjexplore.eval.team_run import team_starts, write_team_run
-from mjexplore.io.atomic import write_text_atomic
+from mjexplore.eval.team_run import DRAWN, check_placements, team_starts, write_team_run
+from mjexplore.io.atomic import refuse_foreign_files, write_text_atomic
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.scenes.scene import SceneFiles
+from mjexplore.scenes.team import check_starts, draw_starts
 
 log = logging.getLogger(__name__)
-DRAWN = "drawn"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,8 +83,7 @@ def run_team_job(job: TeamJob, folder: Path, config: EpisodeConfig,
         scene = scene or resolve_scene(job.scene)
         if job.robots == 1:
             return write_run(folder, scene, job.method, job.seed, config, mcap=False)
-        starts = None if job.placement == DRAWN else team_starts(scene, job.placement,
-                                                                 job.robots)
+        starts = team_starts(scene, job.placement, job.robots, poses=False)
         return write_team_run(folder, scene, job.method, job.robots, job.seed, config,
                               starts, mcap=False,
                               team_config=TeamConfig(unknown_starts=job.unknown_starts))
@@ -118,16 +118,26 @@ def run_team_sweep(scenes: list[str], methods: list[str], robots: int, placement
     ``ray_address`` as :func:`~mjexplore.eval.sweep.run_sweep`'s.
 
     Raises:
-        UserInputError: a placement a scene does not define (checked before anything
-            runs).
+        UserInputError: an unknown placement, a placement a scene does not define, or one
+            whose starts are not free, or more robots than fit around a scene's start for
+            ``drawn`` (checked before anything runs).
     """
     if robots < 2:
         raise UserInputError("a team sweep needs --robots 2 or more.")
-    for scene in scenes:
+    check_placements(placements)
+    for name in scenes:
+        scene = resolve_scene(name)
         for placement in placements:
-            if placement != DRAWN:
-                team_starts(resolve_scene(scene), placement, robots)
+            starts = team_starts(scene, placement, robots, poses=False)
+            if scene.ground_truth is None:
+                continue  # Its episodes say so.
+            if starts is None:  # Drawn around the scene's start (each seed's jitters).
+                draw_starts(scene.ground_truth, scene.start, robots,
+                            np.random.default_rng([0, robots]))
+            else:
+                check_starts(scene.ground_truth, starts)
     jobs = team_jobs(scenes, methods, robots, placements, seeds, single, unknown_starts)
+    refuse_foreign_files(out, SWEEP_OUTPUTS, "a bench sweep")
     out.mkdir(parents=True, exist_ok=True)
     args = [(job, out, config) for job in jobs]
     if ray_address is not None:

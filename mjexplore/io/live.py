@@ -12,7 +12,9 @@ time) is the simulated time of the last scan.
 
 from __future__ import annotations
 
+import ipaddress
 import logging
+import socket
 import threading
 import time
 
@@ -28,6 +30,40 @@ DEFAULT_PORT = 8765
 DEFAULT_HOST = "127.0.0.1"
 
 
+HOST_HINT = "127.0.0.1 (this machine only) or 0.0.0.0 (every interface)"
+
+
+def check_host(host: str) -> None:
+    """Refuses an address a server cannot bind here: one that is not an IP address or a
+    host name that resolves (``256.1.1.1``), or an address of another machine.
+
+    Raises:
+        UserInputError: with the addresses to use instead.
+    """
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        # Dotted numbers or a colon are meant as an address: no name lookup for them.
+        if not host or ":" in host or all(c.isdigit() or c == "." for c in host):
+            raise UserInputError(f"--live-host {host!r} is not a valid IP address: give an "
+                                 f"address of this machine, e.g. {HOST_HINT}.") from None
+    try:
+        family, kind, proto, _, address = socket.getaddrinfo(
+            host, 0, type=socket.SOCK_STREAM)[0]
+    except (OSError, UnicodeError) as exc:
+        reason = getattr(exc, "strerror", None) or str(exc)
+        raise UserInputError(f"--live-host {host!r} is not a valid address ({reason}): give "
+                             f"an address of this machine, e.g. {HOST_HINT}.") from None
+    with socket.socket(family, kind, proto) as probe:
+        try:
+            probe.bind(address)  # Port 0: tests the address, not a port.
+        except OSError as exc:
+            raise UserInputError(
+                f"--live-host {host!r} is not an address of this machine ({exc.strerror}): "
+                f"the live server listens on one of its own interfaces: give {HOST_HINT}.") \
+                from None
+
+
 class LiveServer(ServerListener):
     """A started Foxglove WebSocket server; stop it with :meth:`stop` (or use ``with``).
 
@@ -41,8 +77,8 @@ class LiveServer(ServerListener):
             a topic.
 
     Raises:
-        UserInputError: The port is taken or the address cannot be bound, or ``rate`` is
-            not positive.
+        UserInputError: The port is taken, the address is not valid or not this
+            machine's (:func:`check_host`), or ``rate`` is not positive.
     """
 
     def __init__(self, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
@@ -55,6 +91,7 @@ class LiveServer(ServerListener):
         # The server object takes one call at a time (another thread's raises RuntimeError).
         self._lock = threading.Lock()
         self._wall0 = None  # Wall-clock time at the first paced scan.
+        check_host(host)  # Before the bind, whose error would blame the port.
         try:
             self.server = foxglove.start_server(
                 name="mjexplore", host=host, port=port, context=self.context,

@@ -45,7 +45,7 @@ import yaml
 
 from mjexplore.config import from_dict, to_dict
 from mjexplore.errors import UserInputError
-from mjexplore.io.atomic import write_bytes_atomic, write_text_atomic
+from mjexplore.io.atomic import refuse_foreign_files, write_bytes_atomic, write_text_atomic
 from mjexplore.io.provenance import git_revision
 from mjexplore.learning.imitation import Aggregate, dagger_rounds
 from mjexplore.learning.training import (
@@ -91,6 +91,9 @@ def imitate(config: TrainConfig, out: str | Path, resume: bool = False) -> dict[
     if resume and not ledger.is_file():
         raise UserInputError(f"nothing to resume in {str(out)!r}: it has no finished round; "
                              "run without --resume to start.")
+    refuse_foreign_files(out, ("imitation.json", "config.yaml", "policy.safetensors",
+                               "policy_untrained.safetensors", "weights", "rounds", ".*.tmp"),
+                         "an imitation run")
     torch.set_num_threads(1)
     _seed_everything(config.seed)
     policy = _fresh_policy(config)

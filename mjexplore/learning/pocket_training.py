@@ -30,7 +30,7 @@ from mjexplore.config import load_yaml_config, to_dict
 from mjexplore.envs.exploration import EnvConfig
 from mjexplore.episode.explorer import ExplorationState
 from mjexplore.errors import UserInputError
-from mjexplore.io.atomic import write_text_atomic
+from mjexplore.io.atomic import refuse_foreign_files, write_text_atomic
 from mjexplore.io.progress import Progress
 from mjexplore.io.provenance import git_revision
 
@@ -287,6 +287,8 @@ def train_pockets(config: PocketTrainingConfig, out: str | Path, workers: int = 
     from mjexplore.topology.pockets import save_pocket_net
 
     out = Path(out)
+    refuse_foreign_files(out, ("pockets.safetensors", "fit.json", ".*.tmp"),
+                         "a train-pockets run")
     revision = git_revision()  # The code that collects and fits, before any later edit.
     started = time.perf_counter()
     with Progress(config.episodes, "train-pockets", "episodes", enabled=progress,

@@ -43,7 +43,7 @@ from mjexplore.config import load_yaml_config, to_dict
 from mjexplore.envs.exploration import EnvConfig
 from mjexplore.episode.explorer import ExplorationState, Explorer
 from mjexplore.errors import UserInputError
-from mjexplore.io.atomic import write_bytes_atomic, write_text_atomic
+from mjexplore.io.atomic import refuse_foreign_files, write_bytes_atomic, write_text_atomic
 from mjexplore.io.progress import Progress
 from mjexplore.io.provenance import file_sha256, git_revision
 from mjexplore.learning.pocket_training import episode_layout
@@ -422,8 +422,9 @@ def train_predictor(config: PredictorTrainingConfig, out: str | Path, workers: i
     if saved.exists() and saved.read_text() != recipe:
         raise UserInputError(f"{str(out)!r} holds a predictor run with other settings "
                              f"({saved}): give another --out, or the same config to resume.")
-    if out.exists() and not saved.exists() and any(out.iterdir()):
-        raise UserInputError(f"{str(out)!r} holds other files: give a new or empty --out.")
+    refuse_foreign_files(out, ("config.yaml", "data", "checkpoint.pt", "tb",
+                               "predictor.safetensors", "quality.json", "README.md", ".*.tmp"),
+                         "a train-predictor run")
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(saved, recipe)
     with Progress(config.episodes, "train-predictor", "episodes", enabled=progress,

@@ -790,9 +790,9 @@ def train(config: TrainConfig, out: str | Path, resume: bool = False,
         recipe: The name of the config the run was made from (its file's name), kept in the
             weights' provenance.
         init_weights: A fresh run starts from these weights (a policy file of this config's
-            network, e.g. a warm start made by ``tools/dagger_probe.py``) instead of the
-            config's own warm start; ``init.json`` records the file, its tensors' sha256
-            and its provenance.
+            network, e.g. a warm start made by ``python -m tools.research.dagger_probe``)
+            instead of the config's own warm start; ``init.json`` records the file, its
+            tensors' sha256 and its provenance.
 
     Returns:
         Summary: steps, checkpoints written, final weights path.

@@ -14,11 +14,18 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from mjexplore.errors import UserInputError
 from mjexplore.io.atomic import write_bytes_atomic
 from mjexplore.io.video import VideoWriter
 from mjexplore.render.panel import PanelContent, gvd_segments, render_panel
 from mjexplore.render.scene_view import CameraConfig, SceneView
 from mjexplore.topology.frontiers import estimated_information_gain
+
+# The largest frame an H.264 video may have: level 6.2, the standard's highest (ITU-T H.264
+# Table A-1, MaxFS), in macroblocks of 16 x 16 pixels (e.g. 8192 x 4352), and x264's largest
+# side (it refuses larger frames: "invalid width x height").
+MAX_FRAME_MACROBLOCKS = 139264
+MAX_FRAME_SIDE = 16384
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -27,7 +34,8 @@ class VideoConfig:
 
     Attributes:
         width, height: Size of each of the two panels in pixels (the frame is 2 width x
-            height); even numbers.
+            height); even numbers, the frame within H.264's largest (at most
+            ``MAX_FRAME_SIDE`` pixels a side and ``MAX_FRAME_MACROBLOCKS`` macroblocks).
         fps: Frames per second of the video file.
         sim_seconds_per_frame: Simulated time between frames (the video rate): 1.0 at 20
             fps plays the episode 20 times faster than real time.
@@ -41,10 +49,18 @@ class VideoConfig:
     camera: CameraConfig = dataclasses.field(default_factory=CameraConfig)
 
     def __post_init__(self) -> None:
+        """Refuses sizes and rates no video can have (UserInputError, a ValueError)."""
         if self.width < 16 or self.height < 16 or self.width % 2 or self.height % 2:
-            raise ValueError("video width and height must be even and at least 16 pixels")
+            raise UserInputError("video width and height must be even and at least 16 pixels")
         if self.fps <= 0 or self.sim_seconds_per_frame <= 0:
-            raise ValueError("video fps and sim_seconds_per_frame must be positive")
+            raise UserInputError("video fps and sim_seconds_per_frame must be positive")
+        w, h = 2 * self.width, self.height  # The frame: two panels side by side.
+        if max(w, h) > MAX_FRAME_SIDE or -(-w // 16) * -(-h // 16) > MAX_FRAME_MACROBLOCKS:
+            raise UserInputError(
+                f"video size {self.width}x{self.height} per panel makes {w}x{h} frames, larger "
+                f"than an H.264 video can be (at most {MAX_FRAME_SIDE} pixels a side and "
+                f"{MAX_FRAME_MACROBLOCKS * 256 / 1e6:.1f} million pixels, level 6.2): choose "
+                "--video-size up to 4096x4352 per panel, e.g. 1920x1080.")
 
 
 def encode_png_rgb(img: np.ndarray) -> bytes:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import os
+import shlex
 import tempfile
 from pathlib import Path
 
@@ -15,7 +16,7 @@ import yaml
 
 from mjexplore.errors import UserInputError
 from mjexplore.robot import ROBOT_XML, turtlebot3
-from mjexplore.scenes.scene import SceneFiles, load_scene_files
+from mjexplore.scenes.scene import SCENE_FORMS, SceneFiles, load_scene_files
 
 SCENES_DIR = Path(os.environ.get("MJEXPLORE_SCENES",
                                  Path(__file__).resolve().parents[2] / "scenes_xml"))
@@ -81,8 +82,12 @@ def canonical_names(role: str | None = None) -> list[str]:
 # The files that decide what an import builds (its code and the robot model it places): a
 # change to any of them makes earlier imports stale.
 IMPORT_CODE = tuple(Path(__file__).with_name(name) for name in (
-    "importer.py", "map_server.py", "scene.py", "mesh.py", "rectangles.py")) + (
-    Path(turtlebot3.__file__), ROBOT_XML)
+    "canonical.py", "importer.py", "map_server.py", "scene.py", "mesh.py",
+    "rectangles.py")) + (Path(turtlebot3.__file__), ROBOT_XML)
+# Files that hold a picture of a map, not a scene (``--scene`` refuses them with how to
+# import one).
+IMAGE_SUFFIXES = (".pgm", ".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".pbm", ".tif", ".tiff",
+                  ".gif", ".webp")
 
 
 def _import_digest(path: Path, start) -> str:
@@ -100,16 +105,48 @@ def _import_digest(path: Path, start) -> str:
     return digest.hexdigest()[:16]
 
 
+def explore_bench_map(yaml_path: str | os.PathLike) -> str | None:
+    """The name of the Explore-Bench map a map_server YAML is (a YAML named like one of
+    :data:`EXPLORE_BENCH_MAPS` in a folder named ``explore_bench``), or None."""
+    path = Path(yaml_path)
+    if path.resolve().parent.name == "explore_bench" and path.stem in EXPLORE_BENCH_MAPS:
+        return path.stem
+    return None
+
+
+def _not_a_scene(path: Path) -> None:
+    """Refuses an image or a 3D model given where a scene is expected, with how to import
+    it (they are not MJCF, and MuJoCo's parser would only say it cannot decode them)."""
+    suffix = path.suffix.lower()
+    what = f"a scene is {SCENE_FORMS}"
+    if suffix in IMAGE_SUFFIXES:
+        beside = [p for p in (path.with_suffix(".yaml"), path.with_suffix(".yml"))
+                  if p.is_file()]
+        use = (f"give its map_server YAML ({str(beside[0])!r}), or import the image"
+               if beside else "import it")
+        raise UserInputError(
+            f"{str(path)!r} is an image, not a scene: {what}; {use} with 'mjexplore scene-gen "
+            f"--from-map {shlex.quote(str(path))} --resolution METRES_PER_PIXEL --out DIR' "
+            "(bright pixels free) and give --scene DIR.")
+    from mjexplore.scenes.mesh import MESH_FORMATS
+
+    if suffix in MESH_FORMATS:
+        raise UserInputError(
+            f"{str(path)!r} is a 3D model, not a scene: {what}; import it with 'mjexplore "
+            f"scene-gen --from-mesh {shlex.quote(str(path))} --out DIR' and give --scene DIR.")
+
+
 def resolve_scene(scene: str | os.PathLike) -> SceneFiles:
     """Finds a scene by canonical name, scene folder, MJCF path or map_server YAML path.
 
     A map_server YAML is imported into a scene folder under the system's temporary
     directory (keyed by the map's content, so it is built once). Explore-Bench's maps (a
     YAML named like one of them in a folder named ``explore_bench``) start at the
-    benchmark's standard pose; other maps at a seeded free pose.
+    benchmark's standard pose, and their metadata names the map (``explore_bench``: its
+    two-robot placements apply to them only); other maps start at a seeded free pose.
 
     Raises:
-        UserInputError: no such scene.
+        UserInputError: no such scene, or an image or a 3D model (says how to import it).
     """
     text = str(scene)
     if text in CANONICAL_SCENES:
@@ -123,14 +160,20 @@ def resolve_scene(scene: str | os.PathLike) -> SceneFiles:
         from mjexplore.scenes.importer import scene_from_map_yaml
         from mjexplore.scenes.scene import write_scene
 
-        start = None
-        if path.resolve().parent.name == "explore_bench" and path.stem in EXPLORE_BENCH_MAPS:
-            start = EXPLORE_BENCH_STARTS.get(path.stem, EXPLORE_BENCH_DEFAULT_START)
+        start, bench_map = None, explore_bench_map(path)
+        if bench_map is not None:
+            start = EXPLORE_BENCH_STARTS.get(bench_map, EXPLORE_BENCH_DEFAULT_START)
         digest = _import_digest(path, start)
         folder = Path(tempfile.gettempdir()) / "mjexplore-scenes" / f"{path.stem}-{digest}"
         if not (folder / "scene.xml").is_file():
-            write_scene(scene_from_map_yaml(path, start=start), folder)
+            imported = scene_from_map_yaml(path, start=start)
+            if bench_map is not None:  # Its team placements apply (scenes/team.py).
+                imported = dataclasses.replace(
+                    imported, metadata={**imported.metadata, "explore_bench": bench_map})
+            write_scene(imported, folder)
         return load_scene_files(folder)
+    if path.is_file():
+        _not_a_scene(path)
     if not path.exists():
         raise UserInputError(f"unknown scene {text!r}: give one of "
                              f"{', '.join(CANONICAL_SCENES)}, a scene folder, an MJCF file or a "

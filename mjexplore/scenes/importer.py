@@ -22,6 +22,9 @@ from mjexplore.scenes.scene import Scene, check_start, pick_start, reachable_reg
 # ARiADNE's test maps mark the start with a block of this colour (RGB).
 START_MARKER_RGB = (255, 216, 0)
 IMAGE_FREE_THRESHOLD = 150
+# A map that reaches farther than this from its frame's origin (metres) has a wrong
+# resolution or origin (a building is a few hundred metres across at most).
+MAX_REACH_M = 1e5
 
 
 def scene_from_grid(grid: GridMap, name: str, source: dict,
@@ -36,13 +39,21 @@ def scene_from_grid(grid: GridMap, name: str, source: dict,
         seed: Seed for picking the start pose.
 
     Raises:
-        UserInputError: the map has no free space, or the start is not in free space.
+        UserInputError: the map reaches farther than :data:`MAX_REACH_M` (a wrong
+            resolution or origin), has no free space, or the start is not in free space.
     """
+    ox, oy, _ = grid.origin
+    reach = max(abs(ox), abs(oy)) + max(grid.size_m)
+    if not reach <= MAX_REACH_M:  # Also NaN and infinity.
+        raise UserInputError(
+            f"map {name!r} reaches {reach:.3g} m from its frame's origin (resolution "
+            f"{grid.resolution:g} m per pixel, origin ({ox:g}, {oy:g}) m), more than "
+            f"{MAX_REACH_M:g} m: check its resolution (metres per pixel, e.g. 0.05) and "
+            "origin (metres).")
     free = grid.free
     if not free.any():
         raise UserInputError(f"map {name!r} has no free cells: check its thresholds "
                              "(occupied_thresh, free_thresh, negate) or the image's colours.")
-    ox, oy, _ = grid.origin
     if start is None:
         sx, sy, yaw = pick_start(free, grid.resolution, np.random.default_rng(seed))
         start = (round(ox + sx, 4), round(oy + sy, 4), yaw)

@@ -95,7 +95,14 @@ _NUMBERS = {"resolution": "metres per pixel, e.g. 0.05",
 
 
 def _is_number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
+    """A YAML number a float holds (not a bool, not a whole number beyond float's range)."""
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        return False
+    try:
+        float(value)
+    except OverflowError:
+        return False
+    return True
 
 
 def _number(meta: dict, key: str, path: Path, default: float | None = None) -> float:

@@ -166,8 +166,11 @@ def pick_start(free: np.ndarray, resolution: float, rng: np.random.Generator,
 
 def check_start(grid: GridMap, start: tuple[float, float, float]) -> None:
     """Raises UserInputError unless the robot's footprint at ``start`` is in free space."""
-    rc = grid.world_to_cell(np.array(start[:2]))
-    if not grid.in_bounds(rc):
+    (x0, y0), (w, h) = grid.origin[:2], grid.size_m
+    # In metres first: a far-off or non-finite start has no cell index.
+    inside = x0 <= start[0] < x0 + w and y0 <= start[1] < y0 + h
+    rc = grid.world_to_cell(np.array(start[:2])) if inside else None
+    if rc is None or not grid.in_bounds(rc):
         raise UserInputError(f"start pose ({start[0]:.2f}, {start[1]:.2f}) is outside the map: "
                              "give a start inside it.")
     dist = clearance(grid.free, grid.resolution)[rc[0], rc[1]]
@@ -314,6 +317,11 @@ class SceneFiles:
         return self.origin or str(self.xml)
 
 
+# What ``--scene`` takes, for messages about what was given instead.
+SCENE_FORMS = ("a canonical scene name (see 'mjexplore scene-gen --list'), a scene folder "
+               "written by 'mjexplore scene-gen', its scene.xml (MJCF) or a map_server YAML")
+
+
 def load_scene_files(path: str | os.PathLike) -> SceneFiles:
     """Opens a scene folder, its ``scene.xml``, or any MJCF that contains the robot.
 
@@ -353,6 +361,11 @@ def _start_from_mjcf(path: Path) -> tuple[float, float, float]:
     try:
         spec = mujoco.MjSpec.from_file(str(path))
     except ValueError as exc:
+        if path.suffix.lower() != ".xml":
+            raise UserInputError(
+                f"{str(path)!r} is not a scene (MuJoCo cannot read it as MJCF: {exc}): a scene "
+                f"is {SCENE_FORMS}; 'mjexplore scene-gen --from-map' imports a map image and "
+                "'--from-mesh' a 3D model.") from None
         raise UserInputError(f"MJCF {str(path)!r} could not be parsed ({exc}); fix the XML or "
                              "regenerate the scene with 'mjexplore scene-gen'.") from None
     try:
@@ -372,6 +385,7 @@ def ground_truth_from_solid(solid: np.ndarray, resolution: float) -> GridMap:
 
 
 __all__ = [
+    "SCENE_FORMS",
     "Scene",
     "SceneFiles",
     "build_spec",

@@ -123,6 +123,19 @@ def check_starts(grid: GridMap, starts: list[Pose],
                     f"{min_separation:.2f} m: move one of them.")
 
 
+def _pack(xy: np.ndarray, d_first: np.ndarray, first: Pose,
+          min_separation: float) -> np.ndarray:
+    """A dense packing of the places ``xy`` (at distances ``d_first`` from ``first``):
+    taken innermost first, each at least ``min_separation`` from ``first`` and from those
+    taken before it. Deterministic; its size is the most robots :func:`draw_starts`
+    places besides ``first``."""
+    taken = [np.asarray(first[:2], float)]
+    for k in np.argsort(d_first, kind="stable"):
+        if (np.hypot(*(np.asarray(taken) - xy[k]).T) >= min_separation).all():
+            taken.append(xy[k])
+    return np.asarray(taken[1:], float).reshape(-1, 2)
+
+
 def draw_starts(grid: GridMap, first: Pose, n: int, rng: np.random.Generator,
                 ring: tuple[float, float] = (1.0, 3.0),
                 min_clearance: float = 0.5,
@@ -132,10 +145,13 @@ def draw_starts(grid: GridMap, first: Pose, n: int, rng: np.random.Generator,
     Each further robot stands ``ring`` (inner, outer radius, metres) from ``first`` in
     straight line, where the robot fits with ``min_clearance`` metres to the walls, in the
     region the first robot can drive to, at least ``min_separation`` from the others; its
-    yaw is uniform. The ring widens when it holds no such place.
+    yaw is uniform. Each is drawn uniformly from the places left; when the draw leaves no
+    place for the next robot, the team stands at a random choice of the places of a dense
+    packing of the ring (:func:`_pack`) instead, and when even that holds too few, the team
+    is refused with the most robots that fit.
 
     Raises:
-        UserInputError: the map has no room for the team.
+        UserInputError: the ring has no room for ``n`` robots (says how many fit).
     """
     starts = [tuple(float(v) for v in first)]
     if n <= 1:
@@ -146,25 +162,35 @@ def draw_starts(grid: GridMap, first: Pose, n: int, rng: np.random.Generator,
     room = cspace & (clearance(grid.free, res) >= max(min_clearance,
                                                       TURTLEBOT3_WAFFLE.footprint_radius))
     rows, cols = np.nonzero(room)
-    xy = grid.cell_to_world(np.column_stack([rows, cols]))
+    xy = grid.cell_to_world(np.column_stack([rows, cols])).reshape(-1, 2)
     d_first = np.hypot(*(xy - np.asarray(first[:2])).T)
     inner, outer = ring
+    in_ring = (d_first >= inner) & (d_first <= outer)
+    xy, d_first = xy[in_ring], d_first[in_ring]
     while len(starts) < n:
         placed = np.array([p[:2] for p in starts])
         apart = (np.hypot(xy[:, None, 0] - placed[None, :, 0],
                           xy[:, None, 1] - placed[None, :, 1]) >= min_separation).all(axis=1)
-        ok = np.flatnonzero(apart & (d_first >= inner) & (d_first <= outer))
+        ok = np.flatnonzero(apart)
         if len(ok) == 0:
-            if outer > max(grid.size_m) * 2:
-                raise UserInputError(f"the map has no room for {n} robots "
-                                     f"{min_separation:.1f} m apart around the start: use "
-                                     "fewer robots or give --starts.")
-            outer *= 1.5
-            continue
+            break
         k = int(ok[rng.integers(len(ok))])
         yaw = float(rng.uniform(-math.pi, math.pi))
         starts.append((round(float(xy[k, 0]), 4), round(float(xy[k, 1]), 4), round(yaw, 4)))
-    return starts
+    if len(starts) == n:
+        return starts
+    packed = _pack(xy, d_first, first, min_separation)
+    fit = 1 + len(packed)
+    if fit < n:
+        raise UserInputError(
+            f"{n} robots do not fit around the start ({first[0]:.2f}, {first[1]:.2f}): the "
+            f"others are drawn {inner:g}-{outer:g} m from robot 0, {min_separation:g} m "
+            f"apart and {min_clearance:g} m from walls, where this map has room for "
+            f"{fit - 1} more (at most {fit} robots): use --robots {fit} or fewer.")
+    chosen = np.sort(rng.choice(len(packed), n - 1, replace=False))
+    yaws = rng.uniform(-math.pi, math.pi, size=n - 1)
+    return starts[:1] + [(round(float(packed[k, 0]), 4), round(float(packed[k, 1]), 4),
+                          round(float(yaw), 4)) for k, yaw in zip(chosen, yaws)]
 
 
 def _yaw_quat(yaw: float) -> list[float]:

@@ -104,13 +104,16 @@ class LidarConfig:
             raise UserInputError(f"lidar num_beams {self.num_beams} must be at least 1.")
         if not 0 < self.fov <= 2 * np.pi:
             raise UserInputError(f"lidar fov {self.fov} rad must be in (0, 2 pi].")
-        if not 0 <= self.range_min < self.range_max:
-            raise UserInputError("lidar ranges must satisfy 0 <= range_min < range_max "
+        if not 0 <= self.range_min < self.range_max < math.inf:
+            raise UserInputError("lidar ranges must satisfy 0 <= range_min < range_max, finite "
                                  f"(got {self.range_min}, {self.range_max}).")
-        if self.noise_std < 0 or self.rate_hz <= 0 or self.tile_size <= 0:
-            raise UserInputError("lidar noise_std must be >= 0, rate_hz and tile_size > 0.")
-        if self.noise_rel < 0 or self.noise_rel_from < 0:
-            raise UserInputError("lidar noise_rel and noise_rel_from must be >= 0.")
+        if not (0 <= self.noise_std < math.inf and 0 < self.rate_hz < math.inf
+                and 0 < self.tile_size < math.inf):
+            raise UserInputError("lidar noise_std must be >= 0, rate_hz and tile_size > 0, all "
+                                 f"finite (got {self.noise_std}, {self.rate_hz}, "
+                                 f"{self.tile_size}).")
+        if not (0 <= self.noise_rel < math.inf and 0 <= self.noise_rel_from < math.inf):
+            raise UserInputError("lidar noise_rel and noise_rel_from must be finite and >= 0.")
         if not 0 <= self.dropout_prob < 1:
             raise UserInputError(f"lidar dropout_prob {self.dropout_prob} must be in [0, 1).")
         if not 0 <= self.grazing_start <= self.grazing_full <= np.pi / 2:
