@@ -480,11 +480,13 @@ def _bench_team(args: argparse.Namespace) -> int:
         team_explorers(method, args.robots)  # Fails early on a bad name.
     unknown_starts = _team_config(args) is not None
     check_output_folder(args.out)
-    run_team_sweep(scenes, methods, args.robots, placements, list(range(args.seeds)),
-                   Path(args.out), _episode_config(args), workers=args.workers,
-                   unknown_starts=unknown_starts, ray_address=args.ray)
+    results = run_team_sweep(scenes, methods, args.robots, placements,
+                             list(range(args.seeds)), Path(args.out), _episode_config(args),
+                             workers=args.workers, unknown_starts=unknown_starts,
+                             ray_address=args.ray, progress=not args.no_progress,
+                             command=args.command_line)
     print((Path(args.out) / "results.md").read_text())
-    return 0
+    return _failed_status(results)
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -516,6 +518,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
                         command=args.command_line, progress=not args.no_progress,
                         ray_address=args.ray)
     print((Path(args.out) / "results.md").read_text())
+    return _failed_status(results)
+
+
+def _failed_status(results: list[dict]) -> int:
+    """A sweep's exit status: 1 (and a line that says so) when an episode failed or was
+    interrupted, else 0."""
     failed = [r for r in results if r.get("end_reason") in ("error", "interrupted")]
     if failed:
         print(f"{len(failed)} of {len(results)} episodes failed or were interrupted (listed "
@@ -541,7 +549,8 @@ def _check_device(text: str) -> None:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from mjexplore.learning.training import load_train_config, train
+    from mjexplore.learning.train_config import load_train_config
+    from mjexplore.learning.training import train
 
     _check_device(args.device)
 
@@ -557,7 +566,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 def cmd_imitate(args: argparse.Namespace) -> int:
     from mjexplore.learning.dagger_run import imitate
-    from mjexplore.learning.training import load_train_config
+    from mjexplore.learning.train_config import load_train_config
 
     config = load_train_config(args.config, seed=args.seed)
     if args.rounds is not None:

@@ -64,7 +64,8 @@ def test_every_goal_cell_leads_to_a_reachable_frontier():
 
 @pytest.mark.slow
 def test_cnn_trains_exports_and_acts(tmp_path):
-    from mjexplore.learning.training import EvalConfig, PolicyConfig, PpoConfig, TrainConfig, train
+    from mjexplore.learning.train_config import EvalConfig, PolicyConfig, PpoConfig, TrainConfig
+    from mjexplore.learning.training import train
     from mjexplore.policies.cnn_explorer import CnnExplorer
 
     config = TrainConfig(kind="cnn", env=EnvConfig(scenes=("train_loop",), episode=FAST,

@@ -13,7 +13,9 @@ import pytest
 from mjexplore.errors import UserInputError
 from mjexplore.learning.dagger_run import imitate, read_round
 from mjexplore.learning.imitation import warm_start
-from mjexplore.learning.training import _fresh_policy, _seed_everything, load_train_config
+from mjexplore.learning.policy_network import fresh_policy
+from mjexplore.learning.train_config import load_train_config
+from mjexplore.learning.training import seed_everything
 from mjexplore.policies.weights import read_policy_weights
 
 RECIPE = """
@@ -73,8 +75,8 @@ def test_a_resumed_run_ends_as_the_run_that_never_stopped(recipe, tmp_path):
         assert a[0].keys() == b[0].keys() and all(np.array_equal(a[0][k], b[0][k])
                                                   for k in a[0])
     # ...and as the warm start in memory does, which training runs before PPO.
-    _seed_everything(config.seed)
-    policy = _fresh_policy(config)
+    seed_everything(config.seed)
+    policy = fresh_policy(config)
     report = warm_start(policy, config.env, config.imitation, config.seed)
     assert report["decisions"] == whole["decisions"]
     assert _distance(policy.state_dict(), theirs) < 0.1 * _distance(theirs, untrained)

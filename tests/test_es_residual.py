@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from mjexplore.envs.observation import BLACKLISTED, PATH, POCKET, UNREACHABLE
-from mjexplore.learning.training import NearestNodeRule
+from mjexplore.learning.evaluation import NearestNodeRule
 from tools.research.es_residual import SCALES, LinearResidualRule
 
 REPO = Path(__file__).resolve().parents[1]

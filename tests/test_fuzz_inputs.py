@@ -36,7 +36,7 @@ from mjexplore.config import to_dict
 from mjexplore.errors import UserInputError
 from mjexplore.learning.pocket_training import PocketTrainingConfig, load_pocket_config
 from mjexplore.learning.predictor_training import PredictorTrainingConfig, load_predictor_config
-from mjexplore.learning.training import TrainConfig, load_train_config
+from mjexplore.learning.train_config import TrainConfig, load_train_config
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.scenes.scene import SceneFiles, check_start
 

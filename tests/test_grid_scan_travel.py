@@ -80,7 +80,7 @@ def test_scan_travel_is_refused_outside_the_grid_world():
 def test_the_grid_training_config_scans_by_travel():
     """training/gvn_v2.yaml trains, and selects its model, in the grid world with the
     travel schedule."""
-    from mjexplore.learning.training import TrainConfig
+    from mjexplore.learning.train_config import TrainConfig
 
     config = load_yaml_config(TrainConfig, "training/gvn_v2.yaml")
     for episode in (config.env.episode, config.eval.episode):

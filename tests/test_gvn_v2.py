@@ -563,7 +563,7 @@ def test_v2_weights_carry_their_features_and_topology(tmp_path):
 
 def test_model_selection_uses_held_out_layouts(tmp_path, caplog):
     from mjexplore.config import from_dict, to_dict
-    from mjexplore.learning.training import EvalConfig, TrainConfig, load_train_config
+    from mjexplore.learning.train_config import EvalConfig, TrainConfig, load_train_config
 
     proc = ProceduralScenes(families=("loop", "rooms"), width=(12.0, 14.0),
                             height=(10.0, 12.0), cache_dir=str(tmp_path))
@@ -580,7 +580,7 @@ def test_model_selection_uses_held_out_layouts(tmp_path, caplog):
     assert EvalConfig(procedural=proc, layouts=2).test_scenes(2) == test  # Fixed, whatever
     test_seeds = [int(Path(s).name.rsplit("_s", 1)[1]) for s in test]  # the selection's size.
     assert all(s >= TEST_SEED_BASE for s in test_seeds) and not set(test) & set(first + unseen)
-    with caplog.at_level(logging.WARNING, logger="mjexplore.learning.training"):
+    with caplog.at_level(logging.WARNING, logger="mjexplore.learning.train_config"):
         EvalConfig(scenes=("office",))
     assert "office" in caplog.text and "eval.procedural" in caplog.text
     v2 = load_train_config(REPO / "training" / "gvn_v2.yaml")
@@ -812,7 +812,7 @@ def test_entropy_relative_to_the_prior_is_minus_the_kl_and_pulls_toward_it():
 
 
 def test_prior_kl_takes_the_entropy_bonus_place():
-    from mjexplore.learning.training import load_train_config
+    from mjexplore.learning.train_config import load_train_config
 
     config = load_train_config(REPO / "training" / "gvn_anchor.yaml")
     assert config.ppo.prior_kl > 0 and config.ppo.ent_coef == 0
@@ -827,7 +827,7 @@ def test_prior_kl_takes_the_entropy_bonus_place():
 
 
 def test_prior_needs_the_v2_path_feature():
-    from mjexplore.learning.training import load_train_config
+    from mjexplore.learning.train_config import load_train_config
 
     with pytest.raises(ValueError, match="v2"):
         _policy(ObservationConfig(max_nodes=12, max_neighbours=3, memory_length=4),
@@ -839,7 +839,7 @@ def test_prior_needs_the_v2_path_feature():
 
 
 def test_nearest_node_rule_takes_the_nearest_valid_reachable_node():
-    from mjexplore.learning.training import NearestNodeRule
+    from mjexplore.learning.evaluation import NearestNodeRule
 
     features = np.zeros((SMALL_V2.max_nodes, SMALL_V2.num_features), np.float32)
     features[:4, PATH] = [0.5, 2.0, 1.0, 0.2]

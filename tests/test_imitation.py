@@ -18,7 +18,8 @@ from mjexplore.learning.imitation import (
     policy_learner,
     warm_start,
 )
-from mjexplore.learning.training import load_train_config, train
+from mjexplore.learning.train_config import load_train_config
+from mjexplore.learning.training import train
 from mjexplore.policies.sb3 import GvnPolicy
 from mjexplore.sim.simulator import SimConfig
 

@@ -31,14 +31,10 @@ from mjexplore.envs import (
 from mjexplore.envs.observation import observation_space, structured
 from mjexplore.episode import Episode, EpisodeConfig
 from mjexplore.errors import UserInputError
-from mjexplore.learning.training import (
-    TrainConfig,
-    load_checkpoint,
-    load_train_config,
-    make_model,
-    make_vec_env,
-    train,
-)
+from mjexplore.learning.checkpoints import load_checkpoint
+from mjexplore.learning.train_config import TrainConfig, load_train_config
+from mjexplore.learning.training import make_model, train
+from mjexplore.learning.vec_envs import make_vec_env
 from mjexplore.navigation.navigator import NavigatorConfig
 from mjexplore.policies.gvn import (
     CausalConv,
@@ -714,7 +710,8 @@ def test_train_refuses_other_files_and_clears_a_start_that_made_no_checkpoint(tm
 
 
 def test_training_starts_from_init_weights_and_refuses_another_network(tmp_path):
-    from mjexplore.learning.training import _fresh_policy, _policy_kwargs, train
+    from mjexplore.learning.policy_network import fresh_policy, network_kwargs
+    from mjexplore.learning.training import train
     from mjexplore.policies.registry import layout_of
     from mjexplore.policies.weights import (
         load_policy,
@@ -726,11 +723,11 @@ def test_training_starts_from_init_weights_and_refuses_another_network(tmp_path)
     cfg = tmp_path / "tiny.yaml"
     cfg.write_text(TINY.format(total=8, n_envs=1))
     config = load_train_config(cfg)
-    policy = _fresh_policy(config)
+    policy = fresh_policy(config)
     with torch.no_grad():
         policy.value_net.bias.fill_(7.0)  # One PPO update moves it by about 1e-3.
     init = tmp_path / "init.safetensors"
-    save_policy_weights(init, policy, config.kind, _policy_kwargs(config),
+    save_policy_weights(init, policy, config.kind, network_kwargs(config),
                         layout_of(config.kind, config.env), {"num_timesteps": 0, "note": "x"})
     train(config, tmp_path / "run", progress=False, init_weights=init)
     trained, _ = load_policy(tmp_path / "run" / "policy.safetensors")
@@ -751,7 +748,7 @@ def test_training_starts_from_init_weights_and_refuses_another_network(tmp_path)
 
 @pytest.mark.slow
 def test_resumed_training_keeps_the_best_weights_of_the_first_part(tmp_path, monkeypatch):
-    import mjexplore.learning.training as training
+    import mjexplore.learning.evaluation as evaluation
     from mjexplore.policies.weights import read_policy_weights
 
     # Evaluations at 8 steps, at 16 (due as the first part ended: done at once on resume),
@@ -762,13 +759,13 @@ def test_resumed_training_keeps_the_best_weights_of_the_first_part(tmp_path, mon
         return [{"scene": "train_loop", "exploration_time_s": 100.0, "path_length_m": 50.0,
                  "exploration_ratio": next(ratios), "end_reason": "explored"}]
 
-    monkeypatch.setattr(training, "evaluate_policy_episodes", fake_eval)
+    monkeypatch.setattr(evaluation, "evaluate_policy_episodes", fake_eval)
     cfg = tmp_path / "tiny.yaml"
     cfg.write_text(TINY.format(total=16, n_envs=1).replace("every: 0", "every: 8"))
     out = tmp_path / "run"
-    training.train(training.load_train_config(cfg), out, progress=False)
+    train(load_train_config(cfg), out, progress=False)
     cfg.write_text(TINY.format(total=32, n_envs=1).replace("every: 0", "every: 8"))
-    training.train(training.load_train_config(cfg), out, resume=True, progress=False)
+    train(load_train_config(cfg), out, resume=True, progress=False)
     best = read_policy_weights(out / "best.safetensors")[1]["provenance"]
     assert best["eval"][0]["exploration_ratio"] == 0.95 and best["num_timesteps"] == 8
     assert [int(line.split(",")[0]) for line in
@@ -921,7 +918,7 @@ def test_env_without_a_valid_action_goes_on_with_the_engines_fallback(monkeypatc
 
 
 def test_model_selection_scores_coverage_up_to_the_target_then_speed():
-    from mjexplore.learning.training import eval_score
+    from mjexplore.learning.evaluation import eval_score
 
     def runs(*rows):
         return [{"end_reason": end, "exploration_ratio": ratio, "exploration_time_s": t}

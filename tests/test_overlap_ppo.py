@@ -15,14 +15,11 @@ from stable_baselines3.common.logger import configure
 from test_learning import TINY
 
 from mjexplore.learning import overlap_ppo
+from mjexplore.learning.checkpoints import load_checkpoint
 from mjexplore.learning.overlap_ppo import OverlapMaskablePPO
-from mjexplore.learning.training import (
-    load_checkpoint,
-    load_train_config,
-    make_model,
-    make_vec_env,
-    train,
-)
+from mjexplore.learning.train_config import load_train_config
+from mjexplore.learning.training import make_model, train
+from mjexplore.learning.vec_envs import make_vec_env
 
 # Three rollouts of 8 decisions of one env (in this process); a learning rate that moves
 # the policy visibly in one update; minibatches of runs of 4 decisions.

@@ -16,13 +16,9 @@ import yaml
 
 from mjexplore.config import from_dict, to_dict
 from mjexplore.eval.learning_curve import prior_departures
-from mjexplore.learning.training import (
-    NearestNodeRule,
-    TrainConfig,
-    _fresh_policy,
-    _policy_kwargs,
-    evaluate_policy_episodes,
-)
+from mjexplore.learning.evaluation import NearestNodeRule, evaluate_policy_episodes
+from mjexplore.learning.policy_network import fresh_policy, network_kwargs
+from mjexplore.learning.train_config import TrainConfig
 from mjexplore.policies.registry import layout_of
 from mjexplore.policies.weights import save_policy_weights
 
@@ -224,13 +220,13 @@ def test_baselines_are_the_prior_and_the_oracle_on_the_validation_layouts(tmp_pa
 def test_departures_from_the_prior_none_without_a_residual_some_with_a_large_one(
         tmp_path, capsys):
     torch.manual_seed(0)
-    policy = _fresh_policy(CONFIG)
+    policy = fresh_policy(CONFIG)
     last = policy.mlp_extractor.actor[-1]
     with torch.no_grad():
         last.weight.zero_()
         last.bias.zero_()
     run = _run(tmp_path)
-    save_policy_weights(run / "best.safetensors", policy, CONFIG.kind, _policy_kwargs(CONFIG),
+    save_policy_weights(run / "best.safetensors", policy, CONFIG.kind, network_kwargs(CONFIG),
                         layout_of(CONFIG.kind, CONFIG.env),
                         {"config": to_dict(CONFIG), "num_timesteps": 16})
     plot_training.main([str(run), str(tmp_path / "curve.png"), "--no-baselines",

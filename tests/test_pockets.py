@@ -174,7 +174,7 @@ def test_shipped_predictor_tells_small_pockets_on_unseen_layouts():
 def test_v3_observation_is_v2_with_each_frontier_nodes_pocket(tmp_path):
     from mjexplore.envs import ExplorationEnv
     from mjexplore.envs.observation import POCKET
-    from mjexplore.learning.training import load_train_config
+    from mjexplore.learning.train_config import load_train_config
     from mjexplore.topology.ter import FRONTIER_FLAG
 
     path = tmp_path / "pockets.safetensors"
@@ -210,7 +210,7 @@ def test_prior_passes_over_nodes_whose_pocket_is_likely_small():
 
 def test_v3_needs_a_predictor_and_the_pocket_prior_needs_v3():
     from mjexplore.envs.observation import ObservationConfig
-    from mjexplore.learning.training import load_train_config
+    from mjexplore.learning.train_config import load_train_config
 
     with pytest.raises(ValueError, match="pockets"):
         ObservationConfig(features="v3")

@@ -16,7 +16,10 @@ from mjexplore.config import from_dict
 from mjexplore.envs import EnvConfig
 from mjexplore.errors import UserInputError
 from mjexplore.io.ray_cluster import connect
-from mjexplore.learning.training import _make_env, load_checkpoint, load_train_config, train
+from mjexplore.learning.checkpoints import load_checkpoint
+from mjexplore.learning.train_config import load_train_config
+from mjexplore.learning.training import train
+from mjexplore.learning.vec_envs import env_maker
 
 # Episodes of 3 decisions: 5 steps cross an episode end and the automatic reset.
 ENV = from_dict(EnvConfig, yaml.safe_load(TINY.format(total=8, n_envs=2))["env"]
@@ -46,7 +49,7 @@ def _rollout(venv, steps: int) -> list:
 def test_ray_envs_step_exactly_as_subprocess_envs(local_ray, monkeypatch):
     import mjexplore.learning.ray_vec_env as ray_vec_env
 
-    makers = [_make_env(ENV, own_process=True) for _ in range(2)]
+    makers = [env_maker(ENV, own_process=True) for _ in range(2)]
     reference = SubprocVecEnv(makers, start_method="forkserver")
     try:
         expected = _rollout(reference, 5)

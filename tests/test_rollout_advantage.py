@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from test_es_residual import RECIPE, _observation
 
-from mjexplore.learning.training import NearestNodeRule
+from mjexplore.learning.evaluation import NearestNodeRule
 from tools.research.rollout_advantage import (
     CONTEXT,
     PAIRWISE,

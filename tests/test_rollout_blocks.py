@@ -8,7 +8,7 @@ import torch
 from gymnasium import spaces
 
 from mjexplore.learning.rollout_blocks import BlockDictRolloutBuffer, block_permutation
-from mjexplore.learning.training import PpoConfig, TrainConfig
+from mjexplore.learning.train_config import PpoConfig, TrainConfig
 
 
 def test_block_permutation_visits_every_decision_once_in_runs_of_one_env():

@@ -109,3 +109,32 @@ def test_explore_with_unknown_starts_reports_its_merges(tmp_path):
     assert json.loads((out / "config.json").read_text())["team"]["unknown_starts"]
     assert main(["bench", "--scenes", "train_loop", "--unknown-starts", "--seeds", "1",
                  "--out", str(tmp_path / "b")]) == 2
+
+
+def test_a_team_sweep_files_failures_and_refuses_to_resume_with_other_settings(
+        tmp_path, monkeypatch, capsys):
+    import json
+
+    import mjexplore.eval.team_sweep as team_sweep
+
+    real = team_sweep.write_team_run
+
+    def flaky(folder, scene, method, robots, seed, *args, **kwargs):
+        if seed == 1:
+            raise FloatingPointError("solver diverged")
+        return real(folder, scene, method, robots, seed, *args, **kwargs)
+
+    monkeypatch.setattr(team_sweep, "write_team_run", flaky)
+    out = tmp_path / "bench"
+    args = ["bench", "--scenes", "train_loop", "--robots", "2", "--explorers", "assign_greedy",
+            "--seeds", "2", "--workers", "1", "--max-time", "6", "--no-progress", "--out",
+            str(out)]
+    assert main(args) == 1  # One episode failed: listed, and the status says so.
+    failed = out / "runs" / "train_loop" / "drawn" / "assign_greedy" / "seed1.failed.json"
+    assert "FloatingPointError: solver diverged" in json.loads(failed.read_text())["error"]
+    assert "train_loop/drawn/assign_greedy/seed1" in (out / "results.md").read_text()
+    sweep = json.loads((out / "sweep.json").read_text())
+    assert sweep["kind"] == "team" and sweep["robots"] == 2 and len(sweep["history"]) == 1
+    capsys.readouterr()
+    assert main(args[:-2] + ["--max-time", "7", "--out", str(out)]) == 2
+    assert "other episode settings" in capsys.readouterr().err

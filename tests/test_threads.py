@@ -5,7 +5,8 @@ import subprocess
 import sys
 
 from mjexplore.envs import EnvConfig
-from mjexplore.learning.training import TrainConfig, make_vec_env
+from mjexplore.learning.train_config import TrainConfig
+from mjexplore.learning.vec_envs import make_vec_env
 
 
 def test_training_workers_run_one_thread_per_library():

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from mjexplore.config import from_dict
-from mjexplore.learning.training import NearestNodeRule, TrainConfig, evaluate_policy_episodes
+from mjexplore.learning.evaluation import NearestNodeRule, evaluate_policy_episodes
+from mjexplore.learning.train_config import TrainConfig
 from mjexplore.policies.weights import load_policy
 
 MODELS = Path(__file__).resolve().parents[1] / "models"

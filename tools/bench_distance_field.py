@@ -26,7 +26,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     from mjexplore.envs import ExplorationEnv
-    from mjexplore.learning.training import NearestNodeRule, load_train_config
+    from mjexplore.learning.evaluation import NearestNodeRule
+    from mjexplore.learning.train_config import load_train_config
 
     env = ExplorationEnv(load_train_config("training/gvn_v2.yaml").env)
     rule = NearestNodeRule()

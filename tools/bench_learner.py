@@ -29,7 +29,8 @@ import sys
 
 def run(config_path: str, variant: str, n_steps: int) -> dict[str, float]:
     from mjexplore.episode.workers import bound_heap_growth, reuse_freed_memory
-    from mjexplore.learning.training import load_train_config, ppo_round
+    from mjexplore.learning.train_config import load_train_config
+    from mjexplore.learning.training import ppo_round
 
     config = load_train_config(config_path)
     config = dataclasses.replace(config, ppo=dataclasses.replace(config.ppo, n_steps=n_steps))

@@ -91,7 +91,7 @@ def run(job: tuple[str, str, float]) -> dict:
     torch.set_num_threads(1)
     from mjexplore.config import load_yaml_config
     from mjexplore.episode import Episode, EpisodeConfig
-    from mjexplore.learning.training import TrainConfig
+    from mjexplore.learning.train_config import TrainConfig
     from mjexplore.policies.gvn_explorer import GvnExplorer
     from mjexplore.scenes.canonical import resolve_scene
 
@@ -136,7 +136,7 @@ def ppo_round(dynamics: str, n_envs: int | None = None) -> dict[str, float]:
     episodes in the world ``dynamics`` names (the grid world with training/gvn_v2.yaml's
     scan schedule, ``scan_travel``): wall seconds of each and the decisions collected.
     ``n_envs`` replaces the config's envs, each collecting a share of the same rollout."""
-    from mjexplore.learning.training import load_train_config
+    from mjexplore.learning.train_config import load_train_config
     from mjexplore.learning.training import ppo_round as timed_round
     from mjexplore.policies.weights import load_policy
 
@@ -166,7 +166,7 @@ def _rate(round_: dict[str, float]) -> float:
 
 def v2_round() -> dict[str, float]:
     """One rollout and PPO update of training/gvn_v2.yaml as it stands (fresh weights)."""
-    from mjexplore.learning.training import load_train_config
+    from mjexplore.learning.train_config import load_train_config
     from mjexplore.learning.training import ppo_round as timed_round
 
     return timed_round(load_train_config(TRAINING / "gvn_v2.yaml"))
@@ -180,8 +180,8 @@ def recipe_round(n_envs: int, default_threads: bool = False, device: str = "auto
     from unittest import mock
 
     from mjexplore.episode import workers
-    from mjexplore.learning import training
-    from mjexplore.learning.training import load_train_config
+    from mjexplore.learning import training, vec_envs
+    from mjexplore.learning.train_config import load_train_config
     from mjexplore.policies.models import DEFAULT_MODEL
 
     config = load_train_config(TRAINING / f"{DEFAULT_MODEL['gvn']}.yaml")
@@ -192,10 +192,10 @@ def recipe_round(n_envs: int, default_threads: bool = False, device: str = "auto
         if default_threads:
             # Envs built as before there were workers of their own (no thread limits).
             stack.enter_context(mock.patch.object(
-                training, "_make_env",
+                vec_envs, "env_maker",
                 lambda env, own_process, report=None: functools.partial(
-                    training.ExplorationEnv, env)))
-            stack.enter_context(mock.patch.object(training, "single_thread_children",
+                    vec_envs.ExplorationEnv, env)))
+            stack.enter_context(mock.patch.object(vec_envs, "single_thread_children",
                                                   contextlib.nullcontext))
         return training.ppo_round(config, device=device)
 
@@ -225,8 +225,10 @@ def overlap_round(recipe: str, overlap: bool, rollouts: int, device: str,
 
     from mjexplore.episode import workers
     from mjexplore.learning import training
+    from mjexplore.learning.train_config import load_train_config
+    from mjexplore.learning.vec_envs import make_vec_env
 
-    config = training.load_train_config(REPO / recipe)
+    config = load_train_config(REPO / recipe)
     config = dataclasses.replace(config, n_envs=n_envs or config.n_envs, ppo=dataclasses.replace(
         config.ppo, overlap=overlap, n_steps=n_steps or config.ppo.n_steps))
     collections: list[tuple[float, float]] = []
@@ -245,7 +247,7 @@ def overlap_round(recipe: str, overlap: bool, rollouts: int, device: str,
             return True
 
     with workers.thread_environment(None):
-        venv = training.make_vec_env(config, config.seed)
+        venv = make_vec_env(config, config.seed)
     try:
         model = training.make_model(config, venv, config.seed, device=device)
         train = model.train

@@ -68,7 +68,7 @@ def main() -> int:
                               "inputs": json.loads(props["observation_keys"]) + ["action_mask"],
                               "outputs": ["masked_logits", "action"]}))
             return 0
-        from mjexplore.learning.training import export_checkpoint
+        from mjexplore.learning.checkpoints import export_checkpoint
 
         provenance = export_checkpoint(args.source, args.out, args.git_revision)
     except UserInputError as exc:

@@ -280,7 +280,7 @@ def gymnasium_parts(steps: int = ENV_STEPS) -> Parts:
     """``steps`` steps of the GVN training env (reset with :data:`ENV_SEED`, again without
     a seed when an episode ends), one sha256 per step, ``reset`` the first."""
     from mjexplore.envs.exploration import ExplorationEnv
-    from mjexplore.learning.training import load_train_config
+    from mjexplore.learning.train_config import load_train_config
 
     config = load_train_config(GYM_RECIPE).env
     with tempfile.TemporaryDirectory(prefix="golden-master-") as tmp:

@@ -49,7 +49,8 @@ def _init() -> None:
 def _episode(job: tuple[str, str, str, str]) -> dict:
     from mjexplore.episode import Episode
     from mjexplore.explorers import make_explorer
-    from mjexplore.learning.training import heldout_env, load_train_config
+    from mjexplore.learning.evaluation import heldout_env
+    from mjexplore.learning.train_config import load_train_config
 
     config_path, method, scene, revision = job
     config = load_train_config(config_path)
@@ -107,7 +108,7 @@ def main() -> None:
     from mjexplore.errors import UserInputError
     from mjexplore.explorers import explorer_class
     from mjexplore.io.provenance import git_revision
-    from mjexplore.learning.training import load_train_config
+    from mjexplore.learning.train_config import load_train_config
 
     methods = [m for m in args.methods.split(",") if m]
     try:

@@ -190,7 +190,7 @@ def report(run: Path, baselines: bool = True, recompute: bool = False, workers: 
         figures["wall_s"] = wall
     config = None
     if (run / "config.yaml").is_file():
-        from mjexplore.learning.training import load_train_config
+        from mjexplore.learning.train_config import load_train_config
 
         config = load_train_config(run / "config.yaml")
         figures["workers"] = {"n_envs": config.n_envs, "torch_threads": config.torch_threads,
@@ -283,7 +283,7 @@ def main(argv: list[str] | None = None) -> None:
                          "policy.safetensors; pass --weights")
         if not (args.run / "config.yaml").is_file():
             parser.error(f"--departures needs {str(args.run / 'config.yaml')!r}")
-        from mjexplore.learning.training import load_train_config
+        from mjexplore.learning.train_config import load_train_config
 
         if load_train_config(args.run / "config.yaml").policy.prior_temperature is None:
             parser.error("--departures: the run's policy has no prior (policy.prior_temperature "

@@ -16,7 +16,7 @@ MODES = ("policy", "random", "greedy", "prior")
 def probe_config(config_path: str | None, weights: str):
     """The training config of ``--config``, or the one the weights were trained with."""
     from mjexplore.config import from_dict
-    from mjexplore.learning.training import TrainConfig, load_train_config
+    from mjexplore.learning.train_config import TrainConfig, load_train_config
     from mjexplore.policies.weights import read_policy_weights
 
     if config_path is not None:
@@ -33,7 +33,7 @@ def probe_episode(job: tuple[str | None, str, str, int, str | None]) -> dict:
 
     from mjexplore.envs import ExplorationEnv
     from mjexplore.envs.observation import POSED
-    from mjexplore.learning.training import NearestNodeRule, heldout_env
+    from mjexplore.learning.evaluation import NearestNodeRule, heldout_env
     from mjexplore.policies.weights import load_policy
 
     config_path, weights, mode, seed, scene = job

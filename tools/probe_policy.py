@@ -6,7 +6,7 @@ layouts and training-mode dynamics) on held-out seeds with three ways to choose 
 * ``policy``: the trained policy, its most probable valid action (as the explorers use it);
 * ``random``: a valid action drawn uniformly (what an untrained policy amounts to);
 * ``greedy``: the valid action nearest the robot: with v2 or v3 observations the node
-  nearest along the known map (:class:`~mjexplore.learning.training.NearestNodeRule`, what
+  nearest along the known map (:class:`~mjexplore.learning.evaluation.NearestNodeRule`, what
   nearest-frontier ranks by), otherwise the one placed nearest in a straight line (for the
   grid decisions, roughly the nearest frontier);
 * ``prior``: a residual policy's prior alone, its logits without the network's (v3: the

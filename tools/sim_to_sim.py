@@ -33,7 +33,7 @@ SCHEDULES = {"travel": "by travel, as training/gvn_v2.yaml's scan_travel has it"
 def training_scan_travel():
     """The grid world's scans by travel as the training config has them."""
     from mjexplore.io.provenance import REPO
-    from mjexplore.learning.training import load_train_config
+    from mjexplore.learning.train_config import load_train_config
 
     return load_train_config(REPO / "training" / "gvn_v2.yaml").env.episode.sim.scan_travel
 

@@ -31,7 +31,8 @@ from mjexplore.config import to_dict
 from mjexplore.errors import UserInputError
 from mjexplore.eval.stats import compare_paired
 from mjexplore.io.atomic import write_text_atomic
-from mjexplore.learning.training import TrainConfig, eval_score, heldout_env
+from mjexplore.learning.evaluation import eval_score, heldout_env
+from mjexplore.learning.train_config import TrainConfig
 
 log = logging.getLogger(__name__)
 
@@ -79,7 +80,7 @@ def learning_curve(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     Returns:
         Per evaluation: ``steps`` (decisions trained), ``layouts`` (rows), ``explored``
         (layouts explored), ``mean_exploration_time_s`` (simulated s) and ``score``
-        (:func:`~mjexplore.learning.training.eval_score`, what model selection maximises).
+        (:func:`~mjexplore.learning.evaluation.eval_score`, what model selection maximises).
     """
     points = []
     for steps in sorted({r["steps"] for r in rows}):
@@ -275,7 +276,7 @@ def paired_ratio(rows: Sequence[dict[str, Any]], baseline: Sequence[dict[str, An
 def prior_departures(policy, config: TrainConfig,
                      scenes: Sequence[str] | None = None) -> dict[str, Any]:
     """How often a residual policy departs from its prior: runs its greedy episodes (as the
-    held-out evaluation does: :func:`~mjexplore.learning.training.heldout_env`, seed
+    held-out evaluation does: :func:`~mjexplore.learning.evaluation.heldout_env`, seed
     ``config.eval.seed``) and, at every decision, compares its most probable valid action
     with the argmax of its prior's logits over the same valid actions
     (``policy.pi_features_extractor.prior_logits``).

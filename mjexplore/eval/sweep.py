@@ -19,7 +19,7 @@ import io
 import json
 import logging
 import multiprocessing
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -89,7 +89,7 @@ def _episode_settings(config: EpisodeConfig) -> Any:
     return json.loads(json.dumps(dataclasses.asdict(config), default=str))
 
 
-def _check_settings(jobs: list[Job], out: Path, config: EpisodeConfig) -> None:
+def check_settings(jobs: list[Any], out: Path, config: EpisodeConfig) -> None:
     """Refuses to resume into finished runs made with other episode settings."""
     wanted = _episode_settings(config)
     for job in jobs:
@@ -155,14 +155,6 @@ def file_results(out: Path, results: Iterable[tuple[Any, dict[str, Any], Bundle]
         yield metrics
 
 
-def _run_job(args: tuple[Job, Path, EpisodeConfig, bool | str, str | None]) -> dict[str, Any]:
-    job, out, config, mcap, command = args
-    metrics = run_job(job, job.folder(out), config, mcap, command=command)
-    if metrics.get("end_reason") == "error":
-        write_failure(job.folder(out), metrics)
-    return metrics
-
-
 def sweep_history(out: Path) -> list[dict[str, Any]]:
     """The plans (command, revision, scenes, explorers, specs, seeds) of every earlier start
     of the sweep in ``out``, oldest first, from its ``sweep.json`` (a sweep.json written
@@ -174,6 +166,13 @@ def sweep_history(out: Path) -> list[dict[str, Any]]:
     if not isinstance(info, dict):
         return []
     return info.get("history") or [{k: v for k, v in info.items() if k != "history"}]
+
+
+def record_start(out: Path, plan: dict[str, Any]) -> None:
+    """Writes ``OUT/sweep.json``: this start's ``plan`` (its command, revision, scenes,
+    methods and seeds) and the ``history`` of every start's, this one last."""
+    write_text_atomic(out / "sweep.json", json.dumps(
+        {**plan, "history": sweep_history(out) + [plan]}, indent=2) + "\n")
 
 
 def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Path,
@@ -220,13 +219,45 @@ def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Pa
     jobs = [Job(s, spec.label, seed, spec.text) for s in scenes for spec in specs
             for seed in seeds]
     refuse_foreign_files(out, SWEEP_OUTPUTS, "a bench sweep")
-    _check_settings(jobs, out, config)
+    check_settings(jobs, out, config)
     out.mkdir(parents=True, exist_ok=True)
-    plan = {"command": command, "git_revision": git_revision(), "scenes": scenes,
-            "explorers": [spec.label for spec in specs], "specs": [spec.text for spec in specs],
-            "seeds": seeds}
-    write_text_atomic(out / "sweep.json", json.dumps(
-        {**plan, "history": sweep_history(out) + [plan]}, indent=2) + "\n")
+    record_start(out, {"command": command, "git_revision": git_revision(), "scenes": scenes,
+                       "explorers": [spec.label for spec in specs],
+                       "specs": [spec.text for spec in specs], "seeds": seeds})
+    results = run_jobs(jobs, out, functools.partial(run_job, config=config, mcap=mcap,
+                                                     command=command),
+                       episode_failure, workers, ray_address, progress)
+    write_summary(out, jobs)
+    return results
+
+
+def _run_here(args: tuple[Callable[..., dict[str, Any]], Any, Path]) -> dict[str, Any]:
+    """One job in this process or a pool's worker: its metrics or filed failure record."""
+    run, job, out = args
+    metrics = run(job, job.folder(out))
+    if metrics.get("end_reason") == "error":
+        write_failure(job.folder(out), metrics)
+    return metrics
+
+
+def run_jobs(jobs: list[Any], out: Path, run: Callable[..., dict[str, Any]],
+             failure: Callable[[Any, BaseException], dict[str, Any]], workers: int,
+             ray_address: str | None, progress: bool) -> list[dict[str, Any]]:
+    """Runs the jobs of a sweep whose run folder is not finished, and returns every job's
+    metrics or failure record (the finished ones' as they were).
+
+    Args:
+        jobs: Jobs with ``folder(out)`` (their run folder) and ``scene``.
+        out: The sweep folder.
+        run: ``run(job, folder, scene=None, spec=None)`` runs one job into ``folder`` and
+            returns its metrics, or its failure record if it raised (a ``functools.partial``
+            of a module-level function: it is sent to worker processes or Ray tasks).
+        failure: ``failure(job, error)``, the record of a Ray task that did not return.
+        workers: Processes (one thread each: :func:`init_episode_worker`), or a local Ray
+            instance's CPUs.
+        ray_address: Run as Ray tasks there (:mod:`mjexplore.eval.remote`); None: processes.
+        progress: A bar of finished episodes on a terminal, a line per episode elsewhere.
+    """
     earlier = {job: finished_metrics(job.folder(out)) for job in jobs}
     results = [m for m in earlier.values() if m is not None]
     todo = [job for job, m in earlier.items() if m is None]
@@ -237,20 +268,16 @@ def run_sweep(scenes: list[str], explorers: list[str], seeds: list[int], out: Pa
         if ray_address is not None:
             from mjexplore.eval.remote import run_remote
 
-            finished = file_results(out, run_remote(
-                todo, functools.partial(run_job, config=config, mcap=mcap, command=command),
-                episode_failure, ray_address, workers))
+            finished = file_results(out, run_remote(todo, run, failure, ray_address, workers))
         elif workers <= 1:
-            finished = map(_run_job, [(job, out, config, mcap, command) for job in todo])
+            finished = map(_run_here, [(run, job, out) for job in todo])
         else:
             ctx = multiprocessing.get_context("spawn")
             pool = stack.enter_context(ctx.Pool(workers, initializer=init_episode_worker))
-            finished = pool.imap_unordered(_run_job, [(job, out, config, mcap, command)
-                                                      for job in todo])
+            finished = pool.imap_unordered(_run_here, [(run, job, out) for job in todo])
         for metrics in finished:
             results.append(metrics)
             bar.update(detail=_episode_note(metrics))
-    write_summary(out, jobs)
     return results
 
 
@@ -291,15 +318,12 @@ def write_summary(out: Path, jobs: list[Job]) -> None:
     """Writes the tables and figures of the finished runs among ``jobs``."""
     by_scene: dict[str, dict[str, list[Path]]] = {}
     finished: dict[Path, dict[str, Any]] = {}
-    failed = []
     for job in jobs:
         folder = job.folder(out)
         metrics = finished_metrics(folder)
         if metrics is not None:
             finished[folder] = metrics
             by_scene.setdefault(job.label, {}).setdefault(job.explorer, []).append(folder)
-        elif folder.with_name(folder.name + ".failed.json").is_file():
-            failed.append(job)
     header, rows = summary_table(
         {(scene, method): [finished[f] for f in folders]
          for scene, methods in by_scene.items() for method, folders in methods.items()})
@@ -311,14 +335,22 @@ def write_summary(out: Path, jobs: list[Job]) -> None:
     buf = io.StringIO()
     csv.writer(buf).writerows([header] + rows)
     write_text_atomic(out / "results.csv", buf.getvalue())
-    notes = "\n\n" + MEAN_STD_NOTE + "\n"
-    if failed:
-        notes += "\nFailed episodes (see runs/.../seedN.failed.json; a re-run retries them): " + \
-            ", ".join(f"{j.label}/{j.explorer}/seed{j.seed}" for j in failed) + "\n"
-    write_text_atomic(out / "results.md", markdown_table(header, rows) + notes)
+    write_text_atomic(out / "results.md", markdown_table(header, rows) + "\n\n" +
+                      MEAN_STD_NOTE + "\n" + failed_note(out, jobs))
 
 
 MEAN_STD_NOTE = "Mean +- std over runs; (k/n) where only k of n runs reached the level."
+
+
+def failed_note(out: Path, jobs: list[Any]) -> str:
+    """The line under a sweep's table that lists its failed episodes ('' if none)."""
+    failed = [job for job in jobs if finished_metrics(job.folder(out)) is None and
+              job.folder(out).with_name(job.folder(out).name + ".failed.json").is_file()]
+    if not failed:
+        return ""
+    return ("\nFailed episodes (see runs/.../seedN.failed.json; a re-run retries them): " +
+            ", ".join(job.folder(out).relative_to(out / "runs").as_posix() for job in failed)
+            + "\n")
 
 
 def summary_table(groups: dict[tuple[str, str], list[dict[str, Any]]]

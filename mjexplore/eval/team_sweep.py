@@ -14,7 +14,6 @@ robot-robot collisions.
 
 from __future__ import annotations
 
-import concurrent.futures
 import csv
 import dataclasses
 import functools
@@ -31,14 +30,18 @@ from mjexplore.errors import UserInputError
 from mjexplore.eval.run import write_run
 from mjexplore.eval.sweep import (
     SWEEP_OUTPUTS,
-    file_results,
+    check_settings,
+    failed_note,
     finished_metrics,
     format_mean_std,
     markdown_table,
+    record_start,
+    run_jobs,
     scene_label,
 )
 from mjexplore.eval.team_run import DRAWN, check_placements, team_starts, write_team_run
 from mjexplore.io.atomic import refuse_foreign_files, write_text_atomic
+from mjexplore.io.provenance import git_revision
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.scenes.scene import SceneFiles
 from mjexplore.scenes.team import check_starts, draw_starts
@@ -91,12 +94,6 @@ def run_team_job(job: TeamJob, folder: Path, config: EpisodeConfig,
         return team_failure(job, exc)
 
 
-def _run(args: tuple[TeamJob, Path, EpisodeConfig]) -> dict[str, Any]:
-    job, out, config = args
-    done = finished_metrics(job.folder(out))
-    return done if done is not None else run_team_job(job, job.folder(out), config)
-
-
 def team_jobs(scenes: list[str], methods: list[str], robots: int, placements: list[str],
               seeds: list[int], single: str | None = "nearest",
               unknown_starts: bool = False) -> list[TeamJob]:
@@ -112,10 +109,13 @@ def team_jobs(scenes: list[str], methods: list[str], robots: int, placements: li
 def run_team_sweep(scenes: list[str], methods: list[str], robots: int, placements: list[str],
                    seeds: list[int], out: Path, config: EpisodeConfig, workers: int = 1,
                    single: str | None = "nearest", unknown_starts: bool = False,
-                   ray_address: str | None = None) -> list[dict[str, Any]]:
+                   ray_address: str | None = None, progress: bool = True,
+                   command: str | None = None) -> list[dict[str, Any]]:
     """Runs (or resumes) a team sweep and writes its summary; returns every episode's
-    metrics (``unknown_starts``: the teams merge their maps, as ``TeamConfig`` says).
-    ``ray_address`` as :func:`~mjexplore.eval.sweep.run_sweep`'s.
+    metrics or failure record (``unknown_starts``: the teams merge their maps, as
+    ``TeamConfig`` says). Resuming, settings, failures (``seedN.failed.json``),
+    ``sweep.json``, progress, ``workers`` and ``ray_address`` as in
+    :func:`~mjexplore.eval.sweep.run_sweep`, which runs its jobs the same way.
 
     Raises:
         UserInputError: an unknown placement, a placement a scene does not define, or one
@@ -138,22 +138,14 @@ def run_team_sweep(scenes: list[str], methods: list[str], robots: int, placement
                 check_starts(scene.ground_truth, starts)
     jobs = team_jobs(scenes, methods, robots, placements, seeds, single, unknown_starts)
     refuse_foreign_files(out, SWEEP_OUTPUTS, "a bench sweep")
+    check_settings(jobs, out, config)
     out.mkdir(parents=True, exist_ok=True)
-    args = [(job, out, config) for job in jobs]
-    if ray_address is not None:
-        from mjexplore.eval.remote import run_remote
-
-        results = [m for m in map(finished_metrics, (job.folder(out) for job in jobs))
-                   if m is not None]
-        todo = [job for job in jobs if finished_metrics(job.folder(out)) is None]
-        results += file_results(out, run_remote(
-            todo, functools.partial(run_team_job, config=config), team_failure, ray_address,
-            workers))
-    elif workers <= 1:
-        results = [_run(a) for a in args]
-    else:
-        with concurrent.futures.ProcessPoolExecutor(workers) as pool:
-            results = list(pool.map(_run, args))
+    record_start(out, {"command": command, "git_revision": git_revision(), "kind": "team",
+                       "scenes": scenes, "methods": methods, "robots": robots,
+                       "placements": placements, "single": single,
+                       "unknown_starts": unknown_starts, "seeds": seeds})
+    results = run_jobs(jobs, out, functools.partial(run_team_job, config=config),
+                       team_failure, workers, ray_address, progress)
     write_team_summary(out, jobs)
     return results
 
@@ -250,7 +242,7 @@ def write_team_summary(out: Path, jobs: list[TeamJob]) -> None:
     csv.writer(buf).writerows([header] + rows)
     write_text_atomic(out / "results.csv", buf.getvalue())
     write_text_atomic(out / "results.md", markdown_table(header, rows) + "\n\n" +
-                      TABLE_NOTE + "\n")
+                      TABLE_NOTE + "\n" + failed_note(out, jobs))
 
 
 __all__ = ["DRAWN", "TABLE_NOTE", "TeamJob", "run_team_sweep", "single_ratios", "team_jobs",

@@ -48,12 +48,9 @@ from mjexplore.errors import UserInputError
 from mjexplore.io.atomic import refuse_foreign_files, write_bytes_atomic, write_text_atomic
 from mjexplore.io.provenance import git_revision
 from mjexplore.learning.imitation import Aggregate, dagger_rounds
-from mjexplore.learning.training import (
-    TrainConfig,
-    _fresh_policy,
-    _policy_kwargs,
-    _seed_everything,
-)
+from mjexplore.learning.policy_network import fresh_policy, network_kwargs
+from mjexplore.learning.train_config import TrainConfig
+from mjexplore.learning.training import seed_everything
 from mjexplore.policies.registry import layout_of
 from mjexplore.policies.weights import load_policy, save_policy_weights
 
@@ -95,9 +92,9 @@ def imitate(config: TrainConfig, out: str | Path, resume: bool = False) -> dict[
                                "policy_untrained.safetensors", "weights", "rounds", ".*.tmp"),
                          "an imitation run")
     torch.set_num_threads(1)
-    _seed_everything(config.seed)
-    policy = _fresh_policy(config)
-    weights = (config.kind, _policy_kwargs(config), layout_of(config.kind, config.env))
+    seed_everything(config.seed)
+    policy = fresh_policy(config)
+    weights = (config.kind, network_kwargs(config), layout_of(config.kind, config.env))
     revision = git_revision()
     if resume:
         record = json.loads(ledger.read_text())

@@ -103,7 +103,7 @@ def main() -> None:
         departure_figures,
         departures,
     )
-    from mjexplore.learning.training import TrainConfig
+    from mjexplore.learning.train_config import TrainConfig
     from mjexplore.policies.weights import load_policy
 
     torch.set_num_threads(1)

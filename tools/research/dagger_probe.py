@@ -51,22 +51,19 @@ def _warm_start(config_path: str, out: Path) -> tuple[Path, Path, dict]:
 
     from mjexplore.config import to_dict
     from mjexplore.learning.imitation import warm_start
-    from mjexplore.learning.training import (
-        _fresh_policy,
-        _policy_kwargs,
-        _seed_everything,
-        load_train_config,
-    )
+    from mjexplore.learning.policy_network import fresh_policy, network_kwargs
+    from mjexplore.learning.train_config import load_train_config
+    from mjexplore.learning.training import seed_everything
     from mjexplore.policies.registry import layout_of
     from mjexplore.policies.weights import save_policy_weights
 
     config = load_train_config(config_path)
     torch.set_num_threads(1)
-    _seed_everything(config.seed)
-    policy = _fresh_policy(config)
+    seed_everything(config.seed)
+    policy = fresh_policy(config)
     out.mkdir(parents=True, exist_ok=True)
     provenance = {"config": to_dict(config), "recipe": config_path}
-    args = (config.kind, _policy_kwargs(config), layout_of(config.kind, config.env))
+    args = (config.kind, network_kwargs(config), layout_of(config.kind, config.env))
     fresh = out / "policy_untrained.safetensors"
     save_policy_weights(fresh, policy, *args, {**provenance, "num_timesteps": 0})
     wall, cpu = time.perf_counter(), time.process_time()
@@ -112,7 +109,7 @@ def _job(job: tuple[str, str, str, int, str]) -> dict:
 
     from mjexplore.explorers import make_explorer
     from mjexplore.explorers.oracle import lookahead_expert
-    from mjexplore.learning.training import NearestNodeRule, heldout_env
+    from mjexplore.learning.evaluation import NearestNodeRule, heldout_env
 
     torch.set_num_threads(1)
     config = probe_config(config_path, weights)

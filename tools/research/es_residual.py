@@ -76,7 +76,7 @@ def _init(config) -> None:
 
 def _episode(job) -> float:
     """Exploration time of one (theta, scene) job, seconds (:func:`penalised_time`)."""
-    from mjexplore.learning.training import heldout_episode
+    from mjexplore.learning.evaluation import heldout_episode
 
     theta, scene = job
     config = _WORKER["config"]

@@ -63,7 +63,8 @@ def _episode(job: tuple[str, str, str]) -> dict:
 
     from mjexplore.episode import Episode
     from mjexplore.explorers import make_explorer
-    from mjexplore.learning.training import heldout_env, load_train_config
+    from mjexplore.learning.evaluation import heldout_env
+    from mjexplore.learning.train_config import load_train_config
 
     config_path, mode, scene = job
     torch.set_num_threads(1)
@@ -87,7 +88,7 @@ def main() -> None:
     parser.add_argument("--modes", default="nearest,truth:0.5,predicted:50,oracle")
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
-    from mjexplore.learning.training import load_train_config
+    from mjexplore.learning.train_config import load_train_config
 
     modes = [m for m in args.modes.split(",") if m]
     scenes = load_train_config(args.config).eval.unseen_scenes(args.unseen)

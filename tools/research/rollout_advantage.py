@@ -82,9 +82,9 @@ def _terms(obs, mask):
 
 def _follow_prior(env, obs, first_action: int) -> dict:
     """Steps ``env`` to the episode's end, ``first_action`` first, then pocket_nearest's
-    choices (:class:`~mjexplore.learning.training.NearestNodeRule`, 50 m a unit of pocket
+    choices (:class:`~mjexplore.learning.evaluation.NearestNodeRule`, 50 m a unit of pocket
     probability: the prior's greedy node); the episode's metrics."""
-    from mjexplore.learning.training import NearestNodeRule
+    from mjexplore.learning.evaluation import NearestNodeRule
 
     prior, action = NearestNodeRule(50.0), first_action
     while True:
@@ -130,7 +130,7 @@ def _in_fork(run) -> dict:
 
 def _layout(job) -> list[dict]:
     """Every departure row of one layout (see the module docstring)."""
-    from mjexplore.learning.training import heldout_env
+    from mjexplore.learning.evaluation import heldout_env
 
     scene, share, alternatives, nudge, seed = job
     config = _WORKER["config"]
@@ -311,7 +311,7 @@ def _observe(job) -> list[dict]:
     """The context rows of one layout's departures: the prior's episode replayed (the
     grid world is deterministic) and, at each departed decision, :func:`_decision_context`
     measured in a fork (so that its searches cannot touch the episode)."""
-    from mjexplore.learning.training import heldout_env
+    from mjexplore.learning.evaluation import heldout_env
 
     scene, wanted, t_prior = job  # wanted: {decision: [ranks]}
     config = _WORKER["config"]
@@ -473,7 +473,7 @@ class PredictedDepartureRule:
 
 
 def _episode(job) -> float:
-    from mjexplore.learning.training import NearestNodeRule, heldout_env, heldout_episode
+    from mjexplore.learning.evaluation import NearestNodeRule, heldout_env, heldout_episode
 
     weights, margin, context, scene = job
     config = _WORKER["config"]

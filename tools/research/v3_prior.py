@@ -56,7 +56,7 @@ def load_v3_recipe(parser: argparse.ArgumentParser, path: str):
     """The training recipe at ``path``; ``parser.error`` (exit 2) unless it has what the
     prior's rule needs: generated training layouts, v3 features and the v3 prior."""
     from mjexplore.config import load_yaml_config
-    from mjexplore.learning.training import TrainConfig
+    from mjexplore.learning.train_config import TrainConfig
 
     config = load_yaml_config(TrainConfig, path)
     if (config.env.procedural is None or config.env.observation.features != "v3"
