@@ -156,7 +156,8 @@ def cmd_scene_gen(args: argparse.Namespace) -> int:
 
         cfg = (GeneratorConfig() if args.wall_thickness is None else
                GeneratorConfig(wall_thickness=args.wall_thickness))
-        scene = generate_scene(args.family, *(args.size or DEFAULT_SCENE_SIZE), seed=args.seed,
+        width, height = args.size or DEFAULT_SCENE_SIZE
+        scene = generate_scene(args.family, width, height, seed=args.seed,
                                resolution=args.resolution or 0.05, config=cfg, name=args.name)
         if args.start is not None:
             raise UserInputError("--start applies to --from-map and --from-mesh; generated "
@@ -328,12 +329,13 @@ def cmd_explore(args: argparse.Namespace) -> int:
                                 progress=not args.no_progress, live=live)
     except KeyboardInterrupt as exc:  # Ctrl-C: say what was kept (see eval/run.py).
         kept = exc.kept if isinstance(exc, RunInterrupted) else []
-        if not kept:
+        if not isinstance(exc, RunInterrupted) or not kept:
             said = f"nothing was kept: the run folder {str(args.out)!r}" + (
                 f" and the video {args.video!r} were" if args.video is not None else " was"
             ) + " not written"
         else:
             m = exc.metrics
+            assert m is not None  # Kept outputs come with their metrics (RunInterrupted).
             said = (f"the run folder {str(args.out)!r} is complete (end_reason {m['end_reason']!r} "
                     f"at {m['exploration_time_s']:g} s simulated)")
             if args.video is not None:
@@ -499,7 +501,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     explorers = [spec.label for spec in specs]
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
     for flag, names, example in (("--scenes", scenes, BENCH_SCENES),
-                                 ("--explorers", specs, BENCH_EXPLORERS)):
+                                 ("--explorers", explorers, BENCH_EXPLORERS)):
         if not names:
             raise UserInputError(f"{flag} {getattr(args, flag[2:])!r} names nothing: give one "
                                  f"or more, comma-separated (e.g. {example}), or drop {flag} "

@@ -320,6 +320,7 @@ def prior_departures(policy, config: TrainConfig,
                                                                                -np.inf))))
             obs, _, terminated, truncated, info = env.step(int(action))
             done = terminated or truncated
+        assert env.episode is not None  # Reset at the top of the loop.
         per_layout.append({"layout": layout_name(scene), **counts, "exploration_time_s":
                            env.episode.result().metrics["exploration_time_s"]})
     totals = {k: sum(r[k] for r in per_layout) for k in ("decisions", "choices", "departures")}

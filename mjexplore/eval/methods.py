@@ -102,7 +102,7 @@ class MethodSpec:
 
 def _legacy_labels() -> dict[str, MethodSpec]:
     """Run labels of every shipped model, masked and unmasked, as specs."""
-    specs = {}
+    specs: dict[str, MethodSpec] = {}
     for name, model in shipped_models().items():
         for masked in (True, False):
             label = run_label(model.kind, name, masked, model.masking)

@@ -107,7 +107,8 @@ def map_figure(grid: GridMap, path_xy: np.ndarray, goals: np.ndarray,
     if ter is not None:
         for a, b in ter.edges:
             ax.plot(*ter.positions[[a, b]].T, color="tab:orange", lw=0.6)
-        ax.scatter(*ter.positions.T, s=6, c=np.where(ter.flags > 0, "tab:blue", "tab:red"))
+        ax.scatter(ter.positions[:, 0], ter.positions[:, 1], s=6,
+                   c=np.where(ter.flags > 0, "tab:blue", "tab:red"))
     ax.plot(path_xy[:, 0], path_xy[:, 1], color="lime", lw=1.2)
     if len(goals):
         ax.scatter(goals[:, 1], goals[:, 2], s=10, color="tab:blue", zorder=3)

@@ -81,6 +81,7 @@ def _episode_task(run: Runner, job: SweepJob, scene: _Scene, scene_files: Bundle
     """A Ray task: the episode's metrics (or failure record) and its run folder's files."""
     local = load_scene_files(unpack(scene_files, scene.folder) / scene.xml)
     if policy is not None:
+        assert policy_files is not None  # They travel together (run_remote).
         register_copy(policy.policy, policy.name,
                       unpack(policy_files, "policy") / WEIGHTS_NAME)
     with tempfile.TemporaryDirectory(prefix="mjexplore-run-") as tmp:

@@ -269,7 +269,9 @@ def ladder_lines(groups) -> list[str]:
     rows = []
     scenes = [s for s, methods in groups.items() if LADDER_BASELINE in methods]
     for method in _ordered({m for s in scenes for m in groups[s]}):
-        cells, ratios, pooled = [], [], ([], [])
+        cells: list[str] = []
+        ratios: list[float] = []
+        pooled: tuple[list[float], list[float]] = ([], [])
         for scene in scenes:
             mine = {r["seed"]: r["metrics"]["exploration_time_s"]
                     for r in groups[scene].get(method, [])}
@@ -761,7 +763,8 @@ def paired_table(groups, method: str) -> str | None:
     lowest mean ET among :data:`CLASSIC_METHODS` there), paired per seed: mean of the
     per-seed ratios, bootstrap 95 % interval, seeds faster/slower and the sign test's p; a
     last row pools every scene's seeds. None where ``method`` ran beside no classic."""
-    rows, pooled = [], ([], [])
+    rows: list[list[str]] = []
+    pooled: tuple[list[float], list[float]] = ([], [])
     for scene, methods in groups.items():
         classics = [m for m in CLASSIC_METHODS if m in methods]
         if method not in methods or not classics:

@@ -100,7 +100,7 @@ class Observers:
 def _episode_logs(mcap_path: str | os.PathLike | None, mcap_profile: str,
                   live: Any) -> list[Any]:
     """The MCAP log in ``mcap_profile`` and the live stream (Foxglove messages)."""
-    logs = []
+    logs: list[Any] = []
     if mcap_profile == "ros2" and mcap_path is not None:
         from mjexplore.io.ros2_mcap import Ros2EpisodeLog
 
@@ -207,7 +207,8 @@ def write_run(out_dir: str | os.PathLike, scene: SceneFiles, explorer: str, seed
     kept: list[Path] = []
     metrics = None
     try:
-        with _HeldSigint() as sigint:
+        sigint = _HeldSigint()
+        with sigint:
             metrics = _write_run_folder(out_dir, scene, explorer, seed, config, mcap,
                                         explorer_kwargs, video, progress, live, spec, sigint,
                                         command)

@@ -239,7 +239,7 @@ def collect_sweep(sweep: str | os.PathLike, experiment: str, command: str | None
                                  if k not in ("scene", "explorer", "seed")},
                      "ratio": _ratio(folder),
                      # A team's robots each have their own log (robot_i/kinematics.csv).
-                     "kinematics": {} if team and keys["robots"] > 1 else
+                     "kinematics": {} if team and int(keys["robots"]) > 1 else
                      _kinematics(folder, kinematics_series)})
     methods = sorted({r["method"] for r in runs})
     specs = dict(zip(info.get("explorers", []), info.get("specs", []), strict=False))

@@ -20,7 +20,7 @@ import io
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from mjexplore.episode import EpisodeConfig, Interrupted
 from mjexplore.episode.explorer import Explorer
@@ -155,7 +155,8 @@ class TeamProgress(EpisodeProgress):
             f"{sum(len(a.goals) for a in episode.agents)}")
         self.progress.set(min(episode.time, self.progress.total))
 
-    def on_scan(self, episode, index=None, scan=None) -> None:
+    # A team episode's observers also get the robot's index.
+    def on_scan(self, episode, index=None, scan=None) -> None:  # type: ignore[override]
         self._episode = episode
 
 
@@ -218,8 +219,8 @@ def _figures(result: TeamEpisodeResult, out: Path, title: str) -> None:
     for i, (log, goals) in enumerate(zip(result.kinematics, result.goals)):
         colour = ROBOT_COLOURS[i % len(ROBOT_COLOURS)]
         ax.plot(log.pose[:, 0], log.pose[:, 1], color=colour, lw=1.1, label=f"robot_{i}")
-        ax.scatter(*log.pose[0, :2], s=40, color=colour, marker="o", edgecolor="black",
-                   zorder=4)
+        ax.scatter(log.pose[0, 0], log.pose[0, 1], s=40, color=colour, marker="o",
+                   edgecolor="black", zorder=4)
         if len(goals):
             ax.scatter(goals[:, 1], goals[:, 2], s=8, color=colour, marker="x", zorder=3)
     ax.legend(loc="upper right", fontsize=8)
@@ -240,8 +241,8 @@ def write_team_run(out_dir: str | os.PathLike, scene: SceneFiles, spec: str, n: 
             result, label = run_team_episode(scene, spec, n, seed, config, starts,
                                              tmp / "episode.mcap" if mcap else None,
                                              team_config, progress)
-        except Interrupted as exc:
-            interrupted, result = exc, exc.result
+        except Interrupted as exc:  # A team episode's carries a TeamEpisodeResult.
+            interrupted, result = exc, cast(TeamEpisodeResult, exc.result)
             label = spec
         name = scene.metadata.get("name", Path(scene.xml).parent.name)
         metrics = {"scene": name, "explorer": label, "seed": seed, **result.metrics}
