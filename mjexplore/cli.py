@@ -611,7 +611,7 @@ def cmd_train_predictor(args: argparse.Namespace) -> int:
 
 
 def cmd_collect(args: argparse.Namespace) -> int:
-    from mjexplore.eval.report import EXPERIMENTS
+    from mjexplore.eval.experiments import EXPERIMENTS
     from mjexplore.eval.summaries import (
         collect_sweep,
         merge_summaries,
@@ -654,7 +654,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
 def _check_sweep_kind(sweep: Path, experiment: str) -> None:
     """Refuses a team sweep (``bench --robots``) filed as a single-robot experiment, and
     the other way round: the report would lay it out as the other kind."""
-    from mjexplore.eval.report import EXPERIMENTS, TEAM_EXPERIMENTS
+    from mjexplore.eval.experiments import EXPERIMENTS, TEAM_EXPERIMENTS
     from mjexplore.eval.summaries import team_runs
 
     teams = set(team_runs(sweep).values())

@@ -26,7 +26,7 @@ def test_help_for_every_command():
 
 
 def test_collect_help_names_every_experiment_the_report_knows():
-    from mjexplore.eval.report import EXPERIMENTS
+    from mjexplore.eval.experiments import EXPERIMENTS
 
     text = " ".join(run("collect", "--help").stdout.split())
     known = text.split("Experiments the report knows: ")[1].split(".")[0]

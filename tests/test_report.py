@@ -14,7 +14,8 @@ import pytest
 
 from mjexplore.episode import EpisodeConfig
 from mjexplore.errors import UserInputError
-from mjexplore.eval.report import build_report, claims_table, masking_verdict, target_verdict
+from mjexplore.eval.report import build_report
+from mjexplore.eval.report_sections import claims_table, masking_verdict, target_verdict
 from mjexplore.eval.summaries import (
     RATIO_DT,
     collect_sweep,
@@ -241,7 +242,7 @@ def test_bench_refuses_a_repeated_scene_or_explorer(tmp_path):
 
 
 def test_the_report_says_what_lingering_meant_for_the_runs_it_shows():
-    from mjexplore.eval.report import _other_ends
+    from mjexplore.eval.report_sections import _other_ends
 
     groups = {"maze": {"nearest": [{"metrics": {"end_reason": "lingering"}}]}}
     nav = {"linger_time": 60.0, "linger_radius": 0.5}
@@ -252,7 +253,7 @@ def test_the_report_says_what_lingering_meant_for_the_runs_it_shows():
 
 
 def test_collect_and_report_name_the_planned_episodes_that_left_no_metrics(sweep, tmp_path):
-    from mjexplore.eval.report import _unfinished_note
+    from mjexplore.eval.report_sections import _unfinished_note
 
     partial = tmp_path / "partial"
     shutil.copytree(sweep, partial)
@@ -296,7 +297,8 @@ def test_the_report_names_each_experiments_revision_and_checks_runs_repeated_at_
 
 
 def test_the_ladder_reads_each_method_against_pocket_nearest_per_seed():
-    from mjexplore.eval.report import EXPERIMENTS, ladder_lines
+    from mjexplore.eval.experiments import EXPERIMENTS
+    from mjexplore.eval.report_sections import ladder_lines
 
     def runs(times):
         return [{"seed": k, "metrics": {"exploration_time_s": t}} for k, t in enumerate(times)]
@@ -310,7 +312,7 @@ def test_the_ladder_reads_each_method_against_pocket_nearest_per_seed():
     assert "| 0.500 | 1.000 | 2 | 0.750 |" in oracle and "| 3 / 1 |" in oracle
     partial = next(line for line in text.splitlines() if line.startswith("| oracle_5m |"))
     assert "| - | 1.000 | 1 | 1.000 |" in partial  # It ran on the office alone.
-    from mjexplore.eval.report import ladder
+    from mjexplore.eval.report_sections import ladder
 
     assert any(e.name == "ladder" and ladder in e.parts for e in EXPERIMENTS)
 
@@ -335,7 +337,7 @@ class _Launched(Exception):
 def _suggested_commands() -> list[str]:
     """Every command the report can suggest: each experiment's sweep and collect, and the
     sweep that adds one of its methods."""
-    from mjexplore.eval.report import EXPERIMENTS
+    from mjexplore.eval.experiments import EXPERIMENTS
 
     texts = []
     for exp in EXPERIMENTS:

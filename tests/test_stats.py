@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from mjexplore.eval.report import paired_table
+from mjexplore.eval.report_sections import paired_table
 from mjexplore.eval.stats import compare_paired
 
 
