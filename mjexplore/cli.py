@@ -432,6 +432,41 @@ def cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export_policy(args: argparse.Namespace) -> int:
+    suffix = Path(args.out).suffix.lower()
+    if args.onnx and suffix != ".onnx":
+        raise UserInputError(f"{args.out!r}: --onnx writes an ONNX model: give OUT ending in "
+                             ".onnx.")
+    if not args.onnx and suffix != ".safetensors":
+        hint = (" To get an ONNX model, export the weights first, then run --onnx on them."
+                if suffix == ".onnx" else "")
+        raise UserInputError(f"{args.out!r}: a checkpoint exports as policy weights: give OUT "
+                             f"ending in .safetensors.{hint}")
+    check_output_file(args.out, "OUT")
+    if args.onnx:
+        if args.git_revision is not None:
+            raise UserInputError("--git-revision applies to checkpoint exports; an ONNX "
+                                 "export keeps the weights file's provenance.")
+        if args.source.endswith(".pt"):
+            raise UserInputError(f"{args.source!r} is a checkpoint: export its weights first "
+                                 "(mjexplore export-policy CHECKPOINT policy.safetensors), "
+                                 "then --onnx policy.safetensors.")
+        from mjexplore.policies.onnx_export import export_onnx
+
+        props = export_onnx(args.source, args.out)
+        print(json.dumps({"out": args.out, "kind": props["kind"],
+                          "weights_sha256": props["weights_sha256"],
+                          "inputs": json.loads(props["observation_keys"]) + ["action_mask"],
+                          "outputs": ["masked_logits", "action"]}))
+        return 0
+    from mjexplore.learning.checkpoints import export_checkpoint
+
+    provenance = export_checkpoint(args.source, args.out, args.git_revision)
+    print(json.dumps({"out": args.out, "num_timesteps": provenance["num_timesteps"],
+                      "git_revision": provenance["git_revision"]}))
+    return 0
+
+
 def cmd_policies(args: argparse.Namespace) -> int:
     from mjexplore.policies.models import DEFAULT_MODEL, MODELS_DIR, shipped_models
 
@@ -908,6 +943,26 @@ def build_parser() -> argparse.ArgumentParser:
         description="List the models under models/: name, kind (the explorer that runs "
                     "it), the masking it was trained with, and its model card's summary.")
     pol.set_defaults(func=cmd_policies)
+
+    ex = sub.add_parser(
+        "export-policy", help="a training checkpoint's policy as weights, or a policy's actor "
+        "as ONNX",
+        description="Export the policy of a training checkpoint (.pt) as a weights file "
+                    "(.safetensors) the learned explorers run, or with --onnx the actor of a "
+                    "weights file as an ONNX model: the decision's observation arrays (flat, "
+                    "batch first, in the order of its observation_keys metadata) and the "
+                    "boolean action_mask in, the masked action logits and the greedy action "
+                    "out (docs/guide/deployment.md). Prints one JSON line.")
+    ex.add_argument("source", help="training checkpoint (.pt), or with --onnx a policy "
+                    "weights file (.safetensors)")
+    ex.add_argument("out", help="weights file to write (.safetensors), or with --onnx the "
+                    "model (.onnx)")
+    ex.add_argument("--onnx", action="store_true",
+                    help="export the actor of a weights file as an ONNX model")
+    ex.add_argument("--git-revision", default=None,
+                    help="the revision the run was started from, if the checkpoint records "
+                    "another (default: the checkpoint's own)")
+    ex.set_defaults(func=cmd_export_policy)
 
     n_scenes, n_explorers = len(BENCH_SCENES.split(",")), len(BENCH_EXPLORERS.split(","))
     bench = sub.add_parser(

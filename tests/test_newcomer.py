@@ -197,7 +197,7 @@ def test_videos_are_mp4_files_in_existing_folders(tmp_path, capsys, args):
 def test_export_policy_writes_only_the_format_its_out_names(tmp_path, args, message):
     (tmp_path / "step.pt").write_bytes(b"not read")
     before = listing(tmp_path)
-    r = subprocess.run([sys.executable, str(REPO / "tools" / "export_policy.py"),
+    r = subprocess.run([sys.executable, "-m", "mjexplore.cli", "export-policy",
                         *[a.format(p=tmp_path) for a in args]], capture_output=True, text=True,
                        timeout=120)
     assert r.returncode == 2 and message in r.stderr
@@ -310,3 +310,14 @@ def test_train_in_a_pipe_writes_lines_not_bars(tmp_path):
     assert any(line.startswith("train: 16/16 decisions (100%), done") for line in lines)
     assert any("no held-out evaluation ran" in line for line in lines)
     assert json.loads(r.stdout.splitlines()[-1])["num_timesteps"] == 16
+
+
+def test_export_policy_writes_an_onnx_model_from_the_cli(tmp_path, capsys):
+    from mjexplore.cli import main
+
+    out = tmp_path / "gvn.onnx"
+    assert main(["export-policy", "--onnx", str(MODELS_DIR / "gvn_v3" / "policy.safetensors"),
+                 str(out)]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["kind"] == "gvn" and printed["outputs"] == ["masked_logits", "action"]
+    assert out.stat().st_size > 1000 and listing(tmp_path) == ["gvn.onnx"]
