@@ -16,13 +16,20 @@ import re
 import types
 import typing
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, ClassVar, Protocol, TypeVar
 
 import yaml
 
 from mjexplore.errors import UserInputError
 
-T = TypeVar("T")
+
+class _Dataclass(Protocol):
+    """A dataclass (what :func:`dataclasses.fields` takes)."""
+
+    __dataclass_fields__: ClassVar[dict[str, Any]]
+
+
+T = TypeVar("T", bound=_Dataclass)
 
 
 def _convert(tp: Any, value: Any, where: str) -> Any:
@@ -40,7 +47,8 @@ def _convert(tp: Any, value: Any, where: str) -> Any:
                 errors.append(str(exc))
         raise UserInputError(errors[0])
     if dataclasses.is_dataclass(tp):
-        return from_dict(tp, value, where)
+        # ``tp`` is a type hint here, so the dataclass it names is a class, not an instance.
+        return from_dict(typing.cast(type[_Dataclass], tp), value, where)
     if origin is tuple:
         if not isinstance(value, (list, tuple)):
             raise UserInputError(f"{where}: expected a list, got {value!r}.")

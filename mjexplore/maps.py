@@ -73,7 +73,7 @@ class GridMap:
 
     @property
     def shape(self) -> tuple[int, int]:
-        return self.data.shape  # type: ignore[return-value]
+        return self.data.shape
 
     @property
     def size_m(self) -> tuple[float, float]:

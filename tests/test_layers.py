@@ -1,10 +1,12 @@
 """The house reads one way: the import contracts of pyproject.toml hold (each layer imports
-only the layers below it; no import cycle between the modules of a package), and ruff finds
-nothing. Both run as `make test` runs, from the repository root."""
+only the layers below it; no import cycle between the modules of a package), ruff finds
+nothing, and the package type-checks (mypy). All run as `make test` runs, from the
+repository root."""
 
 import shutil
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -37,6 +39,16 @@ def test_a_climbing_import_breaks_the_layers_contract(tmp_path):
     r = subprocess.run([_tool("lint-imports"), "--no-cache"], cwd=tmp_path, capture_output=True,
                        text=True, timeout=120, env={"PYTHONPATH": str(tmp_path), "PATH": ""})
     assert r.returncode == 1 and "mjexplore.episode.climb -> mjexplore.eval.run" in r.stdout
+
+
+@pytest.mark.slow
+def test_mypy_finds_nothing_in_the_package():
+    """The package type-checks (pyproject.toml [tool.mypy]); its cache goes to a temporary
+    folder, so each run checks everything."""
+    with tempfile.TemporaryDirectory() as cache:
+        r = subprocess.run([sys.executable, "-m", "mypy", "--cache-dir", cache], cwd=REPO,
+                           capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout[-3000:]
 
 
 def test_ruff_finds_nothing():

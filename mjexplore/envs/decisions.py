@@ -18,6 +18,7 @@ deployed explorers share them.
 from __future__ import annotations
 
 import dataclasses
+from typing import cast
 
 import cv2
 import numpy as np
@@ -80,6 +81,7 @@ class TerDecisions:
         if config.features == "v3":
             from mjexplore.topology.pockets import pocket_predictor
 
+            assert config.pockets is not None  # ObservationConfig: v3 goes with pockets.
             self.pockets = pocket_predictor(config.pockets, config.pockets_sha256)
         self.reset()
 
@@ -130,7 +132,7 @@ class TerDecisions:
 
     def observation(self) -> dict[str, np.ndarray]:
         if self.current is None:  # Over before any decision: an empty TER.
-            self.current = {k: np.zeros(v.shape, np.float32)
+            self.current = {k: np.zeros(cast(spaces.Box, v).shape, np.float32)
                              for k, v in self.observation_space.spaces.items()
                              if not k.startswith("memory")}
             self.current["neighbours"][:] = -1.0
@@ -138,6 +140,7 @@ class TerDecisions:
 
     def action_positions(self) -> np.ndarray:
         """(N_max, 2) map-frame positions (m) of the actions: the nodes (padding at 0)."""
+        assert self.padded is not None  # Read at a decision, after prepare().
         return self.padded.node_positions
 
     def act(self, action: int) -> tuple[np.ndarray, bool] | None:
@@ -145,6 +148,7 @@ class TerDecisions:
         p = self.padded
         if p is None or not 0 <= action < len(p.node_mask) or p.node_mask[action] <= 0:
             return None
+        assert self.current is not None  # prepare() sets it with padded.
         self.memory.remember(self.current, action, self.pose)
         waypoint = bool(p.node_features[action, 5] != FRONTIER_FLAG)
         return p.node_positions[action].astype(float), waypoint
@@ -252,6 +256,7 @@ class GridDecisions:
 
     def action_positions(self) -> np.ndarray:
         """(K*K, 2) map-frame positions (m) of the actions: the cell centres."""
+        assert self._state is not None  # Read at a decision, after prepare().
         return self.cell_centres(self._state)
 
     def act(self, action: int) -> tuple[np.ndarray, bool] | None:

@@ -306,11 +306,14 @@ class ExplorationEnv(gym.Env):
     """
 
     metadata = {"render_modes": []}
+    # Only in a worker process: its threads per library (learning.vec_envs.worker_env).
+    worker_threads: dict[str, int]
 
     def __init__(self, config: EnvConfig | None = None, **overrides: Any) -> None:
         config = config or EnvConfig(scenes=("loop_with_corridor",))
         self.config = dataclasses.replace(config, **overrides) if overrides else config
         cfg = self.config
+        self.decisions: TerDecisions | GridDecisions
         if cfg.decisions == "ter":
             self.decisions = TerDecisions(cfg.observation, cfg.valid_actions)
             topo = cfg.episode.topology
@@ -351,6 +354,7 @@ class ExplorationEnv(gym.Env):
         episode ends only when none is left, so the endgame is trained as it is evaluated.
         """
         ep = self.episode
+        assert ep is not None
         while True:
             if not ep.run_to_decision():
                 if ep.end_reason not in TERMINAL_REASONS and np.isfinite(ep.sim.pose).all():
@@ -371,6 +375,7 @@ class ExplorationEnv(gym.Env):
         obs = self.decisions.observation()
         if "privileged" in obs:
             ep = self.episode
+            assert ep is not None
             obs["privileged"] = privileged_features(
                 ep.counter.count, ep.counter.total, ep.config.target_ratio,
                 ep.mapper.grid.resolution ** 2)
@@ -380,6 +385,7 @@ class ExplorationEnv(gym.Env):
         """(observable cells known, accuracy in cells, kinematics rows, simulated time in
         seconds) now."""
         ep = self.episode
+        assert ep is not None
         # Eq. 18's accuracy (mapping.metrics.accuracy) against the episode's labels of the
         # ground truth, made once.
         same = int((trinary(ep.mapper.grid) == self._reference_labels).sum())
@@ -388,6 +394,7 @@ class ExplorationEnv(gym.Env):
 
     def _info(self) -> dict[str, Any]:
         ep = self.episode
+        assert ep is not None
         return {"exploration_ratio": float(ep.curve[-1][1]), "sim_time": float(ep.sim.time),
                 "decisions": self._decisions, "end_reason": ep.end_reason,
                 "action_mask": self.decisions.mask.copy()}

@@ -59,6 +59,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
@@ -132,10 +133,10 @@ def observation_space(config: ObservationConfig) -> spaces.Dict:
     """The Dict space of :class:`TerMemory` observations."""
     n, k, e = config.max_nodes, config.max_neighbours, config.memory_length
     f = config.num_features
-    feat = dict(low=-FEATURE_BOUND, high=FEATURE_BOUND, dtype=np.float32)
-    index = dict(low=-1.0, high=float(n - 1), dtype=np.float32)
-    unit = dict(low=0.0, high=1.0, dtype=np.float32)
-    space = {
+    feat: dict[str, Any] = dict(low=-FEATURE_BOUND, high=FEATURE_BOUND, dtype=np.float32)
+    index: dict[str, Any] = dict(low=-1.0, high=float(n - 1), dtype=np.float32)
+    unit: dict[str, Any] = dict(low=0.0, high=1.0, dtype=np.float32)
+    space: dict[str, spaces.Space] = {
         "node_features": spaces.Box(shape=(n * f,), **feat),
         "neighbours": spaces.Box(shape=(n * k,), **index),
         "node_mask": spaces.Box(shape=(n,), **unit),

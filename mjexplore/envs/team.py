@@ -101,7 +101,7 @@ class TeamExplorationEnv(ParallelEnv):
 
     def __init__(self, scene: str | SceneFiles = "train_loop", robots: int = 2,
                  max_candidates: int = 8, config: EpisodeConfig | None = None,
-                 starts: list | None = None, replan_period: float = 10.0,
+                 starts: list | None = None, replan_period: float | None = 10.0,
                  max_decisions: int = 500, time_scale: float = 0.01,
                  gain_scale: float = 0.01, completion: float = 1.0) -> None:
         self.scene = scene if isinstance(scene, SceneFiles) else resolve_scene(scene)
@@ -154,6 +154,7 @@ class TeamExplorationEnv(ParallelEnv):
         """Runs the team until a robot needs a decision or the episode ends; the robots
         whose decision is due."""
         ep = self.episode
+        assert ep is not None
         while not ep._check_end():
             due = {a.index for a in ep.agents if a.active and a.decision_due()}
             if due:
@@ -164,6 +165,7 @@ class TeamExplorationEnv(ParallelEnv):
 
     def step(self, actions: dict[str, int]):
         ep = self.episode
+        assert ep is not None
         t0 = ep.time
         for a in ep.agents:
             name = self.possible_agents[a.index]
@@ -203,13 +205,15 @@ class TeamExplorationEnv(ParallelEnv):
 
     def _infos(self, deciding: set[int]) -> dict[str, dict[str, Any]]:
         ep = self.episode
+        assert ep is not None
         return {name: {"deciding": i in deciding, "time": round(ep.time, 3),
                        "ratio": round(ep.ratio, 5), "end_reason": ep.end_reason}
                 for i, name in enumerate(self.possible_agents) if name in self.agents}
 
     def _observe(self) -> dict[str, dict[str, np.ndarray]]:
         ep = self.episode
-        out = {}
+        assert ep is not None
+        out: dict[str, dict[str, np.ndarray]] = {}
         poses = ep.world.poses()
         for a in ep.agents:
             name = self.possible_agents[a.index]

@@ -127,18 +127,21 @@ class TeamGvnEnv(TeamExplorationEnv):
         d = self.decisions[index]
         if d.padded is None or not 0 <= action < len(d.mask) or not d.mask[action]:
             return  # Invalid: the explorer takes the nearest frontier.
-        goal, waypoint = d.act(action)  # Remembered in this robot's memory.
+        choice = d.act(action)  # Remembered in this robot's memory.
+        assert choice is not None  # A masked-in action is a real node.
+        goal, waypoint = choice
         explorer = self.explorers[index]
         explorer.pending, explorer.pending_waypoint = goal, waypoint
 
     def _observe(self) -> dict[str, dict[str, np.ndarray]]:
         ep = self.episode
+        assert ep is not None
         privileged = None
         if self.observation_config.privileged:
             privileged = privileged_features(ep.counter.count, ep.counter.total,
                                              ep.config.target_ratio,
                                              ep.mapper.grid.resolution ** 2)
-        out = {}
+        out: dict[str, dict[str, np.ndarray]] = {}
         for a in ep.agents:
             name = self.possible_agents[a.index]
             if name not in self.agents:

@@ -32,7 +32,9 @@ import dataclasses
 import math
 import signal
 import threading
-from typing import Any
+from collections.abc import Callable
+from types import FrameType
+from typing import Any, Protocol, cast
 
 import cv2
 import numpy as np
@@ -147,7 +149,7 @@ class SigintFlag:
 
     def __init__(self) -> None:
         self.raised = False
-        self._previous = None
+        self._previous: Callable[[int, FrameType | None], Any] | int | None = None
 
     def _handle(self, signum, frame) -> None:
         if self.raised:
@@ -170,6 +172,12 @@ class Interrupted(KeyboardInterrupt):
     def __init__(self, result: EpisodeResult) -> None:
         super().__init__("episode interrupted")
         self.result = result
+
+
+class _Configured(Protocol):
+    """What :meth:`Episode._jittered_start` reads of its owner (a team episode's too)."""
+
+    config: EpisodeConfig
 
 
 class Episode:
@@ -219,7 +227,7 @@ class Episode:
         # An explorer that knows the ground truth (the oracle) also navigates on it.
         self._static_costmap: Costmap | None = None
         if getattr(explorer, "plans_on_ground_truth", False):
-            self._static_costmap = explorer.ground_truth_costmap(
+            self._static_costmap = cast(Any, explorer).ground_truth_costmap(
                 ExplorationState(gt, self.sim.pose, 0.0, [], self._costmap, np.zeros((0, 2)),
                                  ground_truth=gt))
         explorer.reset(np.random.default_rng(seed))
@@ -251,7 +259,7 @@ class Episode:
         self._stuck_at = np.zeros(2)
         self._strike_at: np.ndarray | None = None
 
-    def _jittered_start(self, scene: SceneFiles, gt: GridMap,
+    def _jittered_start(self: _Configured, scene: SceneFiles, gt: GridMap,
                         rng: np.random.Generator) -> tuple[float, float, float]:
         dxy, dyaw = self.config.start_jitter
         x, y, yaw = scene.start
@@ -338,6 +346,7 @@ class Episode:
             if verdict is not None:
                 return verdict
         # Asked every control period: the cells around the goal are found once per goal.
+        assert self.goal is not None  # Asked only once a goal was adopted.
         goal = tuple(self.goal)
         if self._goal_window is None or self._goal_window[0] != goal:
             grid = self.mapper.grid
@@ -399,6 +408,7 @@ class Episode:
 
     def _give_up(self, reason: str) -> None:
         """Blacklists the current goal for ``reason`` and asks for a new one."""
+        assert self.goal is not None  # Given up only once adopted.
         self.blacklist.add(self.goal, reason, self.mapper.grid)
         self.navigator.status = NavStatus.NO_PATH
         self._decision_due = True
@@ -647,7 +657,7 @@ class Episode:
         metrics["given_up"] = self.blacklist.reasons()
         sha = getattr(self.explorer, "weights_sha256", None)  # A learned explorer's weights.
         if sha is not None:
-            metrics["policy"] = self.explorer.policy_name
+            metrics["policy"] = cast(Any, self.explorer).policy_name
             metrics["weights_sha256"] = sha
         return EpisodeResult(metrics, curve, log,
                              GridMap(grid.data.copy(), grid.resolution, grid.origin),

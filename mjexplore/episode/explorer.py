@@ -12,6 +12,7 @@ import dataclasses
 from typing import Protocol
 
 import numpy as np
+import numpy.typing as npt
 
 from mjexplore.maps import GridMap
 from mjexplore.navigation.planner import Costmap
@@ -50,7 +51,7 @@ class ExplorationState:
     target_ratio: float = 0.985
     extras: dict = dataclasses.field(default_factory=dict)
 
-    def allowed(self, points: np.ndarray) -> np.ndarray:
+    def allowed(self, points: npt.ArrayLike) -> np.ndarray:
         """Which of the (n, 2) candidate goals are not blacklisted."""
         points = np.asarray(points, float).reshape(-1, 2)
         if len(self.blacklist) == 0:

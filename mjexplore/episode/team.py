@@ -64,6 +64,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -91,7 +92,7 @@ from mjexplore.sim.lidar import LaserScan
 from mjexplore.sim.motion import BODY_RADIUS
 from mjexplore.sim.odometry import compose_pose, relative_pose, wrap_angle
 from mjexplore.sim.team import TeamRobot
-from mjexplore.sim.team_grid import make_team_world
+from mjexplore.sim.team_grid import TeamGridRobot, make_team_world
 from mjexplore.topology.gvd import DynamicGVD
 from mjexplore.topology.pipeline import TopologyTracker
 
@@ -211,8 +212,10 @@ class RobotAgent(Episode):
     attributes the engine's methods read are set here.
     """
 
-    def __init__(self, team: TeamEpisode, index: int, robot: TeamRobot, explorer: Explorer,
-                 rng: np.random.Generator) -> None:  # noqa: D107
+    sim: TeamRobot | TeamGridRobot
+
+    def __init__(self, team: TeamEpisode, index: int, robot: TeamRobot | TeamGridRobot,
+                 explorer: Explorer, rng: np.random.Generator) -> None:  # noqa: D107
         cfg = team.config
         self.team = team
         self.index = index
@@ -256,8 +259,10 @@ class RobotAgent(Episode):
             self.team.team_config.teammate_margin
         if getattr(self.explorer, "plans_on_ground_truth", False):
             # An explorer that knows the ground truth (the team oracle) also navigates on it.
+            gt = self.scene.ground_truth
+            assert gt is not None  # TeamEpisode checked the scene.
             self._costmap: TeamCostmap = TeamCostmap(
-                self.scene.ground_truth, self.team.ground_truth_distance2(),
+                gt, self.team.ground_truth_distance2(),
                 self.config.planner, radius)
         else:
             self._costmap = TeamCostmap(mapper.grid, tracker.gvd.distance2,
@@ -282,6 +287,7 @@ class RobotAgent(Episode):
     def _give_up(self, reason: str) -> None:
         """As the engine's, except that a goal only the teammates keep out of reach is
         waited for (``wait_timeout``) before it is given up."""
+        assert self.goal is not None  # Given up only once adopted.
         t = self.sim.time
         tc = self.team.team_config
         if reason == "no_path" and self._yield_goal is None and \
@@ -392,7 +398,7 @@ class TeamEpisode:
             ``on_step(episode)``.
     """
 
-    def __init__(self, scene: SceneFiles, explorers: list[Explorer], seed: int,
+    def __init__(self, scene: SceneFiles, explorers: Sequence[Explorer], seed: int,
                  config: EpisodeConfig | None = None, starts: list | None = None,
                  team_config: TeamConfig | None = None, observer: Any = None) -> None:
         if scene.ground_truth is None:
@@ -437,13 +443,14 @@ class TeamEpisode:
                 getattr(e, "plans_on_ground_truth", False) for e in explorers):
             raise UserInputError("an explorer that plans on the ground truth knows where the "
                                  "robots are: drop --unknown-starts or choose another.")
+        robots: Sequence[TeamRobot | TeamGridRobot] = self.world.robots
         self.agents = [RobotAgent(self, i, robot, explorer,
                                   np.random.default_rng([seed, i]) if i else
                                   np.random.default_rng(seed))
-                       for i, (robot, explorer) in enumerate(zip(self.world.robots, explorers))]
+                       for i, (robot, explorer) in enumerate(zip(robots, explorers))]
         self.end_reason: str | None = None
         self.masked_returns = 0
-        for i, robot in enumerate(self.world.robots):
+        for i, robot in enumerate(robots):
             self._integrate(i, robot.latest_scan)
 
     def _setup_merging(self, gt: GridMap, n: int) -> None:
@@ -486,6 +493,7 @@ class TeamEpisode:
         the costmaps of explorers that plan on the ground truth; found once."""
         if self._gt_distance2 is None:
             gt = self.scene.ground_truth
+            assert gt is not None  # Checked in __init__.
             gvd = DynamicGVD(gt.shape)
             gvd.update(gt.occupied | (gt.data < 0))
             self._gt_distance2 = gvd.distance2
@@ -495,7 +503,9 @@ class TeamEpisode:
         """The map robot ``index`` plans on now: the team's, or before its merge its own."""
         if self.merged[index]:
             return self.mapper, self.tracker, self.counter
-        return self.own[index], self._trackers[index], self.own_counters[index]
+        tracker = self._trackers[index]
+        assert tracker is not None  # Every unmerged robot has its own.
+        return self.own[index], tracker, self.own_counters[index]
 
     @property
     def all_merged(self) -> bool:
@@ -608,8 +618,10 @@ class TeamEpisode:
             self._observe(self.mapper, self.tracker, changed)
             ratio = self.counter.update(self.mapper.state, changed, cols)
         else:  # Its own map, its own-frame map, and the scan kept for the merge.
-            self._observe(own, self._trackers[index], own_changed)
-            self._frames[index].integrate(scan, relative_pose(self.starts[index], scan.pose))
+            tracker, frame = self._trackers[index], self._frames[index]
+            assert tracker is not None and frame is not None  # Set for every unmerged robot.
+            self._observe(own, tracker, own_changed)
+            frame.integrate(scan, relative_pose(self.starts[index], scan.pose))
             self._history[index].append(scan)
         if self.union is not None:
             union_changed = self.union.integrate(scan)
@@ -712,7 +724,8 @@ class TeamEpisode:
                 continue
             other_blocked = other._blocked_since is not None
             if (other_blocked and a.index > other.index) or \
-                    (not other_blocked and a.waiting and t - a.waiting_since >= tc.yield_after):
+                    (not other_blocked and a.waiting_since is not None and
+                     t - a.waiting_since >= tc.yield_after):
                 if a.yield_way(other):
                     a._blocked_since = None
 
@@ -774,7 +787,9 @@ class TeamEpisode:
                 continue
             self._next_attempt[j] = t + tc.merge_period
             self.merge_attempts += 1
-            match = merge_maps(self.mapper.grid, self._frames[j].grid, tc.merge)
+            frame = self._frames[j]
+            assert frame is not None  # Set for every unmerged robot.
+            match = merge_maps(self.mapper.grid, frame.grid, tc.merge)
             previous, self._candidates[j] = self._candidates[j], None
             if not match.accepted:
                 continue

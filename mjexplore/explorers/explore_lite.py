@@ -32,8 +32,11 @@ tolerance from the known side.
 
 from __future__ import annotations
 
+from typing import cast
+
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 from mjexplore.episode.explorer import ExplorationState
 from mjexplore.topology.frontiers import frontier_mask
@@ -92,7 +95,7 @@ class ExploreLite:
         if n <= 1:
             return []
         rows, cols = np.nonzero(groups)
-        ids = groups[rows, cols]
+        ids = cast("npt.NDArray[np.int32]", groups[rows, cols])  # cv2's labels are int32.
         size = np.bincount(ids, minlength=n)
         xy = grid.cell_to_world(np.column_stack([rows, cols]))
         centroid = np.column_stack([np.bincount(ids, xy[:, 0], n),

@@ -116,6 +116,7 @@ class PlanningMapOracle(OracleExplorer):
                 or self._plan.shape != (-(-state.grid.shape[0] // k),
                                         -(-state.grid.shape[1] // k))):
             self.ground_truth_costmap(state)
+        assert self._costmap is not None  # Made just above when missing.
         plan_map = self._plan
         plan_map.data[...] = self._planning_map(state)
         # Squared distances in cells are integers: rounded, they are the GVD's exactly.

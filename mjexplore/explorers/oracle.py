@@ -268,10 +268,10 @@ class OracleExplorer:
         self.plan: list[int] = []  # Viewpoint indices in tour order.
         self.current: int | None = None
 
-    @staticmethod
-    def ground_truth_costmap(state: ExplorationState) -> Costmap:
+    def ground_truth_costmap(self, state: ExplorationState) -> Costmap:
         """The planner's costmap of the ground truth (unknown ground-truth cells block)."""
         gt = state.ground_truth
+        assert gt is not None  # Asked only with the ground truth (prepare, the engine).
         gvd = DynamicGVD(gt.shape)
         gvd.update(gt.occupied | (gt.data < 0))
         return Costmap(gt, gvd.distance2, PlannerConfig())
@@ -330,6 +330,7 @@ class OracleExplorer:
             needed: (cells,) bool, the cells that may still be needed (``seen`` is cut down
                 to them).
         """
+        assert self.graph is not None  # The caller sets the path graph first.
         ptr = np.zeros(len(seen) + 1, np.int64)
         ptr[1:] = np.cumsum([len(s) for s in seen])
         idx = (np.concatenate(seen) if seen else np.zeros(0, np.int64)).astype(np.int32)
@@ -347,7 +348,7 @@ class OracleExplorer:
         # The viewpoint standing for each node of the path graph (the nearest within one
         # lattice step; -1 if none): what the robot sees while it drives through the node.
         self._view_tree = cKDTree(self.views.points) if len(cand) else None
-        if len(cand):
+        if self._view_tree is not None:
             near, which = self._view_tree.query(self.graph.centres,
                                                 distance_upper_bound=self.spacing)
             self._node_view = np.where(np.isfinite(near), which, -1)
@@ -361,6 +362,7 @@ class OracleExplorer:
         known, the lists are cut down to the unknown ones: later passes over them are shorter.
         """
         views = self.views
+        assert views is not None  # Set by prepare.
         need = views.observable & self.unknown_cells(state)
         for cells, delta in ((self._needed & ~need, -1), (need & ~self._needed, 1)):
             _recount(self._viewer_ptr, self._viewer_idx, np.flatnonzero(cells), delta,
@@ -386,6 +388,7 @@ class OracleExplorer:
         """Re-solves the plan for the state; returns the viewpoints in tour order."""
         if self.views is None:
             self.prepare(state)
+        assert self.views is not None and self.graph is not None  # Set by prepare.
         views = self.views
         need, required = self._need(state)
         n = len(views.points)
@@ -416,6 +419,7 @@ class OracleExplorer:
         in ``state.grid`` plus those its tour sees (at the viewpoints and on the way), over
         all observable cells."""
         need, _ = self._need(state)
+        assert self.views is not None and self.graph is not None  # _need needs them too.
         points = np.vstack([state.pose[:2], self.views.points[self.plan]])
         order = list(range(1, len(self.plan) + 1))
         seen = self._tour_sees(self.plan, order, self.graph.node_of(points), need)
@@ -453,6 +457,7 @@ class OracleExplorer:
                    need: np.ndarray) -> int:
         """Cells of ``need`` seen at the tour's viewpoints and from the viewpoints standing
         for every ``path_sample``-th node of the paths between them."""
+        assert self.graph is not None  # Tours are made after prepare.
         seen = [plan[j - 1] for j in order]
         step = max(1, int(round(self.path_sample / (self.graph.block *
                                                     self.graph.grid.resolution))))
@@ -464,6 +469,7 @@ class OracleExplorer:
 
     def _count(self, views: list[int], need: np.ndarray) -> int:
         """Cells of ``need`` the viewpoints see together."""
+        assert self.views is not None  # Counts are made after prepare.
         self._stamp_id += 1
         return _covered(self.views.ptr, self.views.idx, need,
                         np.unique(np.array(views, np.int64)), self._stamp, self._stamp_id)
@@ -477,11 +483,13 @@ class OracleExplorer:
         if self.current is None:
             return None
         views = self.views
+        assert views is not None  # The current viewpoint is one of them.
         cells = views.idx[views.ptr[self.current]:views.ptr[self.current + 1]]
         return bool((grid.data.reshape(-1)[cells] < 0).sum() >= self.min_gain)
 
     def select_goal(self, state: ExplorationState) -> np.ndarray | None:
         plan = self.replan(state)
+        assert self.views is not None  # Set by replan.
         if plan:
             self.current = plan[0]
             return self.views.points[plan[0]].copy()
@@ -509,6 +517,7 @@ class OracleExplorer:
         if not valid.any():
             return -1
         plan = self.replan(state)
+        assert self.views is not None and self.graph is not None  # Set by replan.
         target = self.views.points[plan[0]] if plan else np.asarray(state.pose[:2], float)
         d = self.graph.distance_matrix(np.vstack([target, candidates]))[0, 1:]
         d = np.where(valid, d, np.inf)
@@ -552,6 +561,8 @@ class OracleExplorer:
         if not plan:
             return self.expert_choice(state, candidates, valid) if baseline is None else baseline
         views = self.views
+        # Set by replan; the plan's viewpoints are in the tree.
+        assert views is not None and self.graph is not None and self._view_tree is not None
         need, _ = self._need(state)
         k = len(candidates)
         points = np.vstack([state.pose[:2], candidates, views.points[plan]])

@@ -178,6 +178,7 @@ class PocketNearest:
                            frontiers: list[Frontier]) -> np.ndarray:
         """(N_max,) float32: each frontier node's probability that its pocket is small, by
         the pocket predictor (0 for the other nodes)."""
+        assert self.pockets is not None  # Without a predictor, a subclass supplies them.
         return self.pockets.node_probability(padded, state.grid, frontiers, self.pocket_memo)
 
 
@@ -204,6 +205,7 @@ class TruePocketNearest(PocketNearest):
         out = np.zeros(len(padded.node_mask), np.float32)
         nodes, which = node_frontiers(padded, state.grid, frontiers)
         if len(nodes):
+            assert state.ground_truth is not None  # Privileged: run with the ground truth.
             area = pocket_areas(state.grid, state.ground_truth, [frontiers[i] for i in which])
             out[nodes] = area < self.small_area_m2
         return out

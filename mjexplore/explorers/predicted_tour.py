@@ -140,6 +140,7 @@ class PredictedTour(PocketNearest):
         goal = super().select_goal(state)
         if goal is None:
             return None
+        assert self.padded is not None  # The decision's TER, made with the goal.
         valid = np.flatnonzero(self.mask)
         prior = int(np.argmin(self.cost))
         candidates = self.padded.node_positions[valid].astype(float)

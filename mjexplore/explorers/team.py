@@ -215,11 +215,11 @@ def make_team_explorers(method: str, n: int, **kwargs) -> list[Explorer]:
             built by the caller).
     """
     if method in ("assign_greedy", "assign_optimal"):
-        return FrontierAssignment(n, method.split("_")[1], **kwargs).members
+        return list(FrontierAssignment(n, method.split("_")[1], **kwargs).members)
     if method == "mmpf":
         return [TeamPotentialField(**kwargs) for _ in range(n)]
     if method == "oracle":
-        return TeamOracle(n, **kwargs).members
+        return list(TeamOracle(n, **kwargs).members)
     raise UserInputError(f"unknown team method {method!r}: use one of "
                          f"{', '.join(TEAM_METHODS)}, or a single-robot method for the naive "
                          "team.")

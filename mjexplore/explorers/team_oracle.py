@@ -73,12 +73,13 @@ def split_routes(distance: np.ndarray, robots: int, pinned: dict[int, int] | Non
         return _insertion(d, k, routes[k], p)
 
     for p in free:
-        best = None
+        best: tuple[tuple[float, float], int, int] | None = None
         for k in range(robots):
             added, at = insertion(k, p)
             worst = max(max(lengths[:k] + lengths[k + 1:], default=0.0), lengths[k] + added)
             if best is None or (worst, added) < best[0]:
                 best = (worst, added), k, at
+        assert best is not None  # Some robot's route takes it (robots >= 1).
         _, k, at = best
         routes[k].insert(at, p)
         lengths[k] = route_length(d, k, routes[k])
@@ -98,7 +99,7 @@ def split_routes(distance: np.ndarray, robots: int, pinned: dict[int, int] | Non
     for _ in range(moves):
         worst = int(np.argmax(lengths))
         movable = routes[worst][1:] if worst in pinned else routes[worst]
-        best = None
+        move: tuple[float, int, int, int] | None = None
         for p in movable:
             rest = [q for q in routes[worst] if q != p]
             left = route_length(d, worst, rest)
@@ -108,11 +109,11 @@ def split_routes(distance: np.ndarray, robots: int, pinned: dict[int, int] | Non
                 added, at = insertion(k, p)
                 new_worst = max(left, lengths[k] + added,
                                 *(lengths[j] for j in range(robots) if j not in (k, worst)))
-                if new_worst < lengths[worst] - 1e-6 and (best is None or new_worst < best[0]):
-                    best = new_worst, p, k, at
-        if best is None:
+                if new_worst < lengths[worst] - 1e-6 and (move is None or new_worst < move[0]):
+                    move = new_worst, p, k, at
+        if move is None:
             break
-        _, p, k, at = best
+        _, p, k, at = move
         routes[worst].remove(p)
         routes[k].insert(at, p)
         reorder(worst)
@@ -146,6 +147,7 @@ class TeamOracle:
         team = state.extras.get("team")
         if not plan:
             return None
+        assert planner.views is not None and planner.graph is not None  # Set by replan.
         if team is None:
             member.current = plan[0]
             return planner.views.points[plan[0]].copy()

@@ -43,10 +43,12 @@ def _probe_writable(folder: Path, flag: str, path: Path) -> None:
     try:
         os.rmdir(tempfile.mkdtemp(prefix=".mjexplore-probe.", dir=folder))
     except OSError as exc:
-        reason = {errno.ENOENT: "it takes no new files: a virtual filesystem such as /proc?",
-                  errno.EROFS: "a read-only filesystem",
-                  errno.EACCES: "permission denied",
-                  errno.EPERM: "permission denied"}.get(exc.errno, exc.strerror or str(exc))
+        reasons: dict[int | None, str] = {
+            errno.ENOENT: "it takes no new files: a virtual filesystem such as /proc?",
+            errno.EROFS: "a read-only filesystem",
+            errno.EACCES: "permission denied",
+            errno.EPERM: "permission denied"}
+        reason = reasons.get(exc.errno, exc.strerror or str(exc))
         raise UserInputError(f"{flag} {str(path)!r}: cannot write in {str(folder)!r} ({reason}): "
                              "choose a folder you can write to.") from None
 

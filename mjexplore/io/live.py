@@ -90,7 +90,7 @@ class LiveServer(ServerListener):
         self._start = threading.Event()  # Set by a subscription or stop: the episode may go.
         # The server object takes one call at a time (another thread's raises RuntimeError).
         self._lock = threading.Lock()
-        self._wall0 = None  # Wall-clock time at the first paced scan.
+        self._wall0: float | None = None  # Wall-clock time at the first paced scan.
         check_host(host)  # Before the bind, whose error would blame the port.
         try:
             self.server = foxglove.start_server(

@@ -64,6 +64,7 @@ from mjexplore.robot import TURTLEBOT3_WAFFLE
 
 if TYPE_CHECKING:
     from mjexplore.io.live import LiveServer
+    from mjexplore.maps import GridMap
 
 KINEMATICS_SCHEMA = {
     "type": "object",
@@ -117,7 +118,8 @@ class ScanFrames:
             c, s = math.cos(oyaw), math.sin(oyaw)
             map_odom = (x - (c * dx - s * dy), y - (s * dx + c * dy), oyaw)
         else:  # The map is built at the estimate: map -> odom is the localiser's.
-            map_odom = tuple(float(v) for v in episode.localizer.map_to_odom(sim.odom_pose))
+            mx, my, myaw = (float(v) for v in episode.localizer.map_to_odom(sim.odom_pose))
+            map_odom = (mx, my, myaw)
         v, w = (float(u) for u in sim.velocity)
         return cls(t, map_odom, (dx, dy, dyaw), (x, y, yaw), (v, w))
 
@@ -141,7 +143,8 @@ class EpisodeLogger:
         self.map_period = map_period
         self._next_map = 0.0
         self._map_logged = -math.inf  # Time of the last map written...
-        self._last_scan = None  # ...and (time, live map) at the last scan.
+        # ...and (time, live map) at the last scan.
+        self._last_scan: tuple[float, GridMap] | None = None
         self._last_kin = 0
 
     # Observer hooks ---------------------------------------------------------------
@@ -338,5 +341,6 @@ class FoxgloveEpisodeLog(EpisodeLogger):
     def finish(self) -> None:
         """Finishes the MCAP file and moves it into place."""
         if self.writer is not None:
+            assert self.path is not None  # A writer is opened only with a path.
             self.writer.close()
             os.replace(self._tmp, self.path)

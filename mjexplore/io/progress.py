@@ -99,6 +99,7 @@ class Progress:
     def _line(self, force: bool = False) -> None:
         if not self.lines:
             return
+        assert self.every is not None  # Lines are only written when `every` is set.
         with self._lock:  # The ticker's thread writes lines too.
             self._write_line(force, self.every)
 

@@ -20,6 +20,7 @@ import json
 import math
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import foxglove
 import numpy as np
@@ -41,6 +42,9 @@ from mjexplore.io.mcap_log import (
     _transform,
 )
 from mjexplore.io.stamps import sim_ns
+
+if TYPE_CHECKING:
+    from mjexplore.maps import GridMap
 
 
 def robot_topics(name: str) -> tuple[str, ...]:
@@ -85,7 +89,7 @@ class TeamFoxgloveLog:
         self.map_period = map_period
         self._next_map = 0.0
         self._map_logged = -math.inf
-        self._last_scan = None
+        self._last_scan: tuple[float, GridMap] | None = None
 
     # Observer hooks ---------------------------------------------------------------
 
@@ -133,6 +137,7 @@ class TeamFoxgloveLog:
 
     def write_map(self, t: float, grid) -> None:
         """The shared map, as the single robot's log writes its map."""
+        # Borrowed, not inherited: it needs only a ``map`` channel, which this log has.
         FoxgloveEpisodeLog.write_map(self, t, grid)  # type: ignore[arg-type]
 
     def on_goal(self, episode, index: int, t: float, x: float, y: float) -> None:

@@ -244,13 +244,15 @@ def _labelled_episode(job) -> dict[str, Any]:
                            "time": None, "explored": False, "agree": 0, "by_expert": 0}
     rng = np.random.default_rng(seed)
     obs, _ = env.reset(seed=seed)
+    episode = env.episode
+    assert episode is not None  # Set by reset().
     oracle.reset(np.random.default_rng(seed))
     while True:
         mask = env.action_masks()
         extra = {}
         if keep_prior:
             extra = {"baseline": _prior_choice(obs, mask, keep_prior[1]), "gain_m": keep_prior[0]}
-        label = choose(env.episode.decision_state(), env.decisions.action_positions(), mask,
+        label = choose(episode.decision_state(), env.decisions.action_positions(), mask,
                        **extra)
         if label < 0:
             break

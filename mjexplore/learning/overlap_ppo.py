@@ -45,11 +45,13 @@ from __future__ import annotations
 
 import time
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any
+from typing import Any, cast
 
 import torch
 from sb3_contrib import MaskablePPO
+from sb3_contrib.common.maskable.buffers import MaskableRolloutBuffer
 from stable_baselines3.common.buffers import RolloutBuffer
+from stable_baselines3.common.type_aliases import MaybeCallback
 
 
 class _Actor:
@@ -111,8 +113,10 @@ class OverlapMaskablePPO(MaskablePPO):
             self.behaviour = self.policy_class(self.observation_space, self.action_space,
                                                self.lr_schedule, **self.policy_kwargs)
         self.behaviour = self.behaviour.to(self.device)
+        # The class MaskablePPO._setup_model chose, as rollout_buffer's (typed as there).
+        buffer_class = cast(type[MaskableRolloutBuffer], self.rollout_buffer_class)
         # One filled by the collection while the update reads the other.
-        self._buffers = (self.rollout_buffer, self.rollout_buffer_class(
+        self._buffers = (self.rollout_buffer, buffer_class(
             self.n_steps, self.observation_space, self.action_space, self.device,
             gamma=self.gamma, gae_lambda=self.gae_lambda, n_envs=self.n_envs,
             **self.rollout_buffer_kwargs))
@@ -123,9 +127,11 @@ class OverlapMaskablePPO(MaskablePPO):
     def _collect(self, callback, buffer: RolloutBuffer, use_masking: bool) -> tuple[int, bool]:
         """Fills ``buffer`` with the behaviour policy: the decisions it took and whether the
         rollout is complete (False: a callback stopped it)."""
+        assert self.env is not None  # Checked by learn().
         actor = _Actor(self, self.behaviour)
-        complete = MaskablePPO.collect_rollouts(actor, self.env, callback, buffer,
-                                                self.n_steps, use_masking)
+        # The stand-in takes the model's place: every attribute but its own two is the model's.
+        complete = MaskablePPO.collect_rollouts(cast(MaskablePPO, actor), self.env, callback,
+                                                buffer, self.n_steps, use_masking)
         return actor.num_timesteps, complete
 
     def _update(self) -> float:
@@ -136,7 +142,9 @@ class OverlapMaskablePPO(MaskablePPO):
         self.train()
         return time.perf_counter() - start
 
-    def learn(self, total_timesteps: int, callback=None, log_interval: int = 1,
+    # As MaskablePPO.learn (ignored there too): use_masking comes before progress_bar.
+    def learn(self, total_timesteps: int,  # type: ignore[override]
+              callback: MaybeCallback = None, log_interval: int = 1,
               tb_log_name: str = "MaskablePPO", reset_num_timesteps: bool = True,
               use_masking: bool = True, progress_bar: bool = False) -> OverlapMaskablePPO:
         """Trains as :meth:`MaskablePPO.learn` does, each update overlapped with the next

@@ -21,6 +21,7 @@ import json
 import logging
 import multiprocessing as mp
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -108,6 +109,7 @@ class _Recorder:
         if not state.frontiers:
             return None
         distance = state.frontier_distances()
+        assert state.ground_truth is not None  # An Episode's scene has one.
         area = pocket_areas(state.grid, state.ground_truth, state.frontiers)
         keep = np.flatnonzero(np.isfinite(distance)
                               & (self.rng.random(len(distance)) < self.share))
@@ -144,13 +146,14 @@ def episode_layout(env: EnvConfig, seed: int):
     made = ExplorationEnv(dataclasses.replace(env, observation=observation))
     made.reset(seed=seed)
     episode = made.episode
+    assert episode is not None  # Set by reset().
     made.close()
     return episode.scene, episode.sim.config.seed, episode.config
 
 
-def collect_episode(config: PocketTrainingConfig, index: int) -> dict[str, np.ndarray]:
+def collect_episode(config: PocketTrainingConfig, index: int) -> dict[str, Any]:
     """Patches (uint8 (n, 3, S, S)), lengths (m) and true pocket areas (m^2) of episode
-    ``index``."""
+    ``index``, and ``index`` itself."""
     import torch
 
     from mjexplore.episode import Episode
@@ -169,7 +172,7 @@ def collect_episode(config: PocketTrainingConfig, index: int) -> dict[str, np.nd
             "index": index}
 
 
-def _collect_job(args: tuple[PocketTrainingConfig, int]) -> dict[str, np.ndarray]:
+def _collect_job(args: tuple[PocketTrainingConfig, int]) -> dict[str, Any]:
     return collect_episode(*args)
 
 
@@ -179,6 +182,7 @@ def collect(config: PocketTrainingConfig, workers: int = 1,
     ``progress`` counts the episodes collected."""
     jobs = [(config, i) for i in range(config.episodes)]
     parts = []
+    done: Iterator[dict[str, Any]]
     with contextlib.ExitStack() as stack:
         if workers > 1:
             pool = stack.enter_context(mp.get_context("spawn").Pool(workers))

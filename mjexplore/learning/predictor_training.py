@@ -233,7 +233,8 @@ def collect(config: PredictorTrainingConfig, folder: Path, workers: int = 1,
 def load_shards(config: PredictorTrainingConfig, folder: Path
                 ) -> tuple[list[dict[str, np.ndarray]], list[dict[str, np.ndarray]]]:
     """The training and the held-out episodes' maps (``inputs``, ``truth``), in order."""
-    train, held = [], []
+    train: list[dict[str, np.ndarray]] = []
+    held: list[dict[str, np.ndarray]] = []
     for i in range(config.episodes):
         with np.load(folder / SHARD.format(i), allow_pickle=False) as shard:
             part = {"inputs": shard["inputs"], "truth": shard["truth"]}
@@ -374,6 +375,7 @@ def fit(config: PredictorTrainingConfig, train: list[dict[str, np.ndarray]],
 def _card(config: PredictorTrainingConfig, quality: dict, summary: dict) -> str:
     """The model folder's README.md."""
     proc = config.env.procedural
+    assert proc is not None  # PredictorTrainingConfig requires it.
     facts = [
         ("trained", f"{summary['train_maps']:,} partial maps of {summary['train_episodes']} "
                     f"episodes, {config.epochs} epochs, at revision `{summary['git_revision']}`"),

@@ -15,7 +15,7 @@ from __future__ import annotations
 import logging
 from collections import Counter
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
@@ -50,7 +50,7 @@ class _EnvActor:
     def spaces(self) -> tuple[gym.Space, gym.Space]:
         return self.env.observation_space, self.env.action_space
 
-    def step(self, action: Any) -> tuple[Any, float, bool, dict, dict]:
+    def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, dict, dict]:
         obs, reward, terminated, truncated, info = self.env.step(action)
         done = terminated or truncated
         info["TimeLimit.truncated"] = truncated and not terminated
@@ -98,8 +98,9 @@ class RayVecEnv(VecEnv):
         self._shutdown_ray = shutdown_ray
         self.closed = False
         self._pending: list[ray.ObjectRef] = []
-        self.actors = [_EnvActor.options(scheduling_strategy="SPREAD").remote(fn)
-                       for fn in env_fns]
+        # mypy does not apply class decorators: @ray.remote made _EnvActor an ActorClass.
+        self.actors = [_EnvActor.options(  # type: ignore[attr-defined]
+            scheduling_strategy="SPREAD").remote(fn) for fn in env_fns]
         try:
             placed = ray.get([actor.describe.remote() for actor in self.actors])
         except ray.exceptions.RayActorError as exc:
@@ -126,13 +127,16 @@ class RayVecEnv(VecEnv):
 
     def step_wait(self) -> VecEnvStepReturn:
         results, self._pending = ray.get(self._pending), []
-        obs, rews, dones, infos, self.reset_infos = zip(*results, strict=True)
-        return _stack_obs(obs, self.observation_space), np.stack(rews), np.stack(dones), infos
+        # Tuples, as SB3's SubprocVecEnv gives them (VecEnv's annotations say lists).
+        obs, rews, dones, infos, self.reset_infos = zip(  # type: ignore[assignment]
+            *results, strict=True)
+        stacked = _stack_obs(obs, self.observation_space)
+        return stacked, np.stack(rews), np.stack(dones), infos  # type: ignore[return-value]
 
     def reset(self) -> VecEnvObs:
         results = ray.get([actor.reset.remote(self._seeds[i], self._options[i])
                            for i, actor in enumerate(self.actors)])
-        obs, self.reset_infos = zip(*results, strict=True)
+        obs, self.reset_infos = zip(*results, strict=True)  # type: ignore[assignment]
         self._reset_seeds()  # Seeds and options are used once, as in SB3's VecEnvs.
         self._reset_options()
         return _stack_obs(obs, self.observation_space)

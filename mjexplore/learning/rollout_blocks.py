@@ -55,7 +55,8 @@ class BlockDictRolloutBuffer(MaskableDictRolloutBuffer):
         self.block = block
         self.rng = np.random.default_rng(seed)
 
-    def get(self, batch_size: int | None = None
+    # As sb3-contrib's own get() (ignored there too): its samples are not SB3's type.
+    def get(self, batch_size: int | None = None  # type: ignore[override]
             ) -> Generator[MaskableDictRolloutBufferSamples, None, None]:
         """Minibatches of ``batch_size`` decisions (all of them when None), runs of
         ``block`` consecutive ones.

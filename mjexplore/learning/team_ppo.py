@@ -143,7 +143,7 @@ def _update(policies, optims, buffers, cfg: TeamPPOConfig) -> dict[str, float]:
         rewards = torch.tensor([b["reward"] for b in buf])
         dones = torch.tensor([b["done"] for b in buf], dtype=torch.float32)
         adv = torch.zeros(len(buf))
-        last = 0.0
+        last: float | torch.Tensor = 0.0
         for t in reversed(range(len(buf))):
             nxt = values[t + 1] if t + 1 < len(buf) else torch.tensor(0.0)
             delta = rewards[t] + cfg.gamma * nxt * (1 - dones[t]) - values[t]

@@ -274,8 +274,9 @@ def load_train_config(path: str | Path, total_steps: int | None = None,
     """Reads a training YAML (see training/gvn.yaml); ``total_steps``, ``n_envs`` and
     ``seed``, when given, replace the file's values."""
     config = load_yaml_config(TrainConfig, path)
-    overrides = {k: v for k, v in (("total_steps", total_steps), ("n_envs", n_envs),
-                                   ("seed", seed)) if v is not None}
+    overrides: dict[str, Any] = {
+        k: v for k, v in (("total_steps", total_steps), ("n_envs", n_envs), ("seed", seed))
+        if v is not None}
     return dataclasses.replace(config, **overrides) if overrides else config
 
 

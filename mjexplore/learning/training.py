@@ -29,6 +29,7 @@ import logging
 import random
 import shutil
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -65,6 +66,7 @@ def make_model(config: TrainConfig, venv, seed: int, tensorboard_log: str | None
     # The update's setting only: weights files keep network_kwargs, the network's.
     policy_kwargs = {**network_kwargs(config),
                      **({"entropy_reference": "prior"} if ppo.prior_kl else {})}
+    learner: Callable[..., MaskablePPO]
     if ppo.overlap:
         learner = functools.partial(OverlapMaskablePPO, update_threads=(
             config.update_threads or config.torch_threads))

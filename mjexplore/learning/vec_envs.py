@@ -8,6 +8,7 @@ import functools
 import shutil
 import tempfile
 from pathlib import Path
+from typing import Any
 
 from mjexplore.envs.exploration import EnvConfig, ExplorationEnv
 from mjexplore.episode.workers import init_episode_worker, single_thread_children, thread_counts
@@ -95,12 +96,14 @@ def make_vec_env(config: TrainConfig, seed: int, ray_address: str | None = None)
         UserInputError: No Ray cluster at ``ray_address``, or one that cannot run the envs,
             or a worker that cannot build its env (a missing or damaged input).
     """
-    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecMonitor
 
     own_process = ray_address is not None or config.n_envs > 1
     reports = WorkerReports() if ray_address is None and config.n_envs > 1 else None
-    makers = [env_maker(config.env, own_process, reports and reports.path(i))
+    makers = [env_maker(config.env, own_process,
+                        reports.path(i) if reports is not None else None)
               for i in range(config.n_envs)]
+    venv: VecEnv
     if ray_address is not None:
         from mjexplore.io.ray_cluster import connect
         from mjexplore.learning.ray_vec_env import RayVecEnv
@@ -121,7 +124,8 @@ def make_vec_env(config: TrainConfig, seed: int, ray_address: str | None = None)
         venv = DummyVecEnv(makers)
     venv.seed(seed)
     monitored = VecMonitor(venv)
-    monitored.worker_reports = reports
+    extended: Any = monitored  # SB3's VecMonitor, with an attribute and a close() of ours.
+    extended.worker_reports = reports
     if reports is not None:
         close = monitored.close
 
@@ -131,5 +135,5 @@ def make_vec_env(config: TrainConfig, seed: int, ray_address: str | None = None)
             finally:
                 reports.remove()
 
-        monitored.close = close_and_remove
+        extended.close = close_and_remove
     return monitored

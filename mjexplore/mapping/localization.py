@@ -60,8 +60,8 @@ import numpy as np
 
 from mjexplore.errors import UserInputError
 from mjexplore.mapping.scan_matching import (
+    LocalizerBase,
     ScanMatcherConfig,
-    ScanMatchingLocalizer,
     accumulate_normal_equations,
     base_pose_of,
     match_scan,
@@ -358,7 +358,7 @@ def wall_cells(grid, occupied_logodds: float) -> tuple[np.ndarray, float, tuple[
         occupied_logodds: See :class:`LocalizerConfig`.
     """
     if isinstance(grid, GridMap):
-        return is_occupied(grid.data), grid.resolution, tuple(grid.origin[:2])
+        return is_occupied(grid.data), grid.resolution, (grid.origin[0], grid.origin[1])
     return grid.logodds > occupied_logodds, grid.config.resolution, tuple(grid.origin[:2])
 
 
@@ -489,11 +489,11 @@ class FusionResult:
     accepted: bool
 
 
-class FusedLocalizer(ScanMatchingLocalizer):
+class FusedLocalizer(LocalizerBase[FusionResult]):
     """The pose of ``base_link`` in ``map`` and its covariance: odometry fused with scans
     matched against the robot's own map (see the module docstring). ``pose``,
     ``sensor_pose``, ``advance`` and ``map_to_odom`` are
-    :class:`~mjexplore.mapping.scan_matching.ScanMatchingLocalizer`'s.
+    :class:`~mjexplore.mapping.scan_matching.LocalizerBase`'s.
 
     Args:
         pose: Initial (x, y, yaw) of ``base_link`` in ``map``.
@@ -533,9 +533,8 @@ class FusedLocalizer(ScanMatchingLocalizer):
         else:
             self._calibration = np.array([1.0, 1.0, 0.0])
             calibration_cov = np.diag(np.square(self.config.calibration_std))
-        self._cov = np.zeros((6, 6))
+        self._cov: np.ndarray = np.zeros((6, 6))
         self._cov[:3, :3], self._cov[3:, 3:] = pose_cov, calibration_cov
-        self.last_match: FusionResult | None = None
         if not keep_map:
             self._density: np.ndarray | None = None
             self._density_geometry: tuple[float, tuple[float, float]] | None = None
@@ -617,7 +616,7 @@ class FusedLocalizer(ScanMatchingLocalizer):
         n = len(points)
         weights = 1.0 / (cfg.field_sigma ** 2 + noise ** 2)
         if isinstance(grid, GridMap):
-            shape, res, origin = grid.shape, grid.resolution, tuple(grid.origin[:2])
+            shape, res, origin = grid.shape, grid.resolution, (grid.origin[0], grid.origin[1])
         else:
             shape, res, origin = grid.logodds.shape, grid.config.resolution, tuple(grid.origin)
         map_res = res
@@ -640,6 +639,7 @@ class FusedLocalizer(ScanMatchingLocalizer):
         window = min(cfg.search_sigmas * position_sd, 1.0) if search else 0.0
         reach += window
         if cfg.field == "returns":
+            assert self._density is not None  # Made above for this field.
             field = LikelihoodField.from_density(self._density, res, origin, prior[:2], reach,
                                                  cfg.max_distance, cfg.field_sigma,
                                                  cfg.wall_density(res))
@@ -695,6 +695,7 @@ class FusedLocalizer(ScanMatchingLocalizer):
         """Adds the scan's returns, at the estimate, to the density the field comes from
         (each weighted by its precision relative to the finest: far returns count less)."""
         if self._density is not None:
+            assert self._density_geometry is not None  # Set with the density.
             res, origin = self._density_geometry
             deposit(self._density, res, origin, self._pose, points,
                     self.config.range_noise_std / noise)

@@ -154,8 +154,9 @@ def save_map_predictor(path: str | os.PathLike, net: MapPredictorNet,
     from safetensors.torch import save
 
     tensors = {k: v.detach().cpu().contiguous() for k, v in net.state_dict().items()}
+    # The width is the first level's channels, which the head takes in.
     meta = {"format": FORMAT, "cell_m": repr(CELL_M), "channels": json.dumps(CHANNELS),
-            "width": str(net.down[0][0].out_channels), "dropout": repr(net.dropout.p),
+            "width": str(net.head.in_channels), "dropout": repr(net.dropout.p),
             "provenance": json.dumps(provenance or {}, default=str)}
     write_bytes_atomic(path, save(tensors, metadata=meta))
 
@@ -215,10 +216,10 @@ class MapPredictor:
             try:
                 with torch.random.fork_rng(devices=[]):
                     torch.manual_seed(seed)
-                    p = torch.sigmoid(self.net(x.expand(samples, -1, -1, -1)))
+                    probs = torch.sigmoid(self.net(x.expand(samples, -1, -1, -1)))
             finally:
                 self.net.dropout.eval()
-            p = p[:, :rows, :cols].numpy()
+            p = probs[:, :rows, :cols].numpy()
             return p.mean(0), p.std(0)
 
     def __call__(self, channels: np.ndarray) -> np.ndarray:

@@ -50,6 +50,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+from typing import Generic, TypeVar
 
 import cv2
 import numba
@@ -62,6 +63,8 @@ from mjexplore.sim.lidar import LaserScan
 from mjexplore.sim.odometry import compose_pose, relative_pose, wrap_angle
 
 log = logging.getLogger(__name__)
+
+ResultT = TypeVar("ResultT")
 
 # A return's likelihood is floored at that of a return three sigma from any wall (Olson's
 # tables are bounded below too: a return on nothing is unlikely, not impossible).
@@ -203,6 +206,7 @@ def deskew_scan(scan: LaserScan, twist: tuple[float, float] | None = None,
         ex, ey = at[0] - now[0], at[1] - now[1]
         dx, dy, dth = c0 * ex + s0 * ey, -s0 * ex + c0 * ey, at[2] - now[2]
     else:
+        assert twist is not None  # Without a trajectory or a twist, returned above.
         v, w = float(twist[0]), float(twist[1])
         dth = w * tau
         small = np.abs(dth) < 1e-9
@@ -536,29 +540,20 @@ def _refine(points: np.ndarray, crop: _Crop, pose: np.ndarray, unit: np.ndarray,
 # ---------------------------------------------------------------------------- localiser
 
 
-class ScanMatchingLocalizer:
-    """The pose of ``base_link`` in ``map``: odometry increments corrected by scan matches.
-
-    Args:
-        pose: Initial (x, y, yaw) of ``base_link`` in ``map``.
-        odom_pose: The odometry's reading (``base_link`` in ``odom``) at ``pose``, from
-            which :meth:`advance` counts; None: from its first call.
-        config: Matcher settings.
-        geometry: The robot (where ``base_scan`` sits on ``base_link``).
+class LocalizerBase(Generic[ResultT]):
+    """What the localisers share: the pose of ``base_link`` in ``map`` moved by odometry
+    increments; each subclass corrects it with scans in its own way, and ``ResultT`` is
+    the type of its corrections' outcomes.
 
     Attributes:
-        last_match: The result of the latest :meth:`correct` (None before any).
-        matches: Number of accepted matches.
-        rejections: Number of matches not taken.
+        geometry: The robot (where ``base_scan`` sits on ``base_link``).
+        last_match: The outcome of the latest correction (None before any).
+        matches: Number of accepted corrections.
+        rejections: Number of corrections not taken.
     """
 
-    def __init__(self, pose: tuple[float, float, float] | np.ndarray,
-                 odom_pose: tuple[float, float, float] | np.ndarray | None = None,
-                 config: ScanMatcherConfig | None = None,
-                 geometry: RobotGeometry = TURTLEBOT3_WAFFLE) -> None:
-        self.config = config or ScanMatcherConfig()
-        self.geometry = geometry
-        self.reset(pose, odom_pose)
+    geometry: RobotGeometry
+    last_match: ResultT | None
 
     def reset(self, pose: tuple[float, float, float] | np.ndarray,
               odom_pose: tuple[float, float, float] | np.ndarray | None = None) -> None:
@@ -566,7 +561,7 @@ class ScanMatchingLocalizer:
         self._pose = np.array(pose, dtype=float)
         self._last_odom = None if odom_pose is None else np.array(odom_pose, dtype=float)
         self._last_stamp: float | None = None
-        self.last_match: MatchResult | None = None
+        self.last_match = None
         self.matches = 0
         self.rejections = 0
 
@@ -606,6 +601,31 @@ class ScanMatchingLocalizer:
         """The ``map -> odom`` transform (x, y, yaw) that puts ``odom_pose`` (``base_link``
         in ``odom``) at the estimate, as a ROS localiser publishes it."""
         return compose_pose(self._pose, relative_pose(odom_pose, (0.0, 0.0, 0.0)))
+
+
+class ScanMatchingLocalizer(LocalizerBase[MatchResult]):
+    """The pose of ``base_link`` in ``map``: odometry increments corrected by scan matches.
+
+    Args:
+        pose: Initial (x, y, yaw) of ``base_link`` in ``map``.
+        odom_pose: The odometry's reading (``base_link`` in ``odom``) at ``pose``, from
+            which :meth:`advance` counts; None: from its first call.
+        config: Matcher settings.
+        geometry: The robot (where ``base_scan`` sits on ``base_link``).
+
+    Attributes:
+        last_match: The result of the latest :meth:`correct` (None before any).
+        matches: Number of accepted matches.
+        rejections: Number of matches not taken.
+    """
+
+    def __init__(self, pose: tuple[float, float, float] | np.ndarray,
+                 odom_pose: tuple[float, float, float] | np.ndarray | None = None,
+                 config: ScanMatcherConfig | None = None,
+                 geometry: RobotGeometry = TURTLEBOT3_WAFFLE) -> None:
+        self.config = config or ScanMatcherConfig()
+        self.geometry = geometry
+        self.reset(pose, odom_pose)
 
     def correct(self, scan: LaserScan, grid: GridMap) -> MatchResult:
         """Matches ``scan`` (taken at the estimate's time) against ``grid`` and takes the

@@ -108,10 +108,11 @@ class Navigator:
         self.path: np.ndarray | None = None
         self._path_x = self._path_y = self._segments = np.zeros(0)
         self._path_cells = np.zeros(0, np.int64)
-        self._checked = None  # (costmap, version) the path was last found traversable on.
+        # (costmap, version) the path was last found traversable on.
+        self._checked: tuple[Costmap, int] | None = None
         self.status = NavStatus.IDLE
         self._last_plan = -math.inf
-        self._anchor = None
+        self._anchor: np.ndarray | None = None
         self._anchor_time = 0.0
 
     def set_goal(self, goal: np.ndarray, costmap: Costmap, pose: np.ndarray, t: float) -> bool:
@@ -135,6 +136,7 @@ class Navigator:
                               self.config.lookahead)
 
     def _replan(self, costmap: Costmap, pose: np.ndarray, t: float) -> None:
+        assert self.goal is not None  # Called only while driving to a goal.
         self._last_plan = t
         path = costmap.plan(pose[:2], self.goal, goal_radius=self.config.goal_tolerance)
         if path is None:

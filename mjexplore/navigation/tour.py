@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+from typing import cast
 
 import numpy as np
 from ortools.constraint_solver import pywrapcp, routing_enums_pb2
@@ -49,7 +50,7 @@ class CoarseGraph:
         br, bc = -(-rows // block), -(-cols // block)
         padded = np.zeros((br * block, bc * block), bool)
         padded[:rows, :cols] = traversable
-        self.nodes = padded.reshape(br, block, bc, block).any(axis=(1, 3))
+        self.nodes = cast(np.ndarray, padded.reshape(br, block, bc, block).any(axis=(1, 3)))
         self.shape = (br, bc)
         index = np.full(br * bc, -1, np.int64)
         flat = np.flatnonzero(self.nodes)
@@ -58,15 +59,17 @@ class CoarseGraph:
         self._flat = flat
         step = block * grid.resolution
         pad = np.pad(self._index, 1, constant_values=-1)
-        src, dst, w = [], [], []
+        srcs: list[np.ndarray] = []
+        dsts: list[np.ndarray] = []
+        ws: list[np.ndarray] = []
         for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
             a = self._index
             b = pad[1 + dr:1 + dr + br, 1 + dc:1 + dc + bc]
             both = (a >= 0) & (b >= 0)
-            src.append(a[both])
-            dst.append(b[both])
-            w.append(np.full(int(both.sum()), step * float(np.hypot(dr, dc))))
-        src, dst, w = np.concatenate(src), np.concatenate(dst), np.concatenate(w)
+            srcs.append(a[both])
+            dsts.append(b[both])
+            ws.append(np.full(int(both.sum()), step * float(np.hypot(dr, dc))))
+        src, dst, w = np.concatenate(srcs), np.concatenate(dsts), np.concatenate(ws)
         self._rows: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         n = len(flat)
         self.matrix = coo_matrix((np.concatenate([w, w]), (np.concatenate([src, dst]),
@@ -107,9 +110,9 @@ class CoarseGraph:
     def distances(self, sources: np.ndarray) -> np.ndarray:
         """(len(sources), nodes) path distances in metres from each source node (inf where
         unreachable). Searches are kept: the graph does not change."""
-        sources = [int(v) for v in np.atleast_1d(sources)]
-        self._search(sources)
-        return np.array([self._rows[v][0] for v in sources])
+        nodes = [int(v) for v in np.atleast_1d(sources)]
+        self._search(nodes)
+        return np.array([self._rows[v][0] for v in nodes])
 
     def path(self, source: int, target: int) -> np.ndarray:
         """Nodes of the shortest path from ``source`` to ``target`` (both included; empty

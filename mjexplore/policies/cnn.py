@@ -7,7 +7,7 @@ coarse goal cell (actor) and the state value (critic). Invalid cells are masked 
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import torch
 from gymnasium import spaces
@@ -24,7 +24,8 @@ class GridCnn(BaseFeaturesExtractor):
     def __init__(self, observation_space: spaces.Dict, features: int = 256) -> None:
         super().__init__(observation_space, features_dim=features)
         c = len(GRID_CHANNELS)
-        self.side = int(round((observation_space["image"].shape[0] / c) ** 0.5))
+        image = cast(spaces.Box, observation_space["image"])  # See GridDecisions.
+        self.side = int(round((image.shape[0] / c) ** 0.5))
         self.conv = nn.Sequential(
             nn.Conv2d(c, 32, 5, stride=2, padding=2), nn.ReLU(),
             nn.Conv2d(32, 64, 3, stride=2, padding=1), nn.ReLU(),

@@ -248,6 +248,8 @@ class GraphConv(nn.Module):
 class SpatialEncoder(nn.Module):
     """E_S: G^{l+1} = ReLU(A_norm G^l W^l) + G^l (a linear projection on the first skip)."""
 
+    scale: torch.Tensor  # Buffers.
+
     def __init__(self, config: GvnConfig) -> None:
         super().__init__()
         d = config.hidden
@@ -390,6 +392,9 @@ class EdgeSpatialEncoder(SpatialEncoder):
     data (a real node's row is a running count), so that it exports to ONNX as it is.
     """
 
+    centres: torch.Tensor  # Buffers.
+    widths: torch.Tensor
+
     def __init__(self, config: GvnConfig, num_features: int) -> None:
         nn.Module.__init__(self)  # Not SpatialEncoder's layers.
         d = config.hidden
@@ -528,7 +533,7 @@ class EncodedTers:
         self.entries: OrderedDict[bytes, torch.Tensor] = OrderedDict()
         self.weights_version: tuple = ()
 
-    def rows(self, encoder: nn.Module, features: torch.Tensor, neighbours: torch.Tensor,
+    def rows(self, encoder: SpatialEncoder, features: torch.Tensor, neighbours: torch.Tensor,
              node_mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``encoder.rows`` (see :meth:`SpatialEncoder.rows`), encoding only the TERs not
         held: (M, N, F), (M, N, K), (M, N) -> (R, d) embeddings, (R,) flat indices."""

@@ -96,8 +96,10 @@ class GvnExplorer:
             # them) are not nodes: the episode's fallback takes the nearest one.
             self.waypoint = False
             return None
+        current = d.current
+        assert current is not None  # Set by prepare().
         if self.gvn.config.features == "v1":
-            logits, r = self.logits(d.current)
+            logits, r = self.logits(current)
         else:
             t = {k: torch.as_tensor(v)[None] for k, v in d.observation().items()}
             with torch.no_grad():
@@ -112,9 +114,11 @@ class GvnExplorer:
             with torch.no_grad():
                 n = r.shape[1]
                 frag = self.gvn.fragments(r[0], torch.arange(n),
-                                          torch.as_tensor(d.current["node_mask"][:n])[None],
+                                          torch.as_tensor(current["node_mask"][:n])[None],
                                           torch.tensor([action]))
             self._fragments = torch.cat([self._fragments[:, 1:], frag[:, None]], 1)
             self._memory_mask = torch.cat([self._memory_mask[:, 1:], torch.ones(1, 1)], 1)
-        goal, self.waypoint = d.act(action)
+        choice = d.act(action)
+        assert choice is not None  # A masked-in action is a real node.
+        goal, self.waypoint = choice
         return goal

@@ -182,7 +182,7 @@ def _header(path: str | os.PathLike) -> bytes | None:
 @functools.lru_cache(maxsize=1)
 def _shipped_headers() -> dict[bytes, str]:
     """The header of each shipped model's weights, to its name."""
-    headers = {}
+    headers: dict[bytes, str] = {}
     for weights in sorted(MODELS_DIR.glob(f"*/{WEIGHTS_NAME}")):
         header = _header(weights)
         if header is not None:

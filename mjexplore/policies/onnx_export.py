@@ -27,7 +27,7 @@ import logging
 import os
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import torch
@@ -36,9 +36,20 @@ from torch.nn import functional as F
 
 from mjexplore.errors import UserInputError
 from mjexplore.io.atomic import write_bytes_atomic
-from mjexplore.policies.gvn import GVN, SpatialEncoder, masked_mean, memory_pose_features
+from mjexplore.policies.gvn import (
+    GVN,
+    GraphConv,
+    SpatialEncoder,
+    masked_mean,
+    memory_pose_features,
+)
 from mjexplore.policies.weights import actor_logits, load_policy
 from mjexplore.topology.ter import NUM_FEATURES
+
+if TYPE_CHECKING:
+    from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
+
+    from mjexplore.policies.sb3 import GvnExtractor
 
 log = logging.getLogger(__name__)
 
@@ -82,7 +93,7 @@ def spatial_gather(encoder: SpatialEncoder, features: torch.Tensor, neighbours: 
     h = features.reshape(m * n, NUM_FEATURES).index_select(0, real_rows) * encoder.scale
     for i, layer in enumerate(encoder.layers):
         skip = encoder.input_skip(h) if i == 0 else h
-        hw = layer.weight(h)
+        hw = cast(GraphConv, layer).weight(h)  # The layers of a v1 SpatialEncoder.
         d = hw.shape[-1]
         messages = torch.cat([hw.new_zeros(1, d), hw])[target].reshape(-1, k, d)
         h = F.relu(inv.square()[:, None] * hw + (weight[..., None] * messages).sum(1)) + skip
@@ -155,7 +166,7 @@ class ExportedActor(nn.Module):
     """A trained SB3 policy's actor: (observation arrays..., action mask) -> (masked
     logits, greedy action). Inputs are positional, in ``keys`` order, then the mask."""
 
-    def __init__(self, policy: nn.Module, kind: str, keys: list[str]) -> None:
+    def __init__(self, policy: MaskableActorCriticPolicy, kind: str, keys: list[str]) -> None:
         super().__init__()
         self.policy = policy
         self.kind = kind
@@ -166,7 +177,7 @@ class ExportedActor(nn.Module):
         obs = dict(zip(self.keys, arrays))
         policy = self.policy
         if self.kind == "gvn":
-            extractor = policy.features_extractor
+            extractor = cast("GvnExtractor", policy.features_extractor)  # GvnPolicy's.
             features = gvn_features(extractor.gvn, obs)
             prior = extractor.prior_logits(obs)
             if prior is not None:  # A residual policy (GvnExtractor's last features).
@@ -244,6 +255,7 @@ def export_onnx(weights: str | os.PathLike, out: str | os.PathLike,
         registration.setLevel(level)
         if chatter.getvalue():
             log.debug("the ONNX exporter's output:\n%s", chatter.getvalue())
+    assert program is not None  # dynamo=True always returns the program.
     model = program.model_proto
     props = {"format": FORMAT, "kind": meta["kind"],
              "weights_file": Path(weights).name, "weights_sha256": file_sha256(weights),
@@ -278,7 +290,7 @@ class OnnxActor:
             model = onnx.load(str(path), load_external_data=False)
         except (OSError, DecodeError) as exc:
             raise UserInputError(f"cannot read ONNX model {str(path)!r} ({exc}); export one "
-                                 "with 'python tools/export_policy.py --onnx'.") from None
+                                 "with 'mjexplore export-policy --onnx'.") from None
         self.metadata = {p.key: p.value for p in model.metadata_props}
         if self.metadata.get("format") != FORMAT:
             raise UserInputError(f"{str(path)!r} is not an mjexplore policy export (format "
@@ -324,7 +336,7 @@ class OnnxActor:
         return logits, action
 
 
-def torch_actor_logits(policy: nn.Module, obs: dict[str, np.ndarray],
+def torch_actor_logits(policy: MaskableActorCriticPolicy, obs: dict[str, np.ndarray],
                        action_mask: np.ndarray) -> torch.Tensor:
     """The SB3 policy's own masked logits (B, A) for batched observation arrays: the
     reference the export is checked against."""

@@ -28,11 +28,12 @@ the mask), made by the GVN explorer.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
 from gymnasium import spaces
+from sb3_contrib.common.maskable.distributions import MaskableCategorical
 from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
@@ -57,7 +58,7 @@ class GvnExtractor(BaseFeaturesExtractor):
                  tcn_kernel: int = 3, tcn_dilations: tuple[int, ...] = (1, 2, 4),
                  attention_layers: int = 1, attention_heads: int = 4,
                  prior_temperature: float | None = None, prior_pocket_m: float = 0.0) -> None:
-        n = observation_space["node_mask"].shape[0]
+        n = cast(spaces.Box, observation_space["node_mask"]).shape[0]
         prior = n if prior_temperature is not None else 0
         privileged = privileged_size(observation_space)
         super().__init__(observation_space,
@@ -65,10 +66,10 @@ class GvnExtractor(BaseFeaturesExtractor):
         self.privileged = privileged > 0
         self.num_nodes = n
         features = "v2" if "memory_pose" in observation_space.spaces else "v1"
-        if prior and (features != "v2" or prior_temperature <= 0):
+        if prior_temperature is not None and (features != "v2" or prior_temperature <= 0):
             raise ValueError("prior_temperature needs the v2 observation (its path "
                              "feature) and must be > 0 (metres)")
-        num_features = observation_space["node_features"].shape[0] // n
+        num_features = cast(spaces.Box, observation_space["node_features"]).shape[0] // n
         if prior_pocket_m and (not prior or num_features <= POCKET):
             raise ValueError("prior_pocket_m needs prior_temperature and the v3 observation "
                              "(its pocket feature)")
@@ -104,7 +105,7 @@ def privileged_size(observation_space: spaces.Dict) -> int:
     """Ground-truth critic inputs in an observation space (0 without a ``privileged``
     entry; see :mod:`mjexplore.envs.observation`)."""
     space = observation_space.spaces.get("privileged")
-    return 0 if space is None else int(space.shape[0])
+    return 0 if space is None else int(cast(spaces.Box, space).shape[0])
 
 
 class GvnHeads(nn.Module):
@@ -198,6 +199,9 @@ class GvnPolicy(MaskableActorCriticPolicy):
         Other arguments as ``MaskableActorCriticPolicy``.
     """
 
+    # SB3 types it as its own MlpExtractor; custom heads are its documented extension.
+    mlp_extractor: GvnHeads  # type: ignore[assignment]
+
     def __init__(self, observation_space: spaces.Dict, action_space: spaces.Discrete,
                  lr_schedule, masking: str = "iam", hidden: int = 64, gcn_layers: int = 3,
                  tcn_kernel: int = 3, tcn_dilations: tuple[int, ...] = (1, 2, 4),
@@ -242,9 +246,11 @@ class GvnPolicy(MaskableActorCriticPolicy):
         return data
 
     def _build_mlp_extractor(self) -> None:
-        self.mlp_extractor = GvnHeads(int(self.action_space.n), self.hidden,
+        action_space = cast(spaces.Discrete, self.action_space)  # As passed to __init__.
+        self.mlp_extractor = GvnHeads(int(action_space.n), self.hidden,
                                       prior=self.prior_temperature is not None,
-                                      privileged=privileged_size(self.observation_space),
+                                      privileged=privileged_size(
+                                          cast(spaces.Dict, self.observation_space)),
                                       residual_scale=self.residual_scale)
 
     def _build(self, lr_schedule) -> None:
@@ -252,11 +258,12 @@ class GvnPolicy(MaskableActorCriticPolicy):
         # The actor's logits come out of GvnHeads already (one per node).
         self.action_net = nn.Identity()
         if self.ortho_init:
-            logit_layer = self.mlp_extractor.actor[-1]
+            logit_layer = cast(nn.Linear, self.mlp_extractor.actor[-1])  # See GvnHeads.
             nn.init.orthogonal_(logit_layer.weight, gain=self.actor_gain)
             nn.init.zeros_(logit_layer.bias)
-        self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1),
-                                              **self.optimizer_kwargs)
+        # SB3 types optimizer_class as the bare Optimizer, without lr (its _build ignores it).
+        self.optimizer = self.optimizer_class(self.parameters(),  # type: ignore[call-arg]
+                                              lr=lr_schedule(1), **self.optimizer_kwargs)
 
     def _real_nodes(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
         return obs["node_mask"] > 0
@@ -286,11 +293,14 @@ class GvnPolicy(MaskableActorCriticPolicy):
             return super().evaluate_actions(obs, actions, action_masks)
         # The actor's and the critic's passes apart (each its own encoder in the recipes,
         # so no work is repeated), the prior read off the observation.
-        distribution = self.get_distribution(obs, action_masks)
+        # sb3-contrib types the masks as an ndarray; it takes tensors too (th.as_tensor).
+        distribution = self.get_distribution(obs, action_masks)  # type: ignore[arg-type]
         values = self.predict_values(obs)
-        prior = self.pi_features_extractor.prior_logits(obs)
-        relative = -kl_to_prior(distribution.distribution.logits, prior,
-                                distribution.distribution.masks)
+        extractor = cast(GvnExtractor, self.pi_features_extractor)  # features_extractor_class
+        prior = extractor.prior_logits(obs)
+        assert prior is not None  # entropy_reference 'prior' needs prior_temperature.
+        categorical = cast(MaskableCategorical, distribution.distribution)  # Discrete actions.
+        relative = -kl_to_prior(categorical.logits, prior, categorical.masks)
         return values, distribution.log_prob(actions), relative
 
 

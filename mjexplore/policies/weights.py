@@ -16,7 +16,7 @@ import hashlib
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import torch
 
@@ -24,6 +24,9 @@ from mjexplore.errors import UserInputError
 from mjexplore.io.atomic import write_bytes_atomic
 from mjexplore.io.provenance import file_sha256 as weights_sha256  # noqa: F401 - re-exported
 from mjexplore.io.tensor_file import read_tensor_file
+
+if TYPE_CHECKING:
+    from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
 
 FORMAT = "mjexplore-policy-v1"
 ALIASES = ("pi_features_extractor.", "vf_features_extractor.")
@@ -77,7 +80,7 @@ def _check_intact(path: Path, tensors: dict[str, torch.Tensor], meta: dict[str, 
         if tensors_sha256(tensors) != stored:
             raise UserInputError(
                 f"the weights in {str(path)!r} are damaged (their checksum does not match): "
-                "re-export them (python tools/export_policy.py CHECKPOINT OUT.safetensors) "
+                "re-export them (mjexplore export-policy CHECKPOINT OUT.safetensors) "
                 "or take a shipped model ('mjexplore policies' lists them).")
         return
     model = shipped_model_of(path)
@@ -183,7 +186,8 @@ def load_policy(path: str | os.PathLike, expected_kind: str | None = None):
     return policy, meta
 
 
-def actor_logits(policy: torch.nn.Module, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+def actor_logits(policy: MaskableActorCriticPolicy,
+                 obs: dict[str, torch.Tensor]) -> torch.Tensor:
     """The actor's unmasked logits (B, A) for a batch of observation tensors, whether the
     critic shares the actor's encoder or has its own (``share_features_extractor``; then
     only the actor's runs, as in SB3's ``get_distribution``)."""

@@ -112,7 +112,7 @@ class EpisodeVideo:
         self._next = 0.0
         self._ter = None
         self._frontiers = None
-        self._gains = None
+        self._gains: np.ndarray | None = None
         self._episode = None
         self._last_frame_time = -1.0
 

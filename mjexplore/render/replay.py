@@ -12,6 +12,7 @@ import json
 import math
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
@@ -26,11 +27,14 @@ from mjexplore.render.scene_view import SceneView
 from mjexplore.topology.frontiers import estimated_information_gain, find_frontiers
 from mjexplore.topology.pipeline import TopologyTracker
 
+if TYPE_CHECKING:
+    from google.protobuf.message import Message
+
 # TER node colours in the MCAP (see mcap_log._NODE_COLOURS), by their green channel.
 _FLAG_BY_GREEN = {0.8: 0.0, 0.3: 1.0, 0.2: -1.0}
 
 
-def _decoders(summary) -> dict[int, type]:
+def _decoders(summary) -> dict[int, type[Message]]:
     from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
     pool = descriptor_pool.DescriptorPool()
@@ -72,6 +76,7 @@ class RecordedEpisode:
                 classes = _decoders(reader.get_summary())
                 for schema, channel, message in reader.iter_messages(
                         topics=["/pose", "/map", "/ter", "/goal"]):
+                    assert schema is not None  # Foxglove writes each channel's schema.
                     msg = classes[schema.id].FromString(message.data)
                     self._add(channel.topic, message.log_time * 1e-9, msg)
         except OSError as exc:

@@ -293,7 +293,8 @@ def carve_office(canvas: Canvas, region: Rect, rng: np.random.Generator,
     yc1 = yc0 + cw
     regions = [_Region(Rect(r.x0, yc0, r.x1, yc1), corridor=True)]
     n_cross = max(0, round(r.w / 16.0))
-    xs = np.sort(_uniform(rng, r.x0 + lo, r.x1 - lo - cw, size=n_cross)) if n_cross else []
+    xs: np.ndarray | list[float] = (
+        np.sort(_uniform(rng, r.x0 + lo, r.x1 - lo - cw, size=n_cross)) if n_cross else [])
     for y0, y1 in ((r.y0, yc0), (yc1, r.y1)):
         cuts = [x for x in xs if rng.random() < 0.75]
         edges = [r.x0]

@@ -59,10 +59,10 @@ def scene_from_grid(grid: GridMap, name: str, source: dict,
         start = (round(ox + sx, 4), round(oy + sy, 4), yaw)
     check_start(grid, start)
     seed_cell = tuple(grid.world_to_cell(np.array(start[:2])))
-    _, reach = reachable_region(free, grid.resolution, seed_cell)  # type: ignore[arg-type]
+    _, reachable = reachable_region(free, grid.resolution, seed_cell)
     metadata = dict(source)
-    metadata["reachable_free_fraction"] = round(float(reach.sum() / free.sum()), 4)
-    return Scene(name=name, ground_truth=grid, solid=~free, start=tuple(start),
+    metadata["reachable_free_fraction"] = round(float(reachable.sum() / free.sum()), 4)
+    return Scene(name=name, ground_truth=grid, solid=~free, start=(start[0], start[1], start[2]),
                  metadata=metadata)
 
 
@@ -101,6 +101,7 @@ def scene_from_image(image_path: str | os.PathLike, resolution: float,
     grid = GridMap(np.ascontiguousarray(data), float(resolution), (0.0, 0.0, 0.0))
     if start is None:
         color = cv2.imread(str(image_path), cv2.IMREAD_COLOR)
+        assert color is not None  # read_image_gray has read it.
         marker = np.all(color[::-1] == START_MARKER_RGB[::-1], axis=2)
         if marker.any():
             rows, cols = np.nonzero(marker)

@@ -69,7 +69,7 @@ import logging
 import math
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import mujoco
 import numba
@@ -186,7 +186,8 @@ def load_mesh(path: str | os.PathLike, scale: float = 1.0, up_axis: str | None =
     if not path.is_file():
         raise UserInputError(f"mesh {str(path)!r} does not exist.")
     try:
-        loaded = trimesh.load(str(path), force="scene", process=False)
+        # force="scene" makes it a Scene (trimesh types the result as any Geometry).
+        loaded = cast(trimesh.Scene, trimesh.load(str(path), force="scene", process=False))
         parts = []
         for node in loaded.graph.nodes_geometry:
             transform, name = loaded.graph[node]
@@ -564,7 +565,7 @@ def scene_from_mesh(path: str | os.PathLike, config: MeshImportConfig | None = N
         start = (round(x0 + float(sx), 4), round(y0 + float(sy), 4), yaw)
     check_start(grid, start)
     seed_cell = tuple(grid.world_to_cell(np.array(start[:2])))
-    cspace, free = reachable_region(candidate, res, seed_cell)  # type: ignore[arg-type]
+    cspace, free = reachable_region(candidate, res, seed_cell)
     data = np.full(shape, UNKNOWN, np.int8)
     data[inside | wall] = OCCUPIED
     data[free] = FREE
@@ -594,8 +595,10 @@ def scene_from_mesh(path: str | os.PathLike, config: MeshImportConfig | None = N
         "unreachable_room_area_m2": round(lost_m2, 2),
     }
     return Scene(name=name or path.stem, ground_truth=ground_truth, solid=~free,
-                 start=tuple(start), metadata=metadata,  # type: ignore[arg-type]
-                 visual_mesh=None if visual is None else visual.export(file_type="stl"))
+                 start=(start[0], start[1], start[2]), metadata=metadata,
+                 # An STL export is bytes (trimesh types it as any export).
+                 visual_mesh=None if visual is None else cast(bytes, visual.export(
+                     file_type="stl")))
 
 
 def visual_mesh(mesh: trimesh.Trimesh, grid: GridMap) -> trimesh.Trimesh | None:

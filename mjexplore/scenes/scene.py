@@ -15,7 +15,7 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import cv2
 import mujoco
@@ -242,7 +242,7 @@ def build_spec(scene: Scene) -> mujoco.MjSpec:
 def preview_image(grid: GridMap, start: tuple[float, float, float] | None = None,
                   min_size: int = 600) -> np.ndarray:
     """BGR picture of a map: free white, occupied dark, unknown grey, north up; start in red."""
-    img = np.full(grid.shape, 150, np.uint8)
+    img: np.ndarray = np.full(grid.shape, 150, np.uint8)
     img[grid.free] = 255
     img[grid.occupied] = 40
     scale = max(1, math.ceil(min_size / max(grid.shape)))
@@ -338,23 +338,25 @@ def load_scene_files(path: str | os.PathLike) -> SceneFiles:
     meta: dict[str, Any] = {}
     if (folder / "scene.json").is_file():
         try:
-            meta = json.loads((folder / "scene.json").read_text())
+            loaded = json.loads((folder / "scene.json").read_text())
         except ValueError as exc:
-            meta = f"not valid JSON ({exc})"
-        if not isinstance(meta, dict):
+            loaded = f"not valid JSON ({exc})"
+        if not isinstance(loaded, dict):
             raise UserInputError(f"{str(folder / 'scene.json')!r} is damaged "
-                                 f"({meta if isinstance(meta, str) else 'not a JSON object'}): "
+                                 f"({loaded if isinstance(loaded, str) else 'not a JSON object'}): "
                                  "regenerate the scene with 'mjexplore scene-gen'.")
+        meta = loaded
     grid = read_map(folder / "map.yaml") if (folder / "map.yaml").is_file() else None
     if grid is not None and not grid.free.any():
         raise UserInputError(f"the map of scene {str(folder)!r} has no free cell (map.pgm is "
                              "all wall or unknown): regenerate the scene with 'mjexplore "
                              "scene-gen', or fix map.pgm (free cells white).")
     if "start" in meta:
-        start = tuple(float(v) for v in meta["start"])
+        # (x, y, yaw), as 'mjexplore scene-gen' writes it.
+        start = cast("tuple[float, float, float]", tuple(float(v) for v in meta["start"]))
     else:
         start = _start_from_mjcf(path)
-    return SceneFiles(path, grid, start, meta)  # type: ignore[arg-type]
+    return SceneFiles(path, grid, start, meta)
 
 
 def _start_from_mjcf(path: Path) -> tuple[float, float, float]:

@@ -153,7 +153,7 @@ def draw_starts(grid: GridMap, first: Pose, n: int, rng: np.random.Generator,
     Raises:
         UserInputError: the ring has no room for ``n`` robots (says how many fit).
     """
-    starts = [tuple(float(v) for v in first)]
+    starts: list[Pose] = [(float(first[0]), float(first[1]), float(first[2]))]
     if n <= 1:
         return starts[:n]
     res = grid.resolution

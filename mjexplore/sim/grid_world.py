@@ -252,6 +252,7 @@ class GridWorld(RobotWorld):
             lidar_cfg = dataclasses.replace(
                 lidar_cfg, num_beams=lidar_cfg.num_beams * travel.beam_factor)
         self._rng = np.random.default_rng(self.config.seed)
+        assert self.scene.ground_truth is not None  # wall_clearance refused a scene without one.
         self.lidar = GridLidar(self.scene.ground_truth, lidar_cfg, self._rng)
         self._skew = lidar_cfg.motion_skew
         self.odometry = self.config.make_odometry()
@@ -305,6 +306,7 @@ class GridWorld(RobotWorld):
         rendering)."""
         m = self.model
         d = self._data
+        assert d is not None  # Made with the model.
         base = m.body(BASE_BODY).id
         i = m.jnt_qposadr[m.body_jntadr[base]]
         x, y, yaw = self._pose
@@ -391,6 +393,7 @@ class GridWorld(RobotWorld):
         """Moves the base from step ``self._steps`` to ``stop`` (and sets the step count)."""
         twist = mean_ramp_twist(self._cmd_base, self._cmd, self._steps, stop,
                                 self._sample_every)
+        assert self.scene.ground_truth is not None  # See __init__.
         (x, y, yaw), self._twist, (left, right), self._blocked = kinematic_step(
             self._clearance, self.scene.ground_truth, self._pose, twist,
             (stop - self._steps) * self.timestep)

@@ -319,19 +319,19 @@ class WheelOdometry:
         """(forward speed m/s, yaw rate rad/s) over the last update."""
         return np.array(self._twist)
 
-    def reset(self, wheel_angles: np.ndarray, stamp: float,
+    def reset(self, wheel_angles: np.ndarray | tuple[float, float], stamp: float,
               pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
               true_yaw: float | None = None) -> None:
         """Starts integrating from ``pose`` with the current wheel angles (radians) and,
         with a gyro, the base's true yaw (radians, any frame)."""
-        self._pose = tuple(float(v) for v in pose)
+        self._pose = (float(pose[0]), float(pose[1]), float(pose[2]))
         self._twist = (0.0, 0.0)
         self._last_angles = (float(wheel_angles[0]), float(wheel_angles[1]))
         self._last_time = stamp
         if self.gyro is not None:
             self._last_yaw = _required_yaw(true_yaw)
 
-    def update(self, wheel_angles: np.ndarray, stamp: float,
+    def update(self, wheel_angles: np.ndarray | tuple[float, float], stamp: float,
                true_yaw: float | None = None) -> None:
         """Integrates the motion since the last update (exact for constant curvature);
         ``true_yaw`` (radians, the frame of :meth:`reset`'s) is what the gyro turns by."""

@@ -383,6 +383,8 @@ class Simulator(RobotWorld):
     def _move_kinematic(self, stop: int) -> None:
         """Moves the base from step ``self._steps`` to ``stop`` along the commanded unicycle
         path (the wheel set-points ramp linearly over each sample period)."""
+        # Kinematic dynamics: the clearance was made from the ground truth.
+        assert self._clearance is not None and self.scene.ground_truth is not None
         d = self.data
         v, w = mean_ramp_twist(self._cmd_base, self._cmd, self._steps, stop,
                                self._sample_every)

@@ -27,6 +27,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+from collections.abc import Sequence
+from typing import Protocol
 
 import mujoco
 import numpy as np
@@ -34,7 +36,7 @@ import numpy as np
 from mjexplore.errors import UserInputError
 from mjexplore.robot import motion_profile
 from mjexplore.scenes.scene import SceneFiles, load_scene_files
-from mjexplore.scenes.team import SILHOUETTE, robot_prefix, team_spec
+from mjexplore.scenes.team import SILHOUETTE, Pose, robot_prefix, team_spec
 from mjexplore.sim.kinematics import KinematicsRecorder
 from mjexplore.sim.lidar import LaserScan, Lidar, LidarConfig
 from mjexplore.sim.motion import BODY_CENTRE_X, BODY_RADIUS, wall_clearance
@@ -46,6 +48,12 @@ from mjexplore.sim.simulator import (
     Simulator,
     _steps_per,
 )
+
+
+def float_pose(values) -> Pose:
+    """A start pose (x, y, yaw) given as any three numbers, as floats."""
+    x, y, yaw = (float(v) for v in values)
+    return x, y, yaw
 
 
 def robot_seed(seed: int, i: int) -> int:
@@ -125,6 +133,7 @@ class TeamLidar(Lidar):
         ids = self._silhouettes
         if len(ids) == 0:
             return
+        assert self._half is not None  # Set whenever there are silhouettes.
         centres = data.geom_xpos[ids]
         reach = self.config.range_max + 0.3
         near = np.hypot(centres[:, 0] - origin[0], centres[:, 1] - origin[1]) <= reach
@@ -142,13 +151,21 @@ class TeamLidar(Lidar):
                 self._normal[i0:i1][nearer] = normal[nearer]
 
 
+class _Team(Protocol):
+    """What a robot of a team sees of its team (:class:`TeamSimulator`, the grid's team)."""
+
+    @property
+    def robots(self) -> Sequence[TeammateBody]: ...
+
+
 class TeammateBody:
     """What a robot of a team adds to its world: contacts with teammates count as
     collisions, and its body's bounding circle for the teammates' costmaps and lidars."""
 
     _in_contact: bool
     _teammate_contact: bool
-    _team: TeamSimulator
+    _team: _Team
+    pose: np.ndarray  # The world's (x, y, yaw) of base_link.
 
     @property
     def in_collision(self) -> bool:
@@ -187,6 +204,8 @@ class TeamRobot(TeammateBody, Simulator):
             ``COLLISION_GAP_S`` apart counting as one.
     """
 
+    _team: TeamSimulator
+
     def __init__(self, team: TeamSimulator, index: int) -> None:  # noqa: D107
         # Not Simulator.__init__: the team owns the model, the data and the clock.
         self._team = team
@@ -213,13 +232,14 @@ class TeamRobot(TeammateBody, Simulator):
         self._start = np.zeros(3)
 
     @property
+    # The team's clock, read-only here: the robot never steps alone.
     def _steps(self) -> int:  # type: ignore[override]
         return self._team._steps
 
-    def reset(self, pose=None) -> LaserScan:  # type: ignore[override]
+    def reset(self, pose=None) -> LaserScan:
         raise TypeError("a team's robots are reset together: call TeamSimulator.reset")
 
-    def step(self, duration: float) -> list[LaserScan]:  # type: ignore[override]
+    def step(self, duration: float) -> list[LaserScan]:
         raise TypeError("a team's robots step together: call TeamSimulator.step")
 
     def _place(self, pose: tuple[float, float, float]) -> None:
@@ -300,7 +320,7 @@ class TeamSimulator:
                                  f"{self.config.dynamics!r}: use dynamics physics or "
                                  "kinematic.")
         self.scene = scene if isinstance(scene, SceneFiles) else load_scene_files(scene)
-        self.starts = [tuple(float(v) for v in p) for p in starts]
+        self.starts = [float_pose(p) for p in starts]
         spec = team_spec(self.scene.xml, self.starts)
         try:
             self.model = spec.compile()
@@ -362,7 +382,7 @@ class TeamSimulator:
             Each robot's first scan, taken at time 0.
         """
         m, d = self.model, self.data
-        poses = self.starts if poses is None else [tuple(float(v) for v in p) for p in poses]
+        poses = self.starts if poses is None else [float_pose(p) for p in poses]
         if len(poses) != len(self.robots):
             raise ValueError(f"{len(poses)} poses for {len(self.robots)} robots")
         mujoco.mj_resetData(m, d)

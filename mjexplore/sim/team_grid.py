@@ -25,7 +25,13 @@ from mjexplore.sim.grid_world import GridLidar, GridWorld
 from mjexplore.sim.lidar import LaserScan
 from mjexplore.sim.motion import BODY_RADIUS
 from mjexplore.sim.simulator import COLLISION_GAP_S, SimConfig
-from mjexplore.sim.team import TeammateBody, TeamSimulator, ray_boxes, robot_seed
+from mjexplore.sim.team import (
+    TeammateBody,
+    TeamSimulator,
+    float_pose,
+    ray_boxes,
+    robot_seed,
+)
 
 SCAN_HEIGHT = 0.132  # base_scan above the floor, metres (the MJCF's).
 
@@ -80,12 +86,14 @@ class TeamGridLidar(GridLidar):
 class TeamGridRobot(TeammateBody, GridWorld):
     """One robot of a :class:`TeamGridWorld`: the grid world's robot; the team steps."""
 
+    _team: TeamGridWorld
+
     def __init__(self, team: TeamGridWorld, index: int, start) -> None:  # noqa: D107
         self._team = team
         self.index = index
         self.name = robot_prefix(index).rstrip("/")
         config = dataclasses.replace(team.config, seed=robot_seed(team.config.seed, index))
-        scene = dataclasses.replace(team.scene, start=tuple(float(v) for v in start))
+        scene = dataclasses.replace(team.scene, start=float_pose(start))
         super().__init__(scene, config)
         self.lidar = TeamGridLidar(team, index, scene.ground_truth, self.lidar.config, self._rng)
         self.robot_contacts = 0
@@ -126,7 +134,7 @@ class TeamGridWorld:
         self.scene = scene if isinstance(scene, SceneFiles) else load_scene_files(scene)
         if self.scene.ground_truth is None:
             raise UserInputError("the grid world needs the scene's ground-truth map.")
-        self.starts = [tuple(float(v) for v in p) for p in starts]
+        self.starts = [float_pose(p) for p in starts]
         self.robots: list[TeamGridRobot] = []
         for i, start in enumerate(self.starts):
             self.robots.append(TeamGridRobot(self, i, start))
@@ -154,7 +162,7 @@ class TeamGridWorld:
     def reset(self, poses: list | None = None) -> list[LaserScan]:
         """Puts every robot at rest at ``poses`` (default: the starts) at time 0; returns
         each robot's first scan (taken with every robot in place)."""
-        poses = self.starts if poses is None else [tuple(float(v) for v in p) for p in poses]
+        poses = self.starts if poses is None else [float_pose(p) for p in poses]
         for r, pose in zip(self.robots, poses):
             r._pose = pose  # Everyone in place before the first scans.
         for r, pose in zip(self.robots, poses):

@@ -133,8 +133,8 @@ def _clusters(grid: GridMap, cells: np.ndarray, lab: np.ndarray, min_size: int,
     groups = np.split(allc, np.flatnonzero(np.diff(gid)) + 1)
     # Per-group centre, the cell nearest to it, and that cell's free 4-neighbour: at once.
     counts = np.bincount(gid).astype(float)
-    means = np.column_stack([np.bincount(gid, allc[:, 0]), np.bincount(gid, allc[:, 1])])
-    means /= counts[:, None]
+    sums = np.column_stack([np.bincount(gid, allc[:, 0]), np.bincount(gid, allc[:, 1])])
+    means = sums / counts[:, None]
     d2 = ((allc - means[gid]) ** 2).sum(axis=1)
     first = np.lexsort((d2, gid))
     nearest = allc[first[np.r_[0, np.flatnonzero(np.diff(gid[first])) + 1]]]

@@ -156,6 +156,7 @@ class TopologyTracker:
         free = grid.free
         frontiers = self.frontiers(grid, free)
         if cfg.gain == "ground_truth":
+            assert self.ground_truth is not None  # Checked above.
             gains = information_gain(grid, self.ground_truth, frontiers)
         else:
             gains = estimated_information_gain(grid, frontiers, cfg.gain_radius)

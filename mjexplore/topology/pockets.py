@@ -266,7 +266,7 @@ class PocketPredictor:
 
 def _window_digest(window: np.ndarray, cells: np.ndarray, length: np.float32) -> bytes:
     """What decides a frontier's prediction (its window, cells and length), digested."""
-    digest = hashlib.blake2b(memoryview(window), digest_size=16, key=length.tobytes())
+    digest = hashlib.blake2b(window.data, digest_size=16, key=length.tobytes())
     digest.update(np.ascontiguousarray(cells, np.int64).tobytes())
     return digest.digest()
 
