@@ -183,6 +183,18 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> None:
     write_bytes_atomic(path, text.encode("utf-8"))
 
 
+def _folder_beside(path: Path) -> tuple[Path, list[Path]]:
+    """A new temporary folder beside ``path`` (named after it, hidden) and the parent folders
+    made for it (:func:`make_folders`; none are left if it cannot be made)."""
+    made = make_folders(path.parent)
+    try:
+        return Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp",
+                                     dir=path.parent)), made
+    except BaseException:
+        remove_made_folders(made)
+        raise
+
+
 @contextlib.contextmanager
 def atomic_directory(path: str | os.PathLike, marker: str) -> Iterator[Path]:
     """Yields a temporary folder that replaces ``path`` as a whole when the block succeeds.
@@ -209,12 +221,7 @@ def atomic_directory(path: str | os.PathLike, marker: str) -> Iterator[Path]:
     check_output_folder(path, "output folder")
     if path.exists():
         _probe_writable(path.parent, "output folder", path)  # The new one is made beside it.
-    made = make_folders(path.parent)
-    try:
-        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
-    except BaseException:
-        remove_made_folders(made)
-        raise
+    tmp, made = _folder_beside(path)
     try:
         give_usual_permissions(tmp)
         yield tmp
@@ -238,12 +245,7 @@ def staged_files(folder: str | os.PathLike) -> Iterator[Path]:
     raises, they are removed and ``folder`` is left as it was.
     """
     folder = Path(folder)
-    made = make_folders(folder.parent)
-    try:
-        tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
-    except BaseException:
-        remove_made_folders(made)
-        raise
+    tmp, made = _folder_beside(folder)
     try:
         yield tmp
         folder.mkdir(exist_ok=True)
