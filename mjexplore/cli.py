@@ -494,6 +494,26 @@ def _add_ray_argument(parser: argparse.ArgumentParser, what: str, default: str,
                         f"{more} (default: {default})")
 
 
+MAX_SEEDS = 10_000  # A sweep's seeds; more is a typo, not an experiment.
+MAX_WORKERS = 1_024
+
+
+def _check_sweep_size(args: argparse.Namespace) -> None:
+    """Refuses --seeds and --workers out of their bounds."""
+    if not 1 <= args.seeds <= MAX_SEEDS or not 1 <= args.workers <= MAX_WORKERS:
+        raise UserInputError(f"--seeds must be 1 to {MAX_SEEDS:,} and --workers 1 to "
+                             f"{MAX_WORKERS:,} (a cluster's CPUs: --ray).")
+
+
+def _refuse_repeats(lists: tuple[tuple[str, list[str]], ...]) -> None:
+    """Refuses a name given twice in a sweep's list (it would run twice into one folder)."""
+    for flag, names in lists:
+        repeated = sorted({n for n in names if names.count(n) > 1})
+        if repeated:
+            raise UserInputError(f"{flag} names {', '.join(repeated)} more than once: each "
+                                 "would run twice into the same run folders; name each once.")
+
+
 def _bench_team(args: argparse.Namespace) -> int:
     """``bench --robots N``: a sweep of team episodes (eval/team_sweep.py)."""
     from mjexplore.eval.team_run import team_explorers
@@ -508,8 +528,8 @@ def _bench_team(args: argparse.Namespace) -> int:
     if not methods or not scenes or not placements:
         raise UserInputError("--scenes, --explorers and --starts must each name one or more, "
                              "comma-separated.")
-    if args.workers < 1 or args.seeds < 1:
-        raise UserInputError("--workers and --seeds must be at least 1.")
+    _check_sweep_size(args)
+    _refuse_repeats((("--scenes", scenes), ("--explorers", methods), ("--starts", placements)))
     if args.localization != "ground_truth" or args.mcap is not None:
         raise UserInputError("a team sweep runs with --localization ground_truth and without "
                              "--mcap.")
@@ -541,14 +561,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
             raise UserInputError(f"{flag} {getattr(args, flag[2:])!r} names nothing: give one "
                                  f"or more, comma-separated (e.g. {example}), or drop {flag} "
                                  "for its default.")
-    if args.workers < 1 or args.seeds < 1:
-        raise UserInputError("--workers and --seeds must be at least 1.")
+    _check_sweep_size(args)
     check_output_folder(args.out)
-    for flag, names in (("--scenes", scenes), ("--explorers", explorers)):
-        repeated = sorted({n for n in names if names.count(n) > 1})
-        if repeated:
-            raise UserInputError(f"{flag} names {', '.join(repeated)} more than once: each "
-                                 "would run twice into the same run folders; name each once.")
+    _refuse_repeats((("--scenes", scenes), ("--explorers", explorers)))
     results = run_sweep(scenes, [spec.text for spec in specs], list(range(args.seeds)),
                         Path(args.out),
                         _episode_config(args), workers=args.workers, mcap=args.mcap,

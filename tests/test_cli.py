@@ -75,6 +75,9 @@ BAD = {
     "negative max time": lambda p: ["explore", "--max-time=-1", "--out", str(p / "o")],
     "bench unknown scene": lambda p: ["bench", "--scenes", "atlantis", "--out", str(p / "o")],
     "bench no workers": lambda p: ["bench", "--workers", "0", "--out", str(p / "o")],
+    "bench a billion seeds": lambda p: ["bench", "--seeds", "1000000000", "--out", str(p / "o")],
+    "bench team placement twice": lambda p: ["bench", "--robots", "2", "--starts", "drawn,drawn",
+                                             "--out", str(p / "o")],
     "bench unknown explorer": lambda p: ["bench", "--explorers", "nearest,magic", "--out",
                                          str(p / "o")],
     # Scene files.
