@@ -467,6 +467,17 @@ def cmd_export_policy(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_plot_training(args: argparse.Namespace) -> int:
+    from mjexplore.eval.training_report import plot_training
+
+    print(json.dumps(plot_training(args.run, args.out, workers=args.workers,
+                                   baselines=not args.no_baselines,
+                                   recompute=args.recompute_baselines,
+                                   departures_of_shipped=args.departures,
+                                   weights=args.weights)))
+    return 0
+
+
 def cmd_policies(args: argparse.Namespace) -> int:
     from mjexplore.policies.models import DEFAULT_MODEL, MODELS_DIR, shipped_models
 
@@ -979,6 +990,31 @@ def build_parser() -> argparse.ArgumentParser:
                     "another (default: the checkpoint's own)")
     ex.set_defaults(func=cmd_export_policy)
 
+    pt = sub.add_parser(
+        "plot-training", help="a training run's curves against its prior and the oracle",
+        description="Draw a run folder's learning curve (mean validation exploration time "
+                    "against decisions trained, with pocket_nearest, nearest and the oracle "
+                    "measured on the same layouts as lines, cached in RUN/baselines.json), "
+                    "its per-layout evaluations and episode return and length into OUT.png, "
+                    "and print the run's record as one JSON line (docs/guide/training.md).")
+    pt.add_argument("run", type=Path, help="a run folder of mjexplore train --out")
+    pt.add_argument("out", type=Path, help="the PNG to write")
+    pt.add_argument("--workers", type=_count, default=2,
+                    help="processes measuring the baselines (default: %(default)s)")
+    baselines = pt.add_mutually_exclusive_group()
+    baselines.add_argument("--recompute-baselines", action="store_true",
+                           help="measure the baselines again even if RUN/baselines.json has "
+                           "them")
+    baselines.add_argument("--no-baselines", action="store_true",
+                           help="neither measure nor show the baselines")
+    pt.add_argument("--departures", action="store_true",
+                    help="run the shipped policy's greedy episodes on the validation layouts "
+                    "and count its departures from its prior (kept in RUN/departures.json)")
+    pt.add_argument("--weights", type=Path, default=None,
+                    help="the policy for --departures (default: RUN/best.safetensors, else "
+                    "RUN/policy.safetensors)")
+    pt.set_defaults(func=cmd_plot_training)
+
     n_scenes, n_explorers = len(BENCH_SCENES.split(",")), len(BENCH_EXPLORERS.split(","))
     bench = sub.add_parser(
         "bench", help="sweep scenes x explorers x seeds; tables and plots",
@@ -1173,7 +1209,7 @@ def build_parser() -> argparse.ArgumentParser:
     ct = sub.add_parser(
         "collect-training", help="keep a training run's record for the results report",
         description="Keep what the report needs of a training run (its validation "
-                    "evaluations, the baselines tools/plot_training.py measured on the same "
+                    "evaluations, the baselines mjexplore plot-training measured on the same "
                     "layouts, the resolved config, decisions trained and the sessions' hosts, "
                     "cores and wall time; no weights) in DATA/training/NAME/, for the "
                     "report's learning curve. Collect again as the run goes on.")

@@ -1,12 +1,11 @@
-"""The learning-curve report of a run folder (tools/plot_training.py and
-mjexplore/eval/learning_curve.py): the curve, the cached baselines, the JSON figures, and how
-often a residual policy departs from its prior."""
+"""The learning-curve report of a run folder (mjexplore plot-training:
+mjexplore/eval/training_report.py and learning_curve.py): the curve, the cached baselines,
+the JSON figures, and how often a residual policy departs from its prior."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +13,8 @@ import pytest
 import torch
 import yaml
 
+import mjexplore.eval.training_report as plot_training
+from mjexplore.cli import main as cli_main
 from mjexplore.config import from_dict, to_dict
 from mjexplore.eval.learning_curve import prior_departures
 from mjexplore.learning.evaluation import NearestNodeRule, evaluate_policy_episodes
@@ -22,9 +23,10 @@ from mjexplore.learning.train_config import TrainConfig
 from mjexplore.policies.registry import layout_of
 from mjexplore.policies.weights import save_policy_weights
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
 
-import plot_training  # noqa: E402
+def _plot(argv: list[str]) -> None:
+    """``mjexplore plot-training ARGV``, which must succeed."""
+    assert cli_main(["plot-training", *argv]) == 0
 
 EPISODE = {"max_time": 300.0, "sim": {"dynamics": "grid"},
            "navigator": {"replan_rate_hz": 0.5, "replan_when_blocked": True}}
@@ -82,7 +84,7 @@ def test_curve_json_fields_and_baselines_measured_once(tmp_path, monkeypatch, ca
     run = _run(tmp_path)
     calls: list = []
     monkeypatch.setattr(plot_training, "measure_baselines", _fake_measure(calls))
-    plot_training.main([str(run), str(tmp_path / "curve.png"), "--workers", "1"])
+    _plot([str(run), str(tmp_path / "curve.png"), "--workers", "1"])
     figures = json.loads(capsys.readouterr().out.splitlines()[-1])
     assert (tmp_path / "curve.png").read_bytes()[:4] == b"\x89PNG"
     assert [(p["steps"], p["mean_exploration_time_s"], p["explored"]) for p in
@@ -112,11 +114,11 @@ def test_curve_json_fields_and_baselines_measured_once(tmp_path, monkeypatch, ca
     assert figures["best_vs_oracle"]["ratio"] == pytest.approx((1.5 + 1.5) / 2)
     assert "departures" not in figures and "shipped" not in figures
 
-    plot_training.main([str(run), str(tmp_path / "curve.png")])  # Cached: not measured.
+    _plot([str(run), str(tmp_path / "curve.png")])  # Cached: not measured.
     again = json.loads(capsys.readouterr().out.splitlines()[-1])
     assert again["baselines"]["cached"] is True and len(calls) == 1
     assert again["best_vs_pocket_nearest"] == paired
-    plot_training.main([str(run), str(tmp_path / "curve.png"), "--recompute-baselines"])
+    _plot([str(run), str(tmp_path / "curve.png"), "--recompute-baselines"])
     assert json.loads(capsys.readouterr().out.splitlines()[-1])["baselines"]["cached"] is False
     assert len(calls) == 2
     stored = json.loads((run / "baselines.json").read_text())
@@ -124,13 +126,13 @@ def test_curve_json_fields_and_baselines_measured_once(tmp_path, monkeypatch, ca
     assert entry["key"]["layouts"] == LAYOUTS and entry["key"]["revision"] == "abc123"
 
     _run(tmp_path, revision="def456")  # Another revision: another key, measured again.
-    plot_training.main([str(run), str(tmp_path / "curve.png")])
+    _plot([str(run), str(tmp_path / "curve.png")])
     capsys.readouterr()
     assert len(calls) == 3
     assert len(json.loads((run / "baselines.json").read_text())["entries"]) == 2
     assert not list(run.glob("*.tmp*")) and not list(run.glob(".*"))  # Written atomically.
 
-    plot_training.main([str(run), str(tmp_path / "curve.png"), "--no-baselines"])
+    _plot([str(run), str(tmp_path / "curve.png"), "--no-baselines"])
     plain = json.loads(capsys.readouterr().out.splitlines()[-1])
     assert "baselines" not in plain and len(calls) == 3
 
@@ -139,7 +141,7 @@ def test_a_baseline_missing_from_the_cache_is_measured_alone(tmp_path, monkeypat
     run = _run(tmp_path)
     calls: list = []
     monkeypatch.setattr(plot_training, "measure_baselines", _fake_measure(calls))
-    plot_training.main([str(run), str(tmp_path / "curve.png"), "--workers", "1"])
+    _plot([str(run), str(tmp_path / "curve.png"), "--workers", "1"])
     capsys.readouterr()
     path = run / "baselines.json"
     stored = json.loads(path.read_text())
@@ -147,7 +149,7 @@ def test_a_baseline_missing_from_the_cache_is_measured_alone(tmp_path, monkeypat
     del entry["nearest"]  # As an older file kept it: no nearest, one revision for all.
     entry["measured_at"] = "0ld"
     path.write_text(json.dumps(stored))
-    plot_training.main([str(run), str(tmp_path / "curve.png"), "--workers", "1"])
+    _plot([str(run), str(tmp_path / "curve.png"), "--workers", "1"])
     figures = json.loads(capsys.readouterr().out.splitlines()[-1])
     assert [names for _, names in calls] == [["pocket_nearest", "nearest", "oracle"],
                                              ["nearest"]]
@@ -165,7 +167,7 @@ def test_collected_run_shows_in_the_report_paired_against_the_prior(tmp_path, mo
 
     run = _run(tmp_path)
     monkeypatch.setattr(plot_training, "measure_baselines", _fake_measure([]))
-    plot_training.main([str(run), str(tmp_path / "curve.png"), "--workers", "1"])
+    _plot([str(run), str(tmp_path / "curve.png"), "--workers", "1"])
     (run / "sessions.json").write_text(json.dumps({"sessions": [
         {"host": "h", "cores": 2, "device": "cpu", "revision": "aaaaaaa1", "steps_from": 0,
          "steps_to": 16, "wall_s": 5400.0},
@@ -229,8 +231,7 @@ def test_departures_from_the_prior_none_without_a_residual_some_with_a_large_one
     save_policy_weights(run / "best.safetensors", policy, CONFIG.kind, network_kwargs(CONFIG),
                         layout_of(CONFIG.kind, CONFIG.env),
                         {"config": to_dict(CONFIG), "num_timesteps": 16})
-    plot_training.main([str(run), str(tmp_path / "curve.png"), "--no-baselines",
-                        "--departures"])
+    _plot([str(run), str(tmp_path / "curve.png"), "--no-baselines", "--departures"])
     figures = json.loads(capsys.readouterr().out.splitlines()[-1])
     assert figures["shipped"] == {"weights": "best.safetensors", "decisions": 16}
     counted = figures["departures"]

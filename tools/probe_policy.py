@@ -40,7 +40,7 @@ import argparse
 import json
 import multiprocessing as mp
 
-from probe_episodes import MODES, probe_config, probe_episode
+from mjexplore.eval.probe import MODES, probe_config, probe_episode
 
 DEFAULT_MODES = ("policy", "random", "greedy")
 

@@ -148,7 +148,7 @@ def run_facts(run: str | Path) -> dict[str, Any]:
         (runs since 51c9f13) ``sessions`` (each start or resume: host, cores, device,
         revision, steps from and to, wall and learner CPU seconds) and their total
         ``sessions_wall_s``. Older runs have only the phase times TensorBoard holds (see the tool
-        ``tools/plot_training.py``).
+        ``mjexplore plot-training``).
     """
     from mjexplore.policies.weights import read_policy_weights
 

@@ -5,13 +5,13 @@ summaries (a few tens of kB; no weights):
 
 * ``eval.csv``: the run's validation evaluations (one row per layout per evaluation);
 * ``baselines.json``: ``pocket_nearest`` (the prior alone) and the ``oracle`` measured on
-  the same validation layouts with the same settings (``tools/plot_training.py`` measures
+  the same validation layouts with the same settings (``mjexplore plot-training`` measures
   and caches them in the run folder);
 * ``config.yaml``: the resolved recipe, its first line the revision the run started at;
 * ``facts.json``: :func:`~mjexplore.eval.learning_curve.run_facts` (decisions trained; each
   start or resume's host, cores, device, revision, steps and wall time), and the shipped
   policy's departures from its prior when ``RUN/departures.json`` exists
-  (``tools/plot_training.py --departures`` writes it).
+  (``mjexplore plot-training --departures`` writes it).
 
 :func:`training_section` turns each kept run into the report's learning curve, its table of
 evaluations paired per layout against ``pocket_nearest``, and the budget it took.

@@ -41,7 +41,7 @@ import multiprocessing as mp
 import time
 from pathlib import Path
 
-from tools.probe_episodes import episode_row, probe_config, probe_episode
+from mjexplore.eval.probe import episode_row, probe_config, probe_episode
 
 
 def _warm_start(config_path: str, out: Path) -> tuple[Path, Path, dict]:
@@ -100,7 +100,7 @@ def _via(oracle, state, candidates, mask) -> int:
 
 def _job(job: tuple[str, str, str, int, str]) -> dict:
     """One episode: the ``expert*`` modes here, every other mode by
-    :func:`~tools.probe_episodes.probe_episode`."""
+    :func:`~mjexplore.eval.probe.probe_episode`."""
     config_path, weights, mode, seed, scene = job
     if not mode.startswith("expert"):
         return probe_episode(job)

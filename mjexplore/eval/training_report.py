@@ -45,25 +45,20 @@ The JSON line holds:
 Runs before 51c9f13 do not record the machine's cores, nor the wall time of a whole run
 (warm start to end, across resumes): ``wall_s`` is what TensorBoard holds of it.
 
-Usage: python tools/plot_training.py RUN OUT.png [--workers 2] [--recompute-baselines |
-    --no-baselines] [--departures [--weights W.safetensors]]
+``mjexplore plot-training RUN OUT.png`` runs it (:func:`plot_training`).
 """
 
 from __future__ import annotations
 
-import argparse
 import io
 import json
 import multiprocessing as mp
 from pathlib import Path
 
-import matplotlib
+import matplotlib.pyplot as plt
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-from probe_episodes import probe_episode  # noqa: E402
-
-from mjexplore.eval.learning_curve import (  # noqa: E402
+from mjexplore.errors import UserInputError
+from mjexplore.eval.learning_curve import (
     BASELINES,
     baseline_means,
     best_evaluation,
@@ -77,9 +72,14 @@ from mjexplore.eval.learning_curve import (  # noqa: E402
     shipped_weights,
     start_revision,
 )
-from mjexplore.eval.plots import draw_learning_curve  # noqa: E402
-from mjexplore.eval.training_record import DEPARTURES_FILE  # noqa: E402
-from mjexplore.io.atomic import write_bytes_atomic, write_text_atomic  # noqa: E402
+from mjexplore.eval.plots import draw_learning_curve
+from mjexplore.eval.probe import probe_episode
+from mjexplore.eval.training_record import DEPARTURES_FILE
+from mjexplore.io.atomic import (
+    check_output_file,
+    write_bytes_atomic,
+    write_text_atomic,
+)
 
 # probe_episode's modes for the baselines.
 PROBE_MODES = {"pocket_nearest": "prior", "nearest": "nearest", "oracle": "oracle"}
@@ -254,46 +254,36 @@ def plot(figures: dict, extra: dict, out: Path) -> None:
     write_bytes_atomic(out, buf.getvalue())
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("run", type=Path, help="a run folder of mjexplore train --out")
-    parser.add_argument("out", type=Path, help="the PNG to write")
-    parser.add_argument("--workers", type=int, default=2,
-                        help="processes measuring the baselines")
-    group = parser.add_mutually_exclusive_group()
-    group.add_argument("--recompute-baselines", action="store_true",
-                       help="measure the baselines again even if RUN/baselines.json has them")
-    group.add_argument("--no-baselines", action="store_true",
-                       help="neither measure nor show the baselines")
-    parser.add_argument("--departures", action="store_true",
-                        help="run the shipped policy's greedy episodes on the validation "
-                             "layouts and count its departures from its prior")
-    parser.add_argument("--weights", type=Path,
-                        help="the policy for --departures (default: RUN/best.safetensors, "
-                             "else RUN/policy.safetensors)")
-    args = parser.parse_args(argv)
-    if not args.run.is_dir():
-        parser.error(f"{str(args.run)!r} is not a folder: give a run folder of "
-                     "mjexplore train --out")
-    weights = None
-    if args.departures:
-        weights = args.weights or shipped_weights(args.run)
-        if weights is None:
-            parser.error(f"--departures: {str(args.run)!r} holds no best.safetensors or "
-                         "policy.safetensors; pass --weights")
-        if not (args.run / "config.yaml").is_file():
-            parser.error(f"--departures needs {str(args.run / 'config.yaml')!r}")
+def plot_training(run: Path, out: Path, workers: int = 2, baselines: bool = True,
+                  recompute: bool = False, departures_of_shipped: bool = False,
+                  weights: Path | None = None) -> dict:
+    """Writes the run's training curves to the PNG ``out`` and returns its figures (see the
+    module docstring); ``departures_of_shipped`` also counts the departures of ``weights``
+    (default: the run's shipped weights) from their prior.
+
+    Raises:
+        UserInputError: ``run`` is not a folder; --departures without weights, config or
+            prior.
+    """
+    if not run.is_dir():
+        raise UserInputError(f"{str(run)!r} is not a folder: give a run folder of "
+                             "'mjexplore train --out'.")
+    check_output_file(out, "OUT", (".png",))
+    chosen = None
+    if departures_of_shipped:
+        chosen = weights or shipped_weights(run)
+        if chosen is None:
+            raise UserInputError(f"--departures: {str(run)!r} holds no best.safetensors or "
+                                 "policy.safetensors; pass --weights.")
+        if not (run / "config.yaml").is_file():
+            raise UserInputError(f"--departures needs {str(run / 'config.yaml')!r}.")
         from mjexplore.learning.train_config import load_train_config
 
-        if load_train_config(args.run / "config.yaml").policy.prior_temperature is None:
-            parser.error("--departures: the run's policy has no prior (policy.prior_temperature "
-                         "is null): there is nothing to depart from")
-    figures, extra = report(args.run, baselines=not args.no_baselines,
-                            recompute=args.recompute_baselines, workers=args.workers,
-                            departures_of=weights)
-    plot(figures, extra, args.out)
-    print(json.dumps(figures))
-
-
-if __name__ == "__main__":
-    main()
+        if load_train_config(run / "config.yaml").policy.prior_temperature is None:
+            raise UserInputError("--departures: the run's policy has no prior "
+                                 "(policy.prior_temperature is null): there is nothing to "
+                                 "depart from.")
+    figures, extra = report(run, baselines=baselines, recompute=recompute, workers=workers,
+                            departures_of=chosen)
+    plot(figures, extra, out)
+    return figures

@@ -1,5 +1,6 @@
-"""One episode of a training config's env, driven by a probe mode: what ``probe_policy.py``,
-``plot_training.py`` (its baselines) and ``research/dagger_probe.py`` run.
+"""One episode of a training config's env, driven by a probe mode: what
+``tools/probe_policy.py``, ``mjexplore plot-training`` (its baselines) and
+``tools/research/dagger_probe.py`` run.
 
 Modes (:data:`MODES`): ``policy`` (the trained policy's most probable valid action),
 ``random`` (a valid action drawn uniformly), ``greedy`` (the valid action nearest the robot:
@@ -46,6 +47,7 @@ def probe_episode(job: tuple[str | None, str, str, int, str | None]) -> dict:
 
         env.reset(seed=seed)
         ep = env.episode
+        assert ep is not None  # Made by reset.
         metrics = Episode(ep.scene, make_explorer(mode), ep.sim.config.seed,
                           ep.config).run().metrics
         return episode_row(mode, seed, scene, None, metrics)
@@ -53,11 +55,13 @@ def probe_episode(job: tuple[str | None, str, str, int, str | None]) -> dict:
     along_map = config.env.observation.features in POSED and config.kind == "gvn"
     rng = np.random.default_rng(seed)
     obs, info = env.reset(seed=seed)
+    episode = env.episode
+    assert episode is not None  # Made by reset.
     total = 0.0
     done = info["end_reason"] is not None
     while not done:
         mask = env.action_masks()
-        if mode == "policy":
+        if policy is not None:  # mode "policy"
             action, _ = policy.predict(obs, deterministic=True, action_masks=mask)
         elif mode == "random":
             action = rng.choice(np.flatnonzero(mask))
@@ -68,12 +72,12 @@ def probe_episode(job: tuple[str | None, str, str, int, str | None]) -> dict:
             action, _ = NearestNodeRule().predict(obs, action_masks=mask)
         else:
             distance = np.linalg.norm(env.decisions.action_positions()
-                                      - env.episode.sim.pose[:2], axis=1)
+                                      - episode.sim.pose[:2], axis=1)
             action = np.argmin(np.where(mask, distance, np.inf))
         obs, reward, terminated, truncated, info = env.step(int(action))
         total += reward
         done = terminated or truncated
-    return episode_row(mode, seed, scene, total, env.episode.result().metrics)
+    return episode_row(mode, seed, scene, total, episode.result().metrics)
 
 
 def episode_row(mode: str, seed: int, scene: str | None, total: float | None,
