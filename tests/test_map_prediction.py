@@ -182,3 +182,28 @@ def test_the_shipped_predictor_beats_inpainting_and_an_untrained_one_does_not():
     assert shipped["accuracy"] > inpainting["accuracy"] + 0.03, (shipped, inpainting)
     assert shipped["bce"] < min(inpainting["bce"], random["bce"]), (shipped, random)
     assert random["accuracy"] <= inpainting["accuracy"], (random, inpainting)
+
+
+def test_training_seeds_that_share_a_data_seed_record_the_same_maps(tmp_path):
+    import dataclasses
+    import io
+
+    from mjexplore.learning.predictor_training import load_predictor_config, record_episode
+
+    (tmp_path / "p.yaml").write_text(
+        "episodes: 2\nvalidation_every: 2\nrecord_share: 0.5\nexplorers: [nearest]\n"
+        "env:\n  procedural: {families: [rooms], width: [12.0, 12.0], height: [10.0, 10.0]}\n"
+        "  episode:\n    max_time: 120.0\n    sim: {dynamics: grid}\n")
+    base = load_predictor_config(tmp_path / "p.yaml")
+
+    def maps(config):
+        with np.load(io.BytesIO(record_episode(config, 0))) as shard:
+            return shard["inputs"], shard["truth"]
+
+    first = maps(base)
+    same_data = maps(dataclasses.replace(base, seed=1, data_seed=0))
+    other_data = maps(dataclasses.replace(base, seed=1))
+    assert len(first[0]) > 0
+    np.testing.assert_array_equal(first[0], same_data[0])
+    np.testing.assert_array_equal(first[1], same_data[1])
+    assert first[1].shape != other_data[1].shape or not np.array_equal(first[1], other_data[1])

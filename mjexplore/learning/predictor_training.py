@@ -60,8 +60,14 @@ class PredictorTrainingConfig:
     Attributes:
         env: Layouts (``procedural``) and episode settings of the collection episodes, as in
             a training config.
-        episodes: Collection episodes; episode ``i`` resets the env with seed ``seed + i``.
-        seed: First episode seed, and the seed of the episodes' random choices and the fit.
+        episodes: Collection episodes; episode ``i`` resets the env with seed
+            ``data_seed + i``.
+        seed: The seed of the fit (the network's initial weights, the windows drawn), and of
+            the data set when ``data_seed`` is None.
+        data_seed: The seed of the data set: the first episode's layout seed and the seed of
+            the episodes' random choices; None: ``seed``. Training seeds of one recipe that
+            share it fit the same maps (separate seeds of the layouts would overlap: episode
+            ``i`` of one is episode ``i - 1`` of the next).
         explorers: Rules that drive the episodes, one drawn per episode.
         random_share: Share of the decisions that take a random reachable frontier.
         record_share: Share of the decisions whose partial map is kept.
@@ -78,6 +84,7 @@ class PredictorTrainingConfig:
     env: EnvConfig
     episodes: int = 400
     seed: int = 0
+    data_seed: int | None = None
     explorers: tuple[str, ...] = ("nearest", "pocket_nearest", "frontier_tsp")
     random_share: float = 0.3
     record_share: float = 0.3
@@ -158,8 +165,9 @@ def record_episode(config: PredictorTrainingConfig, index: int) -> bytes:
     from mjexplore.mapping.prediction import coarse_truth
 
     torch.set_num_threads(1)
-    scene, sim_seed, episode = episode_layout(config.env, config.seed + index)
-    rng = np.random.default_rng([config.seed, index])
+    data_seed = config.seed if config.data_seed is None else config.data_seed
+    scene, sim_seed, episode = episode_layout(config.env, data_seed + index)
+    rng = np.random.default_rng([data_seed, index])
     rule = config.explorers[int(rng.integers(len(config.explorers)))]
     recorder = _Recorder(make_explorer(rule), rng, config.random_share, config.record_share)
     Episode(scene, recorder, sim_seed, episode).run()
