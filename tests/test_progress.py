@@ -41,34 +41,53 @@ def test_explore_is_quiet_off_a_terminal_and_with_no_progress(tmp_path, monkeypa
     assert _explore(tmp_path, monkeypatch, Terminal(), "--no-progress")[1] == ""
 
 
-def test_off_a_terminal_a_line_comes_through_a_phase_without_updates():
+class _Clock:
+    """A monotonic clock the test moves by hand."""
+
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_off_a_terminal_a_line_comes_through_a_phase_without_updates(monkeypatch):
     import io
-    import time
 
-    from mjexplore.io.progress import Progress
+    import mjexplore.io.progress as progress
 
+    clock = _Clock()
+    monkeypatch.setattr(progress.time, "monotonic", clock)
     stream = io.StringIO()  # Not a terminal: plain lines.
-    with Progress(10, "train", "decisions", stream=stream, every=0.1) as bar:
+    with progress.Progress(10, "train", "decisions", stream=stream, every=30, tick=0) as bar:
         bar.update(2)
         bar.phase("updating")  # A PPO update: no update() for a while.
         during = len(stream.getvalue().splitlines())
-        time.sleep(1.5)
+        for _ in range(90):  # 90 s of ticks, one a second.
+            clock.now += 1.0
+            bar.heartbeat()
         lines = stream.getvalue().splitlines()[during:]
-    assert len(lines) >= 2, lines  # The ticker spoke during the silent phase.
+    # One line every 30 s through the silent phase (the close adds none: nothing new).
+    assert len(lines) == 3, lines
     assert all(line.startswith("train: 2/10 decisions (20%), updating;") for line in lines)
+    assert [line.rsplit("; ", 1)[1] for line in lines] == [
+        "0:00:30 elapsed", "0:01:00 elapsed", "0:01:30 elapsed"]
     assert "\r" not in stream.getvalue()
 
 
 def test_lines_at_every_update_still_say_they_are_alive_after_the_heartbeat(monkeypatch):
     import io
-    import time
 
     import mjexplore.io.progress as progress
 
-    monkeypatch.setattr(progress, "HEARTBEAT_S", 0.3)
+    clock = _Clock()
+    monkeypatch.setattr(progress.time, "monotonic", clock)
     stream = io.StringIO()
-    with progress.Progress(4, "bench", "episodes", stream=stream, every=0) as bar:
+    with progress.Progress(4, "bench", "episodes", stream=stream, every=0, tick=0) as bar:
         bar.update(1, detail="last office/nearest/seed0")
-        time.sleep(1.5)  # A long episode: no update.
-    lines = stream.getvalue().splitlines()
-    assert 3 <= len(lines) <= 8, lines  # Not one per tick of the ticker (1 s).
+        before = len(stream.getvalue().splitlines())
+        for _ in range(int(2.5 * progress.HEARTBEAT_S)):  # A long episode: no update.
+            clock.now += 1.0
+            bar.heartbeat()
+        beats = stream.getvalue().splitlines()[before:]
+    assert len(beats) == 2, beats  # One per HEARTBEAT_S of silence, not one per tick.

@@ -50,7 +50,8 @@ class Progress:
             phase, and one after ``HEARTBEAT_S`` without any); None: no lines at all.
         bar_format: tqdm's format of the bar on a terminal.
         min_interval: Seconds between redraws of the bar.
-        tick: Seconds between redraws of a bar that gets no updates (its clock); 0: none.
+        tick: Seconds between the ticker's :meth:`heartbeat` (a bar's clock, a line through
+            a silent phase; at most ``every`` off a terminal); 0: no ticker.
         initial: Units of work done before (a resumed run's).
         phase: The first phase (see :meth:`phase`).
     """
@@ -79,7 +80,8 @@ class Progress:
         self._ticker = None
         # A bar's clock keeps ticking, and off a terminal a line comes at least every
         # `every` seconds, through a phase without updates too (a PPO update, an evaluation).
-        period = tick if self.terminal else min(1.0, self.every or 1.0) if self.lines else 0.0
+        period = 0.0 if tick <= 0 else tick if self.terminal else \
+            min(tick, self.every or tick) if self.lines else 0.0
         if period > 0:
             self._ticker = threading.Thread(target=self._tick, args=(period,), daemon=True,
                                             name=f"{desc}-progress")
@@ -87,11 +89,17 @@ class Progress:
 
     def _tick(self, period: float) -> None:
         while not self._stop.wait(period):
-            if self.terminal:
-                self.bar.refresh()
-            elif self.lines:
-                with self._lock:
-                    self._write_line(False, self.every or HEARTBEAT_S)
+            self.heartbeat()
+
+    def heartbeat(self) -> None:
+        """What the ticker does each period: redraws a bar (its clock), or off a terminal
+        writes a line when none came for ``every`` seconds (:data:`HEARTBEAT_S` with
+        ``every=0``)."""
+        if self.terminal:
+            self.bar.refresh()
+        elif self.lines:
+            with self._lock:
+                self._write_line(False, self.every or HEARTBEAT_S)
 
     def _postfix(self) -> str:
         return ", ".join(t for t in (self.phase_text, self.detail_text) if t)
