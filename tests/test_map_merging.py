@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from mjexplore.episode import EpisodeConfig
-from mjexplore.episode.team import TeamConfig, TeamEpisode
+from mjexplore.episode import Episode, EpisodeConfig
+from mjexplore.episode.team import TeamConfig
 from mjexplore.eval.team_run import team_explorers
 from mjexplore.mapping.map_merging import (
     MapMergeConfig,
@@ -82,9 +82,9 @@ def test_a_team_with_unknown_starts_merges_and_explores(tmp_path):
     scene = load_scene_files(write_scene(generate_scene("rooms", 12, 9, seed=1),
                                          tmp_path / "scene"))
     explorers, _ = team_explorers("assign_greedy", 2)
-    episode = TeamEpisode(scene, explorers, 0, EpisodeConfig(sim=SimConfig(dynamics="kinematic")),
-                          team_config=TeamConfig(unknown_starts=True))
-    assert not episode.merged[1] and episode.agents[1].mapper is episode.own[1]
+    episode = Episode(scene, explorers, 0, EpisodeConfig(sim=SimConfig(dynamics="kinematic")),
+                      team_config=TeamConfig(unknown_starts=True))
+    assert not episode.merging.merged[1] and episode.agents[1].mapper is episode.team.own[1]
     metrics = episode.run().metrics
     assert metrics["end_reason"] == "explored" and metrics["merged"]
     assert metrics["merge_error_m"] <= 0.05 and metrics["merge_error_deg"] <= 0.5
@@ -97,20 +97,21 @@ def test_a_merged_robots_scans_are_aligned_to_the_team_map(tmp_path):
     scene = load_scene_files(write_scene(generate_scene("rooms", 12, 9, seed=1),
                                          tmp_path / "scene"))
     explorers, _ = team_explorers("assign_greedy", 2)
-    episode = TeamEpisode(scene, explorers, 0, EpisodeConfig(sim=SimConfig(dynamics="kinematic")),
-                          team_config=TeamConfig(unknown_starts=True))
-    while not episode.merged[1]:
+    episode = Episode(scene, explorers, 0, EpisodeConfig(sim=SimConfig(dynamics="kinematic")),
+                      team_config=TeamConfig(unknown_starts=True))
+    while not episode.merging.merged[1]:
         assert episode.step()
     for _ in range(20):
         episode.step()
     scan = episode.world.robots[1].latest_scan
     # An estimate 4 cm off: the scan match puts the scan back where it was taken.
-    episode.corrections[1] = np.array([0.04, 0.0, 0.0])
-    aligned = episode._merged_pose(1, scan)
+    robot, merging = episode.agents[1], episode.merging
+    robot.correction = np.array([0.04, 0.0, 0.0])
+    aligned = merging._merged_pose(episode.mapper, robot, scan)
     assert np.hypot(*(aligned[:2] - scan.pose[:2])) < 0.02
-    assert episode.aligned_scans > 0
+    assert merging.aligned_scans > 0
     # Nor does a scan mapped from a wrong pose turn the team's walls free.
-    episode.corrections[1] = np.array([0.1, -0.05, 0.02])
+    robot.correction = np.array([0.1, -0.05, 0.02])
     walls = episode.mapper.grid.occupied.copy()
-    episode._integrate_merged(1, scan)
+    merging.integrate_merged(episode.mapper, robot, scan)
     assert episode.mapper.grid.occupied[walls].all()

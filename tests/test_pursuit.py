@@ -66,10 +66,10 @@ def test_an_open_goal_is_judged_on_the_map_as_it_is_now():
     inner = np.zeros(state.shape, bool)
     inner[20:-20, 20:-20] = True
     unknown = np.argwhere((state < 0) & inner)[0]
-    episode.goal = episode.mapper.grid.cell_to_world(unknown)
-    assert episode._goal_still_open()
+    episode.agent.goal = episode.mapper.grid.cell_to_world(unknown)
+    assert episode.agent.goal_still_open()
     state[unknown[0] - 10:unknown[0] + 11, unknown[1] - 10:unknown[1] + 11] = FREE
-    assert not episode._goal_still_open()  # Mapped since it was last asked.
+    assert not episode.agent.goal_still_open()  # Mapped since it was last asked.
     elsewhere = np.argwhere((state < 0) & inner)[0]
-    episode.goal = episode.mapper.grid.cell_to_world(elsewhere)
-    assert episode._goal_still_open()  # A new goal: its own cells.
+    episode.agent.goal = episode.mapper.grid.cell_to_world(elsewhere)
+    assert episode.agent.goal_still_open()  # A new goal: its own cells.

@@ -8,7 +8,7 @@ import pytest
 
 from mjexplore.episode import Episode, EpisodeConfig
 from mjexplore.episode.nearest import NearestFrontier
-from mjexplore.episode.team import TeamConfig, TeamEpisode
+from mjexplore.episode.team import TeamConfig
 from mjexplore.errors import UserInputError
 from mjexplore.mapping.occupancy import OccupancyMapper
 from mjexplore.maps import FREE, OCCUPIED, GridMap
@@ -114,7 +114,7 @@ def test_blocked_by_teammates_tells_a_closed_door_from_a_crowded_one():
 
 
 def test_team_explores_a_scene(rooms):
-    result = TeamEpisode(rooms, [NearestFrontier(), NearestFrontier()], 0,
+    result = Episode(rooms, [NearestFrontier(), NearestFrontier()], 0,
                          _config(max_time=600.0)).run()
     m = result.metrics
     assert m["end_reason"] == "explored" and m["robots"] == 2
@@ -136,20 +136,33 @@ def test_team_explores_a_scene(rooms):
 def test_team_explores_in_the_grid_world(rooms):
     config = EpisodeConfig(sim=SimConfig(dynamics="grid"), start_jitter=(0.0, 0.0),
                            max_time=600.0)
-    m = TeamEpisode(rooms, [NearestFrontier(), NearestFrontier()], 0, config).run().metrics
+    m = Episode(rooms, [NearestFrontier(), NearestFrontier()], 0, config).run().metrics
     assert m["end_reason"] == "explored" and m["robots"] == 2
 
 
-def test_a_team_of_one_is_the_single_robot_episode(rooms):
+def test_one_explorer_in_a_list_is_the_single_robot_episode(rooms):
+    """One engine: a robot alone is a team of one, with a single robot's results."""
     config = _config(max_time=400.0)
     single = Episode(rooms, NearestFrontier(), 3, config).run()
-    team = TeamEpisode(rooms, [NearestFrontier()], 3, config).run()
-    a, b = single.metrics, team.metrics
-    assert b["end_reason"] == a["end_reason"] == "explored"
-    assert b["exploration_time_s"] == a["exploration_time_s"]
-    assert b["path_length_m"] == a["path_length_m"]
-    assert b["overlap_ratio"] == 0.0
-    np.testing.assert_array_equal(team.ratio_curve, single.ratio_curve)
+    alone = Episode(rooms, [NearestFrontier()], 3, config).run()
+    assert alone.metrics == single.metrics and single.metrics["end_reason"] == "explored"
+    np.testing.assert_array_equal(alone.ratio_curve, single.ratio_curve)
+    np.testing.assert_array_equal(alone.goals, single.goals)
+
+
+def test_a_team_explores_with_scan_matching_and_odometry_errors(rooms):
+    """Each robot localises itself on the shared map (odometry with typical errors, scan
+    matching); the team's ratio is what was really seen."""
+    config = _config(max_time=600.0, localization="scan_matching",
+                     sim=SimConfig(dynamics="kinematic", odometry_error="typical"))
+    episode = Episode(rooms, [NearestFrontier(), NearestFrontier()], 0, config)
+    assert all(a.localizer is not None for a in episode.agents)
+    m = episode.run().metrics
+    assert m["end_reason"] == "explored" and m["localization"] == "scan_matching"
+    assert episode._seen is not episode.mapper  # The ratio is measured at the true poses.
+    for a in episode.agents:  # Each estimate stayed near its robot.
+        assert np.hypot(*(a.pose[:2] - a.sim.pose[:2])) < 0.3
+    assert m["iou"] > 0.8
 
 
 def test_robots_in_a_doorway_wait_and_one_yields(dumbbell):
@@ -158,7 +171,7 @@ def test_robots_in_a_doorway_wait_and_one_yields(dumbbell):
     config = EpisodeConfig(max_time=150.0, target_ratio=1.0, start_jitter=(0.0, 0.0))
     west, east = (1.5, 1.7, 0.0), (8.9, 1.7, np.pi)
     explorers = [_GoTo((9.0, 1.7)), _GoTo((1.4, 1.7))]
-    episode = TeamEpisode(dumbbell, explorers, 0, config, starts=[west, east],
+    episode = Episode(dumbbell, explorers, 0, config, starts=[west, east],
                           team_config=TeamConfig(wait_timeout=60.0))
     reached = [False, False]
     while episode.step():
@@ -177,10 +190,10 @@ def test_robots_in_a_doorway_wait_and_one_yields(dumbbell):
 def test_teammates_are_not_mapped_as_walls(dumbbell):
     """Returns from a teammate are left out of the map (its face would read as a wall)."""
     starts = [(1.5, 1.0, 0.0), (1.5, 2.4, 0.0)]
-    episode = TeamEpisode(dumbbell, [NearestFrontier(), NearestFrontier()], 0, _config(),
+    episode = Episode(dumbbell, [NearestFrontier(), NearestFrontier()], 0, _config(),
                           starts=starts)
     raw = episode.world.robots[0].latest_scan
-    masked = episode._mask(0, raw)
+    masked = episode.team.mask(0, raw, episode._body_centres())
     # The beams whose return came from robot 1's silhouette (the lidar's last cast).
     teammate = episode.world.robots[0].lidar._geomid == episode.world._silhouettes[1]
     assert teammate.sum() > 5
@@ -196,8 +209,9 @@ def test_teammates_are_not_mapped_as_walls(dumbbell):
 
 def test_team_settings_are_checked(rooms):
     with pytest.raises(UserInputError, match="ground_truth"):
-        TeamEpisode(rooms, [NearestFrontier()], 0, _config(localization="odometry"))
+        Episode(rooms, [NearestFrontier()] * 2, 0, _config(localization="odometry"),
+                team_config=TeamConfig(unknown_starts=True))
     with pytest.raises(UserInputError, match="one per robot"):
-        TeamEpisode(rooms, [NearestFrontier()], 0, _config(), starts=[(1, 1, 0), (2, 2, 0)])
+        Episode(rooms, [NearestFrontier()], 0, _config(), starts=[(1, 1, 0), (2, 2, 0)])
     with pytest.raises(ValueError):
         TeamConfig(wait_timeout=0.0)

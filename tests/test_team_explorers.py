@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mjexplore.episode import EpisodeConfig
+from mjexplore.episode import Episode, EpisodeConfig
 from mjexplore.episode.explorer import ExplorationState
 from mjexplore.episode.nearest import NearestFrontier
-from mjexplore.episode.team import TeamEpisode, TeamView
+from mjexplore.episode.team import TeamView
 from mjexplore.errors import UserInputError
 from mjexplore.explorers.potential import PotentialField
 from mjexplore.explorers.team import (
@@ -86,7 +86,7 @@ def test_make_team_explorers():
 def test_coordinated_teams_explore(rooms, method):
     config = EpisodeConfig(sim=SimConfig(dynamics="kinematic"), start_jitter=(0.0, 0.0),
                            max_time=600.0)
-    result = TeamEpisode(rooms, make_team_explorers(method, 2), 0, config).run()
+    result = Episode(rooms, make_team_explorers(method, 2), 0, config).run()
     m = result.metrics
     assert m["end_reason"] == "explored", m
     assert all(r["decisions"] > 0 for r in m["per_robot"])
@@ -95,7 +95,7 @@ def test_coordinated_teams_explore(rooms, method):
 def test_assigned_robots_head_for_different_regions(rooms):
     config = EpisodeConfig(sim=SimConfig(dynamics="kinematic"), start_jitter=(0.0, 0.0))
     explorers = make_team_explorers("assign_optimal", 2, region_radius=3.0)
-    episode = TeamEpisode(rooms, explorers, 0, config)
+    episode = Episode(rooms, explorers, 0, config)
     apart = []
     while episode.step():
         goals = [a.goal for a in episode.agents]
@@ -104,5 +104,5 @@ def test_assigned_robots_head_for_different_regions(rooms):
                 frontier_regions(points, 3.0).max() >= 1:  # Two regions at least.
             apart.append(float(np.hypot(*(goals[0] - goals[1]))))
     assert apart and np.median(apart) > 3.0
-    naive = TeamEpisode(rooms, [NearestFrontier(), NearestFrontier()], 0, config)
+    naive = Episode(rooms, [NearestFrontier(), NearestFrontier()], 0, config)
     assert naive.agents[0].explorer is not naive.agents[1].explorer

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mjexplore.episode import EpisodeConfig
-from mjexplore.episode.team import TeamConfig, TeamEpisode
+from mjexplore.episode import Episode, EpisodeConfig
+from mjexplore.episode.team import TeamConfig
 from mjexplore.errors import UserInputError
 from mjexplore.explorers.team import make_team_explorers
 from mjexplore.explorers.team_oracle import OracleMember, route_length, split_routes
@@ -45,11 +45,11 @@ def test_an_oracle_team_explores(tmp_path):
     assert all(isinstance(e, OracleMember) for e in explorers)
     assert explorers[0].coordinator is explorers[1].coordinator
     config = EpisodeConfig(sim=SimConfig(dynamics="kinematic"))
-    episode = TeamEpisode(scene, explorers, 0, config)
+    episode = Episode(scene, explorers, 0, config)
     metrics = episode.run().metrics
     assert metrics["end_reason"] == "explored" and metrics["robot_collisions"] == 0
     assert explorers[0].coordinator.splits >= 2
     assert all(r["decisions"] >= 1 for r in metrics["per_robot"])
     with pytest.raises(UserInputError, match="unknown-starts"):
-        TeamEpisode(scene, make_team_explorers("oracle", 2), 0, config,
-                    team_config=TeamConfig(unknown_starts=True))
+        Episode(scene, make_team_explorers("oracle", 2), 0, config,
+                team_config=TeamConfig(unknown_starts=True))

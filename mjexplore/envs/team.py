@@ -1,8 +1,8 @@
 """Team exploration as a PettingZoo ``ParallelEnv``: one agent per robot.
 
 Description:
-    N robots explore one scene with one shared map (:class:`~mjexplore.episode.team.
-    TeamEpisode`: physics or kinematic world, one navigator per robot, teammates as
+    N robots explore one scene with one shared map (:class:`~mjexplore.episode.engine.
+    Episode` of a team: physics or kinematic world, one navigator per robot, teammates as
     obstacles). An agent chooses its robot's next goal among the frontiers it can reach;
     the world runs until some robot needs a decision (its goal was reached, vanished or
     given up, or ``replan_period`` passed), and each step returns every agent's view.
@@ -58,9 +58,9 @@ import numpy as np
 from pettingzoo import ParallelEnv
 
 from mjexplore.episode import EpisodeConfig
+from mjexplore.episode.engine import Episode
 from mjexplore.episode.explorer import ExplorationState
 from mjexplore.episode.nearest import NearestFrontier
-from mjexplore.episode.team import TeamEpisode
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.scenes.scene import SceneFiles
 from mjexplore.sim.simulator import SimConfig
@@ -115,7 +115,7 @@ class TeamExplorationEnv(ParallelEnv):
         self.time_scale, self.gain_scale, self.completion = time_scale, gain_scale, completion
         self.possible_agents = [f"robot_{i}" for i in range(robots)]
         self.agents: list[str] = []
-        self.episode: TeamEpisode | None = None
+        self.episode: Episode | None = None
         self._seed: int | None = None
         self._candidates: list[np.ndarray] = [np.zeros((0, 2)) for _ in range(robots)]
         # One space object per agent, returned every time (PettingZoo's API test checks).
@@ -142,8 +142,8 @@ class TeamExplorationEnv(ParallelEnv):
         else:
             self._seed += 1
         self.explorers = [ChosenGoal(self.replan_period) for _ in range(self.n)]
-        self.episode = TeamEpisode(self.scene, self.explorers, self._seed, self.config,
-                                   self.starts)
+        self.episode = Episode(self.scene, self.explorers, self._seed, self.config,
+                               starts=self.starts)
         self.agents = list(self.possible_agents)
         self.steps = 0
         self._known = self.episode.counter.count

@@ -32,30 +32,30 @@ import dataclasses
 import math
 import signal
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from types import FrameType
-from typing import Any, Protocol, cast
+from typing import Any, cast
 
-import cv2
 import numpy as np
 
+from mjexplore.episode.agent import RobotAgent
 from mjexplore.episode.explorer import ExplorationState, Explorer
+from mjexplore.episode.merging import MapMerging
 from mjexplore.episode.metrics import KnownCounter, episode_metrics, pose_errors
-from mjexplore.episode.nearest import NearestFrontier
+from mjexplore.episode.team import Team, TeamConfig
 from mjexplore.errors import UserInputError
-from mjexplore.mapping.localization import FusedLocalizer, LocalizerConfig
 from mjexplore.mapping.metrics import exploration_ratio, iou, observable_ground_truth
 from mjexplore.mapping.occupancy import MapperConfig, OccupancyMapper
-from mjexplore.mapping.scan_matching import ScanMatchingLocalizer, deskew_scan
 from mjexplore.maps import GridMap
 from mjexplore.navigation.blacklist import BlacklistConfig, GoalBlacklist
-from mjexplore.navigation.navigator import Navigator, NavigatorConfig, NavStatus
+from mjexplore.navigation.navigator import Navigator, NavigatorConfig
 from mjexplore.navigation.planner import Costmap, PlannerConfig
 from mjexplore.scenes.scene import SceneFiles, check_start
+from mjexplore.scenes.team import check_starts, draw_starts
 from mjexplore.sim.kinematics import KinematicsLog
 from mjexplore.sim.simulator import SimConfig
+from mjexplore.sim.team_grid import make_team_world
 from mjexplore.sim.world import make_world
-from mjexplore.topology.frontiers import frontier_mask
 from mjexplore.topology.pipeline import TopologyConfig, TopologyTracker
 
 LOCALIZATIONS = ("ground_truth", "odometry", "scan_matching")
@@ -174,92 +174,104 @@ class Interrupted(KeyboardInterrupt):
         self.result = result
 
 
-class _Configured(Protocol):
-    """What :meth:`Episode._jittered_start` reads of its owner (a team episode's too)."""
-
-    config: EpisodeConfig
-
-
 class Episode:
-    """Runs one episode; steps are exposed so that callers (logging, video) can watch.
+    """Runs one episode of one robot or a team; steps are exposed so that callers (logging,
+    video, the environments) can watch.
+
+    One robot (one explorer) runs in the scene's world as it is; N > 1 robots (N
+    explorers) run in one world holding N robot bodies, share one map and coordinate as
+    :mod:`mjexplore.episode.team` says (with unknown relative starts, as
+    :mod:`mjexplore.episode.merging` says). Each robot is a
+    :class:`~mjexplore.episode.agent.RobotAgent` in ``agents``; with one robot, the agent's
+    state reads through the episode too (``pose``, ``goal``, ``navigator``, ...).
 
     Args:
         scene: The scene.
-        explorer: The explorer.
-        seed: Seed for the explorer and sensor noise.
+        explorer: The explorer, or one explorer per robot (a coordinated team's share a
+            coordinator).
+        seed: Seed for the start jitter (and a team's start poses), sensor noise and the
+            explorers.
         config: Episode settings.
-        observer: Optional object with ``on_scan``, ``on_decision`` and ``on_step`` hooks.
+        observer: Optional object with any of the hooks ``on_scan(agent, scan)``,
+            ``on_decision(agent, state)``, ``on_goal(episode, index, t, x, y)`` (a team
+            robot's new goal) and ``on_step(episode)``.
+        starts: A team's start poses, one per robot; None: robot 0 where a single robot's
+            episode of this seed starts, the others drawn around it
+            (:func:`~mjexplore.scenes.team.draw_starts`).
+        team_config: Team settings (a team only).
     """
 
-    def __init__(self, scene: SceneFiles, explorer: Explorer, seed: int,
-                 config: EpisodeConfig | None = None, observer: Any = None) -> None:
+    def __init__(self, scene: SceneFiles, explorer: Explorer | Sequence[Explorer], seed: int,
+                 config: EpisodeConfig | None = None, observer: Any = None, *,
+                 starts: list | None = None, team_config: TeamConfig | None = None) -> None:
         if scene.ground_truth is None:
             raise ValueError("episodes need a scene with a ground-truth map")
+        explorers: list[Explorer] = list(explorer) if isinstance(explorer, (list, tuple)) \
+            else [cast(Explorer, explorer)]
+        if not explorers:
+            raise UserInputError("a team needs at least one robot.")
         self.config = config or EpisodeConfig()
         cfg = self.config
         self.scene = scene
-        self.explorer = explorer
         self.observer = observer
-        sim_cfg = dataclasses.replace(cfg.sim, seed=seed)
-        self.sim = make_world(scene, sim_cfg)
         gt = scene.ground_truth
-        self.sim.reset(self._jittered_start(scene, gt, np.random.default_rng(seed)))
+        n = len(explorers)
+        first = self._jittered_start(scene, gt, np.random.default_rng(seed))
+        if n > 1:
+            tc = team_config or TeamConfig()
+            if tc.unknown_starts and cfg.localization != "ground_truth":
+                raise UserInputError("unknown starts are merged on ground-truth poses: use "
+                                     "--localization ground_truth with --unknown-starts.")
+            if tc.unknown_starts and any(getattr(e, "plans_on_ground_truth", False)
+                                         for e in explorers):
+                raise UserInputError("an explorer that plans on the ground truth knows where "
+                                     "the robots are: drop --unknown-starts or choose another.")
+        if starts is not None and len(starts) != n:
+            raise UserInputError(f"{len(starts)} start poses for {n} robots: give one per "
+                                 "robot.")
+        if starts is not None:
+            starts = [tuple(float(v) for v in p) for p in starts]
+            check_starts(gt, starts)
+        elif n > 1:
+            starts = draw_starts(gt, first, n, np.random.default_rng([seed, n]))
+            check_starts(gt, starts)
+        else:
+            starts = [first]
+        self.starts: list[tuple[float, float, float]] = starts
+        sim_cfg = dataclasses.replace(cfg.sim, seed=seed)
+        if n == 1:
+            self.world: Any = make_world(scene, sim_cfg)
+            self.world.reset(starts[0])
+            robots = [self.world]
+        else:
+            self.world = make_team_world(scene, starts, sim_cfg)
+            robots = list(self.world.robots)
+        self.sim = self.world
         self.mapper = OccupancyMapper.like(gt, MapperConfig(resolution=gt.resolution))
-        # Without ground-truth localisation the robot maps where it believes it is, and a
-        # second mapper maps the same scans where they were taken: what was really seen.
-        self.localizer: ScanMatchingLocalizer | FusedLocalizer | None = None
-        self._seen = self.mapper
-        if cfg.localization == "scan_matching":
-            self.localizer = FusedLocalizer(
-                self.sim.pose, odom_pose=self.sim.odom_pose,
-                config=LocalizerConfig.for_lidar(self.sim.lidar.config,
-                                                 cfg.sim.odometry_heading))
-        elif cfg.localization != "ground_truth":
-            self.localizer = ScanMatchingLocalizer(self.sim.pose, odom_pose=self.sim.odom_pose)
-        if self.localizer is not None:
-            self._seen = OccupancyMapper.like(gt, MapperConfig(resolution=gt.resolution))
-        self._positions: list[tuple[float, float, float, float]] = []  # Estimate, truth.
+        # Without ground-truth localisation the robots map where they believe they are, and
+        # a second mapper maps the same scans where they were taken: what was really seen.
+        self._seen = self.mapper if cfg.localization == "ground_truth" else \
+            OccupancyMapper.like(gt, MapperConfig(resolution=gt.resolution))
         self.tracker = TopologyTracker(gt.shape, cfg.topology, gt)
         self.reference = observable_ground_truth(gt)
         self.counter = KnownCounter(self.reference)
-        self.navigator = Navigator(self.sim.profile, cfg.navigator)
-        self._costmap = Costmap(self.mapper.grid, self.tracker.gvd.distance2, cfg.planner)
-        # An explorer that knows the ground truth (the oracle) also navigates on it.
-        self._static_costmap: Costmap | None = None
-        if getattr(explorer, "plans_on_ground_truth", False):
-            self._static_costmap = cast(Any, explorer).ground_truth_costmap(
-                ExplorationState(gt, self.sim.pose, 0.0, [], self._costmap, np.zeros((0, 2)),
-                                 ground_truth=gt))
-        explorer.reset(np.random.default_rng(seed))
-        self._start_deciding()
         self.curve: list[tuple[float, float]] = []
-        self.goals: list[tuple[float, float, float]] = []
-        self.visited: list[np.ndarray] = []
+        self.team: Team | None = None
+        self.merging: MapMerging | None = None
+        if n > 1:
+            self.team = Team(tc, gt, self.reference, n)
+            if tc.unknown_starts:
+                self.merging = MapMerging(self.team, gt, self.reference, starts, cfg.topology)
+        self.agents = [RobotAgent(self, i, robot, e, np.random.default_rng([seed, i]) if i
+                                  else np.random.default_rng(seed))
+                       for i, (robot, e) in enumerate(zip(robots, explorers))]
+        if self.team is not None:
+            self.team.agents = self.agents
         self.end_reason: str | None = None
-        self._integrate(self.sim.latest_scan)
+        for i, robot in enumerate(robots):
+            self._integrate(i, robot.latest_scan)
 
-    # ------------------------------------------------------------------ internals
-
-    def _start_deciding(self) -> None:
-        """The decision and navigation state of a fresh episode: no goal, no blacklist, no
-        strikes (the engine's and each team robot's)."""
-        self.goal: np.ndarray | None = None
-        self._goal_window: tuple[tuple, tuple[slice, slice]] | None = None  # (goal, cells)
-        self._decision_due = False
-        self._best_distance = math.inf
-        self._best_time = 0.0
-        self._route_restarts = 0
-        self._decided_at = 0.0
-        self._fallback = NearestFrontier()
-        self.fallbacks = 0
-        self.reoffers = 0
-        self.blacklist = GoalBlacklist(self.config.blacklist)
-        self._linger_strikes = 0
-        self._stuck = 0  # Control periods since the robot got stuck (0: it is not).
-        self._stuck_at = np.zeros(2)
-        self._strike_at: np.ndarray | None = None
-
-    def _jittered_start(self: _Configured, scene: SceneFiles, gt: GridMap,
+    def _jittered_start(self, scene: SceneFiles, gt: GridMap,
                         rng: np.random.Generator) -> tuple[float, float, float]:
         dxy, dyaw = self.config.start_jitter
         x, y, yaw = scene.start
@@ -271,366 +283,287 @@ class Episode:
             return (x, y, pose[2])
         return pose
 
+    def map_of(self, index: int) -> tuple[OccupancyMapper, TopologyTracker, KnownCounter]:
+        """The map robot ``index`` plans on now: the episode's, or before its merge with
+        unknown starts its own."""
+        if self.merging is None or self.merging.merged[index]:
+            return self.mapper, self.tracker, self.counter
+        assert self.team is not None  # Merging is a team's.
+        return (self.team.own[index], self.merging.own_tracker(index),
+                self.team.own_counters[index])
+
+    # ------------------------------------------------------------------ one robot's state
+
+    @property
+    def agent(self) -> RobotAgent:
+        """The robot of a one-robot episode (robot 0 of a team)."""
+        return self.agents[0]
+
+    @property
+    def explorer(self) -> Explorer:
+        return self.agent.explorer
+
     @property
     def pose(self) -> np.ndarray:
-        """(x, y, yaw) of ``base_link`` in ``map`` as the robot believes it (the true pose
-        with ground-truth localisation)."""
-        return self.sim.pose if self.localizer is None else self.localizer.pose
+        """(x, y, yaw) of robot 0's ``base_link`` in ``map`` as it believes it (see
+        :attr:`RobotAgent.pose`)."""
+        return self.agent.pose
 
-    def _deskewed(self, scan, columns: slice):
-        """The scan as if all its beams were cast from ``base_scan`` at its stamp, undone
-        along the base's trajectory in ``kinematics_rows[:, columns]`` (5:8 the true poses,
-        8:11 the odometry's); the scan itself when its beams were cast at once."""
-        rows = self.sim.kinematics_rows
-        if scan.time_increment == 0 or len(rows) < 2:
-            return scan
-        first = scan.stamp + min(scan.time_increment * (len(scan.ranges) - 1), 0.0)
-        lo = max(int(np.searchsorted(rows[:, 0], first)) - 1, 0)
-        return deskew_scan(scan, trajectory=(rows[lo:, 0], rows[lo:, columns]))
+    @property
+    def navigator(self) -> Navigator:
+        return self.agent.navigator
 
-    def _localize(self, scan):
-        """Updates the pose estimate to the scan's stamp; the scan as the robot maps it
-        (deskewed when its beams were taken over time) and its sensor pose."""
-        loc = self.localizer
-        rows = self.sim.kinematics_rows
-        if len(rows) == 0:
-            odom, truth, stamp = self.sim.odom_pose, self.sim.pose, self.sim.time
-        else:
-            recent = rows[-40:]
-            k = int(np.argmin(np.abs(recent[:, 0] - scan.stamp)))  # Scans fall on samples.
-            odom, truth, stamp = recent[k, 8:11], recent[k, 5:8], float(recent[k, 0])
-        loc.advance(odom, stamp)
-        scan = self._deskewed(scan, slice(8, 11))
-        if self.config.localization == "scan_matching":
-            loc.correct(scan, self.mapper)
-        estimate = loc.pose
-        self._positions.append((estimate[0], estimate[1], truth[0], truth[1]))
-        return scan, loc.sensor_pose
+    @property
+    def localizer(self) -> Any:
+        return self.agent.localizer
 
-    def _integrate(self, scan) -> None:
-        if self.sim.physics_fault:
-            return  # A broken state would map garbage; the episode ends at the next check.
-        grid = self.mapper.grid
-        seen = None
-        # What was seen: every beam from where it was really cast (the LDS-01's are spread
-        # over its rotation).
-        true_scan = self._deskewed(scan, slice(5, 8))
-        if self.localizer is not None:
-            seen = self._seen.integrate(true_scan)
-            scan, sensor_pose = self._localize(scan)
-            changed = self.mapper.integrate(scan, sensor_pose)
-        else:
-            changed = self.mapper.integrate(true_scan)
-        self.tracker.observe(grid, changed)
-        if self._costmap is not None:
-            self._costmap.update(np.concatenate([changed[:, 0] * grid.shape[1] + changed[:, 1],
-                                                 self.tracker.gvd.last_changed]))
-        ratio = self.counter.update(self._seen.state, changed if seen is None else seen,
-                                    grid.shape[1])
-        self.curve.append((scan.stamp, ratio))
-        if self.observer is not None:
-            self.observer.on_scan(self, scan)
+    @property
+    def goal(self) -> np.ndarray | None:
+        return self.agent.goal
+
+    @property
+    def goals(self) -> list[tuple[float, float, float]]:
+        return self.agent.goals
+
+    @property
+    def visited(self) -> list[np.ndarray]:
+        return self.agent.visited
+
+    @property
+    def blacklist(self) -> GoalBlacklist:
+        return self.agent.blacklist
 
     def costmap(self) -> Costmap:
-        """The planner's costmap (kept current as scans arrive)."""
-        return self._static_costmap or self._costmap
-
-    def _goal_still_open(self) -> bool:
-        """A frontier goal stays worth driving to while unknown cells lie next to it; an
-        explorer with other goals can say itself (``goal_open(grid)``)."""
-        if getattr(self.explorer, "waypoint", False):
-            # A waypoint (a TER node that is not a frontier) is driven to until reached.
-            return self.navigator.status == NavStatus.ACTIVE
-        if hasattr(self.explorer, "goal_open"):
-            verdict = self.explorer.goal_open(self.mapper.grid)
-            if verdict is not None:
-                return verdict
-        # Asked every control period: the cells around the goal are found once per goal.
-        assert self.goal is not None  # Asked only once a goal was adopted.
-        goal = tuple(self.goal)
-        if self._goal_window is None or self._goal_window[0] != goal:
-            grid = self.mapper.grid
-            r, c = grid.world_to_cell(self.goal)
-            k = max(1, int(round(0.3 / grid.resolution)))
-            self._goal_window = goal, np.s_[max(r - k, 0):r + k + 1, max(c - k, 0):c + k + 1]
-        return bool((self.mapper.state[self._goal_window[1]] < 0).any())
+        return self.agent.costmap()
 
     def decision_state(self) -> ExplorationState:
-        """What the explorer sees now (frontiers already filtered by the blacklist)."""
-        grid = self.mapper.grid
-        cfg = self.config
-        self.blacklist.forget_changed(grid)
-        state = ExplorationState(grid, self.pose, self.sim.time, [], self.costmap(),
-                                 np.array(self.visited).reshape(-1, 2),
-                                 blacklist=self.blacklist.points(),
-                                 ground_truth=self.scene.ground_truth,
-                                 blacklist_radius=cfg.blacklist.radius,
-                                 sensor_range=self.sim.lidar.config.range_max,
-                                 target_ratio=cfg.target_ratio,
-                                 extras={"tracker": self.tracker})
-        frontiers = self.tracker.frontiers(grid)
-        if frontiers:
-            allowed = state.allowed([f.goal for f in frontiers])
-            state.frontiers = [f for f, ok in zip(frontiers, allowed) if ok]
-        return state
+        return self.agent.decision_state()
 
     def adopt_goal(self, goal: np.ndarray, state: ExplorationState | None = None) -> bool:
-        """Makes ``goal`` (x, y, metres) the navigation goal.
-
-        Returns:
-            False if the goal was refused and given up: no path leads to it, or it lies
-            within zeta yet its frontier is still open (the lidar cannot see it from here).
-        """
-        goal = np.asarray(goal, float)
-        if (self.goal is not None and np.array_equal(goal, self.goal) and
-                self.navigator.status == NavStatus.ACTIVE):
-            # A periodic re-plan that keeps the goal: carry on, progress clock running.
-            self._decision_due = False
-            self._decided_at = self.sim.time
-            return True
-        self.goal = goal
-        self.goals.append((self.sim.time, *self.goal))
-        if self.observer is not None:
-            self.observer.on_decision(self, state if state is not None else self.decision_state())
-        pose = self.pose
-        near = np.hypot(*(self.goal - pose[:2])) <= self.config.navigator.goal_tolerance
-        if near and not getattr(self.explorer, "waypoint", False) and self._goal_still_open():
-            self._give_up("seen_open")
-            return False
-        if not self.navigator.set_goal(self.goal, self.costmap(), pose, self.sim.time):
-            self._give_up("no_path")
-            return False
-        self._best_distance = self.navigator.remaining_length(pose)
-        self._best_time = self._decided_at = self.sim.time
-        self._route_restarts = 0
-        self._decision_due = False
-        return True
-
-    def _give_up(self, reason: str) -> None:
-        """Blacklists the current goal for ``reason`` and asks for a new one."""
-        assert self.goal is not None  # Given up only once adopted.
-        self.blacklist.add(self.goal, reason, self.mapper.grid)
-        self.navigator.status = NavStatus.NO_PATH
-        self._decision_due = True
-
-    def _decide(self) -> bool:
-        """Asks the explorer for a goal; False when exploration is over.
-
-        An explorer's "nothing left" is checked against the map (:meth:`decide_fallback`),
-        so an explorer that misses small or distant frontiers (one that drops frontiers
-        under a size, a coarse view) does not end the episode early.
-        """
-        for _ in range(8):
-            state = self.decision_state()
-            goal = self.explorer.select_goal(state)
-            if goal is None:
-                return self.decide_fallback()
-            if self.adopt_goal(goal, state):
-                return True
-        return True  # Keep going; the next tick decides again.
+        return self.agent.adopt_goal(goal, state)
 
     def decide_fallback(self) -> bool:
-        """The engine's own decision, for when the explorer has none; False when
-        exploration is over (no frontier can be reached).
+        return self.agent.decide_fallback()
 
-        The robot goes to the nearest frontier that is not blacklisted (counted in
-        ``fallbacks``). When none is left, the goals given up for want of a path or of
-        progress are offered again (counted in ``reoffers``), and any frontier cell within
-        zeta of the reachable space counts (clusters too small or too thin to be frontiers
-        of their own, goals that lie off a frontier's reachable side).
-        """
-        for _ in range(8):
-            state = self.decision_state()
-            goal = self._last_resort(state)
-            while goal is None and self.blacklist.reoffer():
-                self.reoffers += 1
-                state = self.decision_state()
-                goal = self._last_resort(state)
-            if goal is None:
-                return False
-            self.fallbacks += 1
-            if self.adopt_goal(goal, state):
-                return True
-        return True  # Keep going; the next tick decides again.
+    def decision_due(self) -> bool:
+        return self.agent.decision_due()
 
-    def _last_resort(self, state: ExplorationState) -> np.ndarray | None:
-        """The nearest frontier by path, else the nearest frontier cell (an unknown cell
-        next to free space) that a traversable cell within zeta of it connects to the
-        robot; None if there is none (neither counting blacklisted goals)."""
-        goal = self._fallback.select_goal(state)
-        if goal is not None:
-            return goal
-        grid = state.grid
-        cells = np.argwhere(frontier_mask(grid))
-        if len(cells) == 0:
-            return None
-        cells = cells[state.allowed(grid.cell_to_world(cells))]
-        if len(cells) == 0:
-            return None
-        near = np.zeros(grid.shape, np.uint8)
-        near[cells[:, 0], cells[:, 1]] = 1
-        k = int(round(self.config.navigator.goal_tolerance / grid.resolution))
-        disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1, 2 * k + 1))
-        targets = cv2.dilate(near, disk).astype(bool) & state.costmap.traversable
-        dist = state.costmap.distances_from(state.pose[:2], targets, stop_after=1)
-        reached = np.argwhere(np.isfinite(dist) & targets)
-        if len(reached) == 0:
-            return None
-        entry = reached[np.argmin(dist[reached[:, 0], reached[:, 1]])]
-        return grid.cell_to_world(cells[np.argmin(np.hypot(*(cells - entry).T))])
+    @property
+    def time(self) -> float:
+        """Simulated time (s)."""
+        return self.world.time
+
+    @property
+    def ratio(self) -> float:
+        """The exploration ratio now."""
+        return self.curve[-1][1] if self.curve else 0.0
+
+    # ------------------------------------------------------------------ mapping
+
+    def _body_centres(self) -> np.ndarray:
+        return np.array([r.body_centre for r in self.world.robots])
+
+    def set_teammates(self) -> None:
+        """Puts each team robot's teammates into its costmap where they stand now."""
+        if self.team is not None:
+            self.team.set_teammates(self._body_centres())
+
+    def observe(self, mapper: OccupancyMapper, tracker: TopologyTracker,
+                changed: np.ndarray) -> None:
+        """Updates ``tracker`` and the costmaps of the robots planning on ``mapper``'s map
+        after its ``changed`` cells changed."""
+        grid = mapper.grid
+        tracker.observe(grid, changed)
+        cells = np.concatenate([changed[:, 0] * grid.shape[1] + changed[:, 1],
+                                tracker.gvd.last_changed])
+        for a in self.agents:
+            if a.mapper is mapper:
+                a._costmap.update(cells)
+
+    def _integrate(self, index: int, scan) -> None:
+        """Maps robot ``index``'s scan."""
+        if self.world.physics_fault:
+            return  # A broken state would map garbage; the episode ends at the next check.
+        agent = self.agents[index]
+        team, merging = self.team, self.merging
+        # What was seen: every beam from where it was really cast (the LDS-01's are spread
+        # over its rotation), less the returns from teammates.
+        true_scan = agent.deskewed(scan, slice(5, 8))
+        logged = scan
+        if team is not None:
+            true_scan = logged = team.mask(index, true_scan, self._body_centres())
+            own_changed = team.cover(index, true_scan)
+        ratio = 0.0
+        if merging is not None and not merging.merged[index]:
+            # Its own map (its coverage map), and its own-frame map for the merge.
+            assert team is not None
+            self.observe(team.own[index], merging.own_tracker(index), own_changed)
+            merging.keep(index, true_scan)
+        else:
+            seen = None
+            if agent.localizer is not None:
+                seen = self._seen.integrate(true_scan)
+                logged, sensor_pose = agent.localize(scan)
+                if team is not None:  # The teammates' returns are left out as seen.
+                    logged = dataclasses.replace(logged, ranges=np.where(
+                        np.isnan(true_scan.ranges), np.nan, logged.ranges))
+                changed = self.mapper.integrate(logged, sensor_pose)
+            elif merging is not None:
+                changed = merging.integrate_merged(self.mapper, agent, true_scan)
+            else:
+                changed = self.mapper.integrate(true_scan)
+            self.observe(self.mapper, self.tracker, changed)
+            ratio = self.counter.update(self._seen.state, changed if seen is None else seen,
+                                        self.mapper.grid.shape[1])
+        if merging is not None:
+            union_ratio = merging.unite(true_scan)
+            if not merging.all_merged:
+                ratio = union_ratio
+        self.curve.append((scan.stamp, ratio))
+        if self.observer is not None and hasattr(self.observer, "on_scan"):
+            self.observer.on_scan(agent, logged)
+
+    def _decision_scan(self, agent: RobotAgent) -> bool:
+        """Maps the scan that a world scanning by travel (the grid world's ``scan_travel``)
+        skipped at this instant, so that each decision sees the map from where the robot
+        stands; True if the episode ended with it."""
+        scan = agent.sim.scan_now()
+        if scan is None:
+            return False
+        self._integrate(agent.index, scan)
+        return self._check_end()
 
     # ------------------------------------------------------------------ stepping
 
     def _check_end(self) -> bool:
-        """Sets ``end_reason`` if the episode is over; True then."""
+        """Sets ``end_reason`` if the episode is over; True then. (The robots' own ends,
+        lingering and finding nothing to explore, are :meth:`_retire_lingerers`' and
+        :meth:`_all_idle`'.)"""
         if self.end_reason is not None:
             return True
         cfg = self.config
-        sim = self.sim
-        t = sim.time
-        if self.curve[-1][1] >= cfg.target_ratio:
+        world = self.world
+        if self.ratio >= cfg.target_ratio:
             self.end_reason = "explored"
-        elif t >= cfg.max_time - 1e-9:
+        elif self.time >= cfg.max_time - 1e-9:
             self.end_reason = "time_limit"
-        elif sim.physics_fault:
+        elif world.physics_fault:
             self.end_reason = "physics_fault"
-        elif not sim.is_upright:
+        elif not all(a.sim.is_upright for a in self.agents):
             self.end_reason = "tipped_over"
-        elif self._lingered(self.pose, t):
+        elif all(a.retired is not None for a in self.agents):
             self.end_reason = "lingering"
         return self.end_reason is not None
 
-    def _lingered(self, pose: np.ndarray, t: float) -> bool:
-        """True when the robot has stayed on one spot through ``linger_strikes`` goals;
-        before that, a goal the robot lingers on is given up and the clock restarts."""
-        radius = self.config.navigator.linger_radius
-        if self._strike_at is not None and np.hypot(*(pose[:2] - self._strike_at)) > radius:
-            self._linger_strikes, self._strike_at = 0, None
-        if not self.navigator.lingering(pose, t):
+    def _retire_lingerers(self) -> bool:
+        """Stops every exploring robot that lingered through ``linger_strikes`` goals
+        (the others go on); True if the episode ended so."""
+        for a in self.agents:
+            if a.retired is None and a.active and a._yield_goal is None and a.lingered():
+                a.retire("lingering")
+        return self._check_end()
+
+    def _decide(self, agent: RobotAgent) -> None:
+        """Runs ``agent``'s decision if one is due; idles it when it finds nothing."""
+        t = self.time
+        idle_until = agent.idle_until
+        resumed = idle_until is not None
+        if idle_until is not None:
+            if t < idle_until:
+                return
+            agent.idle_until = None
+            agent._decision_due = True
+        if agent.decision_due():
+            if self._decision_scan(agent):
+                return
+            if not agent.decide():
+                agent.idle(t, resumed, self.team.config.idle_retry if self.team else math.inf)
+                return
+        if resumed:
+            agent.idle_time += t - agent.idle_since
+            agent.navigator.restart_linger_clock(agent.pose, t)
+
+    def _all_idle(self) -> bool:
+        """True when no robot explores and one at least is idle: each finds nothing (a
+        team's asked once more now) or has retired."""
+        if any(a.active for a in self.agents) or all(a.retired for a in self.agents):
             return False
-        if self.goal is None or self._linger_strikes >= self.config.linger_strikes:
-            return True
-        self._linger_strikes += 1
-        self._strike_at = pose[:2].copy()
-        self._give_up("lingered")
-        self.navigator.restart_linger_clock(pose, t)
-        return False
-
-    def decision_due(self) -> bool:
-        """Whether the explorer must choose a goal before the next control period (the
-        goal was reached, vanished, failed or made no progress, or the explorer re-plans
-        every ``replan_period`` seconds). Evaluated once per control period; stays True
-        until a goal is adopted."""
-        if self._decision_due:
-            return True
-        cfg = self.config
-        pose, t = self.pose, self.sim.time
-        period = getattr(self.explorer, "replan_period", None)
-        if period is not None and self.goal is not None and t - self._decided_at >= period:
-            self._decision_due = True
-            return True
-        if self.goal is not None and self.navigator.status == NavStatus.ACTIVE:
-            d = self.navigator.remaining_length(pose)
-            longer = d > self._best_distance + 1.0 and \
-                self._route_restarts < cfg.longer_route_restarts
-            if d < self._best_distance - 0.25 or longer:
-                # Closer along the path, or a longer route replanned: the clock restarts.
-                self._route_restarts += longer
-                self._best_distance, self._best_time = d, t
-            elif t - self._best_time > cfg.progress_timeout:
-                self._give_up("no_progress")
-                return True
-        if self.goal is None or self.navigator.status != NavStatus.ACTIVE or \
-                not self._goal_still_open():
-            if self.navigator.status == NavStatus.REACHED and self._goal_still_open():
-                # Reached, yet still next to unknown space: the lidar cannot see it from
-                # here (a blind corner, a gap too small).
-                self._give_up("seen_open")
-            self._decision_due = True
-        return self._decision_due
-
-    def control(self) -> None:
-        """One control period of navigation towards the current goal."""
-        pose = self.command()
-        for scan in self.sim.step(1.0 / self.config.control_rate_hz):
-            self._integrate(scan)
-        self.record_visit(pose)
-        if self.observer is not None:
-            self.observer.on_step(self)
-
-    def command(self) -> np.ndarray:
-        """Commands the robot for the next control period: the navigator's twist towards
-        the goal, or the recovery's while the robot is stuck; returns the pose it steered
-        from."""
-        sim = self.sim
-        pose = self.pose
-        v, w = self.navigator.update(pose, sim.time, self.costmap)
-        # Stuck: collided, and not yet 0.25 m away from where it first did.
-        if self._stuck and np.hypot(*(pose[:2] - self._stuck_at)) > 0.25:
-            self._stuck = 0
-        if sim.in_collision or self._stuck:
-            if not self._stuck:
-                self._stuck_at = pose[:2].copy()
-            self._stuck += 1
-            # Recovery, two seconds each in turn until the robot is out: back off the
-            # wall, the navigator's own command, turn one way, turn the other (a wedge
-            # may let the body out one way only).
-            p = sim.profile
-            v, w = ((-0.5 * p.max_linear_speed, 0.0), (v, w), (0.0, p.max_angular_speed),
-                    (0.0, -p.max_angular_speed))[(self._stuck - 1) // 20 % 4]
-        sim.command(v, w)
-        return pose
-
-    def record_visit(self, pose: np.ndarray) -> None:
-        """Adds ``pose``'s position to ``visited`` once it is 0.25 m from the last one."""
-        last = self.visited[-1] if self.visited else None
-        if last is None or np.hypot(pose[0] - last[0], pose[1] - last[1]) > 0.25:
-            self.visited.append(pose[:2].copy())
+        if self.team is not None:
+            for a in self.agents:
+                if a.retired is None:
+                    a.idle_until = self.time  # Due now: ask again.
+                    self._decide(a)
+        return not any(a.active for a in self.agents)
 
     def step(self) -> bool:
-        """One control period; returns False once the episode has ended."""
+        """One control period for every robot; False once the episode has ended."""
+        if self._check_end() or self._retire_lingerers():
+            return False
+        self.set_teammates()
+        decided = [len(a.goals) for a in self.agents]
+        for a in self.agents:
+            if a.retired is None:
+                self._decide(a)
         if self._check_end():
             return False
-        if self.decision_due():
-            if self._decision_scan():
-                return False
-            if not self._decide():
-                self.end_reason = "lost" if self._lost() else "no_frontiers"
-                return False
+        if self._all_idle():
+            self.end_reason = "lost" if any(a.lost() for a in self.agents) else "no_frontiers"
+            return False
+        if self.team is not None:
+            self.team.resolve_blocks(self.time, self.world.poses())
+            if self.observer is not None and hasattr(self.observer, "on_goal"):
+                for a, k in zip(self.agents, decided):
+                    for when, x, y in a.goals[k:]:
+                        self.observer.on_goal(self, a.index, when, x, y)
         self.control()
         return True
 
-    def _lost(self) -> bool:
-        """True when the robot's estimate has no traversable cell of its map near it (off
-        the map, or inside a wall): planning from it fails whatever is left to explore."""
-        return (self.localizer is not None and
-                self.costmap().nearest_traversable(self.pose[:2]) < 0)
-
-    def _decision_scan(self) -> bool:
-        """Maps the scan that a world scanning by travel (the grid world's ``scan_travel``)
-        skipped at this instant, so that each decision sees the map from where the robot
-        stands; True if the episode ended with it."""
-        scan = self.sim.scan_now()
-        if scan is None:
-            return False
-        self._integrate(scan)
-        return self._check_end()
+    def control(self) -> None:
+        """One control period of navigation: each robot drives towards its goal (a robot
+        that stands idle or retired stands still), the world steps and the scans are
+        mapped."""
+        poses = []
+        for a in self.agents:
+            if a.active or a._yield_goal is not None:
+                poses.append(a.command())
+            else:
+                a.sim.command(0.0, 0.0)
+                poses.append(a.pose)
+        dt = 1.0 / self.config.control_rate_hz
+        if self.team is None:
+            for scan in self.world.step(dt):
+                self._integrate(0, scan)
+        else:
+            scans = self.world.step(dt)
+            for k in range(max((len(s) for s in scans), default=0)):
+                for i, robot_scans in enumerate(scans):
+                    if k < len(robot_scans):
+                        self._integrate(i, robot_scans[k])
+        for a, pose in zip(self.agents, poses):
+            a.record_visit(pose)
+        if self.merging is not None and not self.merging.all_merged:
+            self.merging.try_merges(self)
+        if self.observer is not None and hasattr(self.observer, "on_step"):
+            self.observer.on_step(self)
 
     def run_to_decision(self) -> bool:
-        """Runs control periods until a decision is due (True) or the episode ends (False);
-        for callers that choose goals themselves (the Gymnasium env)."""
-        while not self._check_end():
-            if self.decision_due():
-                return not self._decision_scan()
+        """Runs control periods until robot 0's decision is due (True) or the episode ends
+        (False); for callers that choose its goals themselves (the Gymnasium env)."""
+        while not (self._check_end() or self._retire_lingerers()):
+            if self.agent.decision_due():
+                return not self._decision_scan(self.agent)
             self.control()
         return False
 
-    def run(self) -> EpisodeResult:
+    def run(self) -> Any:
         """Steps to the end.
 
         Ctrl-C (SIGINT) is taken between control periods (never inside MuJoCo or numba
         code): the episode ends as ``interrupted`` and :class:`Interrupted`, carrying the
         result so far, is raised. A second Ctrl-C interrupts at once.
+
+        Returns:
+            :meth:`result`.
         """
         with SigintFlag() as flag:
             while not flag.raised and self.step():
@@ -640,25 +573,34 @@ class Episode:
             raise Interrupted(self.result())
         return self.result()
 
-    def result(self) -> EpisodeResult:
+    def result(self) -> Any:
+        """What the episode produced: an :class:`EpisodeResult` for one robot, a
+        :class:`~mjexplore.episode.team.TeamEpisodeResult` for a team."""
+        if self.team is not None:
+            return self.team.result(self)
+        agent = self.agent
         curve = np.array(self.curve)
         grid = self.mapper.grid
-        log = self.sim.kinematics()
+        log = self.world.kinematics()
         metrics = episode_metrics(curve, log, iou(grid, self.reference),
-                                  self.sim.collisions, self.end_reason or "running")
+                                  self.world.collisions, self.end_reason or "running")
         metrics["exploration_ratio_check"] = round(
             exploration_ratio(self._seen.grid, self.reference), 5)
         metrics["localization"] = self.config.localization
-        positions = np.array(self._positions, np.float64).reshape(-1, 4)
+        positions = np.array(agent._positions, np.float64).reshape(-1, 4)
         metrics.update(pose_errors(positions[:, :2], positions[:, 2:]))
-        metrics["decisions"] = len(self.goals)
-        metrics["fallbacks"] = self.fallbacks
-        metrics["reoffers"] = self.reoffers
-        metrics["given_up"] = self.blacklist.reasons()
-        sha = getattr(self.explorer, "weights_sha256", None)  # A learned explorer's weights.
+        metrics["decisions"] = len(agent.goals)
+        metrics["fallbacks"] = agent.fallbacks
+        metrics["reoffers"] = agent.reoffers
+        metrics["given_up"] = agent.blacklist.reasons()
+        sha = getattr(agent.explorer, "weights_sha256", None)  # A learned explorer's weights.
         if sha is not None:
-            metrics["policy"] = cast(Any, self.explorer).policy_name
+            metrics["policy"] = cast(Any, agent.explorer).policy_name
             metrics["weights_sha256"] = sha
         return EpisodeResult(metrics, curve, log,
                              GridMap(grid.data.copy(), grid.resolution, grid.origin),
-                             np.array(self.goals).reshape(-1, 3))
+                             np.array(agent.goals).reshape(-1, 3))
+
+
+__all__ = ["END_REASONS", "LOCALIZATIONS", "Episode", "EpisodeConfig", "EpisodeResult",
+           "Interrupted", "SigintFlag"]

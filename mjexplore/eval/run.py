@@ -68,22 +68,31 @@ class _HeldSigint(SigintFlag):
 
 
 class Observers:
-    """Fans an episode's observer hooks out to several observers (each may be None)."""
+    """Fans an episode's observer hooks out to several observers (each may be None, and
+    each has the hooks it needs: see :class:`~mjexplore.episode.engine.Episode`)."""
 
     def __init__(self, *observers: Any) -> None:
         self.observers = [o for o in observers if o is not None]
 
-    def on_scan(self, episode, scan) -> None:
+    def on_scan(self, agent, scan) -> None:
         for o in self.observers:
-            o.on_scan(episode, scan)
+            if hasattr(o, "on_scan"):
+                o.on_scan(agent, scan)
 
-    def on_decision(self, episode, state) -> None:
+    def on_decision(self, agent, state) -> None:
         for o in self.observers:
-            o.on_decision(episode, state)
+            if hasattr(o, "on_decision"):
+                o.on_decision(agent, state)
+
+    def on_goal(self, episode, index, t, x, y) -> None:
+        for o in self.observers:
+            if hasattr(o, "on_goal"):
+                o.on_goal(episode, index, t, x, y)
 
     def on_step(self, episode) -> None:
         for o in self.observers:
-            o.on_step(episode)
+            if hasattr(o, "on_step"):
+                o.on_step(episode)
 
     def close(self) -> None:
         """Closes every observer, even if one fails (files are left readable)."""

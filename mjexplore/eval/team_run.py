@@ -22,9 +22,9 @@ import os
 from pathlib import Path
 from typing import Any, cast
 
-from mjexplore.episode import EpisodeConfig, Interrupted
+from mjexplore.episode import Episode, EpisodeConfig, Interrupted
 from mjexplore.episode.explorer import Explorer
-from mjexplore.episode.team import TeamConfig, TeamEpisode, TeamEpisodeResult
+from mjexplore.episode.team import TeamConfig, TeamEpisodeResult
 from mjexplore.errors import UserInputError
 from mjexplore.eval.methods import parse_method
 from mjexplore.eval.progress import EpisodeProgress
@@ -132,19 +132,6 @@ def check_placements(placements: list[str]) -> None:
         raise UserInputError(_not_a_placement(",".join(placements), poses=False))
 
 
-class TeamObservers(Observers):
-    """Fans a team episode's observer hooks out to several observers."""
-
-    def on_scan(self, episode, index, scan) -> None:  # type: ignore[override]
-        for o in self.observers:
-            o.on_scan(episode, index, scan)
-
-    def on_goal(self, episode, index, t, x, y) -> None:
-        for o in self.observers:
-            if hasattr(o, "on_goal"):
-                o.on_goal(episode, index, t, x, y)
-
-
 class TeamProgress(EpisodeProgress):
     """The progress bar of a team episode: simulated time, the team's ratio, decisions."""
 
@@ -155,9 +142,8 @@ class TeamProgress(EpisodeProgress):
             f"{sum(len(a.goals) for a in episode.agents)}")
         self.progress.set(min(episode.time, self.progress.total))
 
-    # A team episode's observers also get the robot's index.
-    def on_scan(self, episode, index=None, scan=None) -> None:  # type: ignore[override]
-        self._episode = episode
+    def on_scan(self, agent, scan) -> None:
+        self._episode = agent.episode
 
 
 def run_team_episode(scene: SceneFiles, spec: str, n: int, seed: int, config: EpisodeConfig,
@@ -168,10 +154,10 @@ def run_team_episode(scene: SceneFiles, spec: str, n: int, seed: int, config: Ep
     explorers, label = team_explorers(spec, n)
     log = None if mcap_path is None else TeamFoxgloveLog(
         mcap_path, [robot_prefix(i).rstrip("/") for i in range(n)])
-    observers = TeamObservers(log, TeamProgress(config.max_time) if progress else None)
+    observers = Observers(log, TeamProgress(config.max_time) if progress else None)
     try:
-        episode = TeamEpisode(scene, explorers, seed, config, starts, team_config,
-                              observer=observers)
+        episode = Episode(scene, explorers, seed, config, observers, starts=starts,
+                          team_config=team_config)
         result = episode.run()
     finally:
         observers.close()

@@ -1,7 +1,7 @@
 """Coordination for teams of robots exploring one shared map.
 
 A team's explorers are one per robot (the team engine,
-:class:`~mjexplore.episode.team.TeamEpisode`, asks each robot's own); coordinated ones read
+:class:`~mjexplore.episode.engine.Episode` of a team, asks each robot's own); coordinated ones read
 the team (``state.extras['team']``, a :class:`~mjexplore.episode.team.TeamView`: every
 robot's pose, goal and costmap) and may share a coordinator. The baselines:
 

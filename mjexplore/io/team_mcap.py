@@ -93,7 +93,8 @@ class TeamFoxgloveLog:
 
     # Observer hooks ---------------------------------------------------------------
 
-    def on_scan(self, episode, index: int, scan) -> None:
+    def on_scan(self, agent, scan) -> None:
+        index, episode = agent.index, agent.episode
         t = scan.stamp
         ns = sim_ns(t)
         ch = self.robots[index]
