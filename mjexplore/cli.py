@@ -268,65 +268,63 @@ def _team_config(args: argparse.Namespace):
     return TeamConfig(unknown_starts=True)
 
 
-def _explore_team(args: argparse.Namespace) -> int:
-    """``explore --robots N``: a team episode (eval/team_run.py)."""
-    from mjexplore.eval.team_run import team_explorers, team_starts, write_team_run
-    from mjexplore.scenes.canonical import resolve_scene
+def _explore_method(args: argparse.Namespace) -> str:
+    """The method spec ``explore`` runs: ``--explorer`` with ``--policy`` and
+    ``--no-masking`` applied (a learned explorer's), or a team method's name."""
+    from mjexplore.eval.methods import LEARNED, MethodSpec, parse_method
+    from mjexplore.explorers.team import TEAM_METHODS
 
-    given = [o for o, v in (("--policy", args.policy), ("--no-masking", args.no_masking),
-                            ("--video", args.video), ("--live", args.live),
-                            ("--mcap-profile", args.mcap_profile)) if v not in (None, False)]
-    if given:
-        raise UserInputError(f"{', '.join(given)}: not available with --robots yet; drop "
-                             f"{'it' if len(given) == 1 else 'them'} or run one robot.")
-    if args.localization != "ground_truth":
-        raise UserInputError("a team explores with known start poses: use --localization "
-                             "ground_truth with --robots.")
-    team_explorers(args.explorer, args.robots)  # Fails early on a bad name.
-    team_config = _team_config(args)
-    check_output_folder(args.out)
-    scene, config = resolve_scene(args.scene), _episode_config(args)
-    starts = team_starts(scene, args.starts, args.robots)
-    metrics = write_team_run(args.out, scene, args.explorer, args.robots, args.seed, config,
-                             starts, mcap=not args.no_mcap, team_config=team_config,
-                             progress=not args.no_progress)
-    print(json.dumps(metrics))
-    return 0
+    if args.explorer in TEAM_METHODS:
+        if args.robots < 2:
+            raise UserInputError(f"--explorer {args.explorer} coordinates a team: add --robots "
+                                 "2 or more, or choose a single-robot explorer.")
+        if args.policy is not None or args.no_masking:
+            raise UserInputError("--policy and --no-masking apply to the learned explorers "
+                                 f"only, not {args.explorer!r}.")
+        return args.explorer
+    spec = parse_method(args.explorer)
+    if args.policy is not None or args.no_masking:
+        if spec.method not in LEARNED:
+            raise UserInputError("--policy and --no-masking apply to the learned explorers "
+                                 f"only ({', '.join(LEARNED)}), not {args.explorer!r}.")
+        if args.policy is not None and spec.policy is not None:
+            _check_policy_fits_label(args.explorer, spec.method, spec.policy, args.policy)
+        spec = MethodSpec(spec.method, args.policy or spec.policy,
+                          False if args.no_masking else spec.masking)
+    return spec.text
 
 
 def cmd_explore(args: argparse.Namespace) -> int:
-    from mjexplore.eval.methods import LEARNED, MethodSpec, parse_method
+    from mjexplore.eval.methods import make_explorer, parse_method, team_explorers
+    from mjexplore.eval.placements import team_starts
     from mjexplore.eval.run import RunInterrupted, write_run
     from mjexplore.scenes.canonical import resolve_scene
 
-    if args.robots > 1 or args.starts is not None or args.unknown_starts:
-        return _explore_team(args)
     try:
-        spec = parse_method(args.explorer)
-        if args.policy is not None or args.no_masking:
-            if spec.method not in LEARNED:
-                raise UserInputError("--policy and --no-masking apply to the learned explorers "
-                                     f"only ({', '.join(LEARNED)}), not {args.explorer!r}.")
-            if args.policy is not None and spec.policy is not None:
-                _check_policy_fits_label(args.explorer, spec.method, spec.policy, args.policy)
-            spec = MethodSpec(spec.method, args.policy or spec.policy,
-                              False if args.no_masking else spec.masking)
+        spec = _explore_method(args)
+        team_config = _team_config(args)
         check_output_folder(args.out)
         if args.video is not None:
             _check_video_path(Path(args.video), Path(args.out))
-        explorer = spec.build()  # Fails early on a bad name or weights file.
-        label = getattr(explorer, "label", spec.method)
+        # Built now to fail early on a bad name or weights file.
+        if args.robots > 1:
+            label = team_explorers(spec, args.robots)[1]
+        else:
+            explorer = make_explorer(spec)
+            label = getattr(explorer, "label", parse_method(spec).method)
         video = _video_config(args) if args.video is not None else None
         if video is not None:
             from mjexplore.render.gl import check_rendering
 
             check_rendering()  # Fails now, not after the episode, if GL cannot load.
         scene, config = resolve_scene(args.scene), _episode_config(args)
+        starts = team_starts(scene, args.starts, args.robots)
         with _live_server(args) as live:
-            metrics = write_run(args.out, scene, label, args.seed, config, spec=spec.text,
+            metrics = write_run(args.out, scene, label, args.seed, config, spec=spec,
                                 mcap=False if args.no_mcap else args.mcap_profile or "foxglove",
                                 video=video, video_path=args.video,
-                                progress=not args.no_progress, live=live)
+                                progress=not args.no_progress, live=live, robots=args.robots,
+                                starts=starts, team_config=team_config)
     except KeyboardInterrupt as exc:  # Ctrl-C: say what was kept (see eval/run.py).
         kept = exc.kept if isinstance(exc, RunInterrupted) else []
         if not isinstance(exc, RunInterrupted) or not kept:
@@ -527,7 +525,7 @@ def _refuse_repeats(lists: tuple[tuple[str, list[str]], ...]) -> None:
 
 def _bench_team(args: argparse.Namespace) -> int:
     """``bench --robots N``: a sweep of team episodes (eval/team_sweep.py)."""
-    from mjexplore.eval.team_run import team_explorers
+    from mjexplore.eval.methods import team_explorers
     from mjexplore.eval.team_sweep import DRAWN, run_team_sweep
 
     text = args.explorers
@@ -541,9 +539,9 @@ def _bench_team(args: argparse.Namespace) -> int:
                              "comma-separated.")
     _check_sweep_size(args)
     _refuse_repeats((("--scenes", scenes), ("--explorers", methods), ("--starts", placements)))
-    if args.localization != "ground_truth" or args.mcap is not None:
-        raise UserInputError("a team sweep runs with --localization ground_truth and without "
-                             "--mcap.")
+    if args.mcap is not None:
+        raise UserInputError("a team sweep writes no MCAP: drop --mcap (explore --robots N "
+                             "writes one).")
     for method in methods:
         team_explorers(method, args.robots)  # Fails early on a bad name.
     unknown_starts = _team_config(args) is not None

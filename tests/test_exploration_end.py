@@ -43,7 +43,7 @@ def _preload(episode: Episode, known: np.ndarray) -> None:
     mapper.state[known] = np.where(gt.data[known] == OCCUPIED, OCCUPIED, FREE)
     changed = np.argwhere(known)
     episode.tracker.observe(mapper.grid, changed)
-    episode._costmap.update(np.concatenate([changed[:, 0] * gt.shape[1] + changed[:, 1],
+    episode.agent._costmap.update(np.concatenate([changed[:, 0] * gt.shape[1] + changed[:, 1],
                                             episode.tracker.gvd.last_changed]))
     episode.counter.update(mapper.state, changed, gt.shape[1])
 
@@ -170,7 +170,7 @@ def test_an_estimate_off_the_map_ends_the_episode_as_lost(tmp_path):
     for _ in range(20):
         episode.step()
     episode.localizer.reset((-5.0, -5.0, 0.0), odom_pose=episode.sim.odom_pose)  # Off the map.
-    episode.goal = None  # A decision is due now.
+    episode.agent.goal = None  # A decision is due now.
     m = episode.run().metrics
     assert m["end_reason"] == "lost"
     # With the true pose the same start explores on.

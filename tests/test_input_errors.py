@@ -11,7 +11,7 @@ from conftest import shared_data
 
 from mjexplore.cli import main
 from mjexplore.errors import UserInputError
-from mjexplore.eval.team_run import team_starts
+from mjexplore.eval.placements import team_starts
 from mjexplore.scenes.canonical import resolve_scene
 from mjexplore.scenes.team import check_starts, draw_starts, parse_starts
 

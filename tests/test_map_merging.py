@@ -11,7 +11,7 @@ import pytest
 
 from mjexplore.episode import Episode, EpisodeConfig
 from mjexplore.episode.team import TeamConfig
-from mjexplore.eval.team_run import team_explorers
+from mjexplore.eval.methods import team_explorers
 from mjexplore.mapping.map_merging import (
     MapMergeConfig,
     merge_maps,

@@ -174,3 +174,41 @@ def test_cli_rejects_odd_video_size(tmp_path):
     assert rc == 2 and not (tmp_path / "r").exists()
 
 
+
+
+def test_a_team_panel_draws_every_robot_in_its_colour():
+    from mjexplore.render.panel import ROBOT, TEAMMATE_COLOURS
+    from mjexplore.render.recorder import episode_panel
+
+    episode = Episode(resolve_scene("train_loop"), [make_explorer("nearest") for _ in range(3)],
+                      0, EpisodeConfig(max_time=3.0))
+    episode.run()
+    img = episode_panel(episode, 640, 480)
+    for colour in (ROBOT, TEAMMATE_COLOURS[0], TEAMMATE_COLOURS[1]):
+        assert (img == colour).all(axis=-1).sum() > 20, colour
+    alone = episode_panel(Episode(resolve_scene("train_loop"), make_explorer("nearest"), 0,
+                                  EpisodeConfig(max_time=3.0)), 640, 480)
+    assert (alone == TEAMMATE_COLOURS[0]).all(axis=-1).sum() == 0
+
+
+def test_explore_films_a_team_that_localises_itself(tmp_path):
+    """The issue's command, short: two robots, each with scan matching on odometry with
+    errors, filmed."""
+    _gl_or_skip()
+    import json
+
+    from mjexplore.cli import main
+
+    out, film = tmp_path / "team", tmp_path / "team.mp4"
+    assert main(["explore", "--scene", "train_loop", "--robots", "2", "--explorer", "nearest",
+                 "--localization", "scan_matching", "--odometry-error", "typical",
+                 "--video", str(film), "--video-size", "160x120", "--max-time", "6",
+                 "--no-progress", "--out", str(out)]) == 0
+    frames, _ = _read_video(film)
+    assert len(frames) == 7 and frames[0].shape == (120, 320, 3)  # t = 0 .. 5 s, the end.
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["robots"] == 2 and metrics["localization"] == "scan_matching"
+    assert all(r["pose_error_rmse_m"] < 0.3 for r in metrics["per_robot"])
+    for name in ("robot_0/kinematics.csv", "robot_1/coverage.csv", "ter.png", "scene.png",
+                 "episode.mcap", "video.mp4"):
+        assert (out / name).is_file(), name

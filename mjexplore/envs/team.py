@@ -35,9 +35,10 @@ Starting State:
     seed (:func:`~mjexplore.scenes.team.draw_starts`), or ``starts``.
 
 Episode End:
-    Terminated (every agent) when the team's map reaches the target ratio or no robot finds
-    a reachable frontier; truncated at the time cap, after ``max_decisions`` steps, or when
-    the episode ends otherwise (lingering, tipped over, physics fault).
+    The Gymnasium env's rules (``TERMINAL_REASONS``), for every agent: terminated when the
+    team's map reaches the target ratio, no robot finds a reachable frontier, a robot is
+    lost or tips over; truncated at the time cap, after ``max_decisions`` steps, or when the
+    episode ends otherwise (lingering, physics fault).
 
 Arguments:
     scene: Scene name or path. robots: team size. max_candidates: K. config: the episode's
@@ -57,6 +58,7 @@ import gymnasium as gym
 import numpy as np
 from pettingzoo import ParallelEnv
 
+from mjexplore.envs.exploration import TERMINAL_REASONS
 from mjexplore.episode import EpisodeConfig
 from mjexplore.episode.engine import Episode
 from mjexplore.episode.explorer import ExplorationState
@@ -181,7 +183,7 @@ class TeamExplorationEnv(ParallelEnv):
                   self.gain_scale * (known - self._known) * cell)
         self._known = known
         end = ep.end_reason if ep.end_reason is not None or ep._check_end() else None
-        terminated = end in ("explored", "no_frontiers")
+        terminated = end in TERMINAL_REASONS  # The Gymnasium env's rules.
         truncated = end is not None and not terminated or self.steps >= self.max_decisions
         if end == "explored":
             reward += self.completion

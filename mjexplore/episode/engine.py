@@ -193,8 +193,9 @@ class Episode:
             explorers.
         config: Episode settings.
         observer: Optional object with any of the hooks ``on_scan(agent, scan)``,
-            ``on_decision(agent, state)``, ``on_goal(episode, index, t, x, y)`` (a team
-            robot's new goal) and ``on_step(episode)``.
+            ``on_decision(agent, state)`` (a robot's new goal) and ``on_step(episode)``;
+            ``agent`` is the robot's :class:`~mjexplore.episode.agent.RobotAgent` (its
+            ``episode``, ``index``, ``sim``, ``mapper``, ``goal``, ...).
         starts: A team's start poses, one per robot; None: robot 0 where a single robot's
             episode of this seed starts, the others drawn around it
             (:func:`~mjexplore.scenes.team.draw_starts`).
@@ -500,7 +501,6 @@ class Episode:
         if self._check_end() or self._retire_lingerers():
             return False
         self.set_teammates()
-        decided = [len(a.goals) for a in self.agents]
         for a in self.agents:
             if a.retired is None:
                 self._decide(a)
@@ -511,10 +511,6 @@ class Episode:
             return False
         if self.team is not None:
             self.team.resolve_blocks(self.time, self.world.poses())
-            if self.observer is not None and hasattr(self.observer, "on_goal"):
-                for a, k in zip(self.agents, decided):
-                    for when, x, y in a.goals[k:]:
-                        self.observer.on_goal(self, a.index, when, x, y)
         self.control()
         return True
 

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from mjexplore.episode.agent import RobotAgent
-from mjexplore.episode.metrics import KnownCounter, first_time_at
+from mjexplore.episode.metrics import KnownCounter, first_time_at, pose_errors
 from mjexplore.mapping.map_merging import MapMergeConfig
 from mjexplore.mapping.metrics import iou
 from mjexplore.mapping.occupancy import MapperConfig, OccupancyMapper
@@ -333,6 +333,9 @@ class Team:
                 "state": a.retired or ("idle" if a.idle_until is not None else "exploring"),
                 "mean_speed_mps": round(path / t_end, 4) if t_end > 0 else 0.0,
             })
+            if a.localizer is not None:  # Its estimate against its true pose, per scan.
+                positions = np.array(a._positions, np.float64).reshape(-1, 4)
+                per_robot[-1].update(pose_errors(positions[:, :2], positions[:, 2:]))
         metrics: dict[str, Any] = {
             "robots": len(self.agents),
             "iou": round(iou(grid, episode.reference), 5),
@@ -354,6 +357,11 @@ class Team:
         }
         if episode.merging is not None:
             metrics.update(episode.merging.metrics(counter))
+        explorer = self.agents[0].explorer
+        sha = getattr(explorer, "weights_sha256", None)  # A learned explorer's weights.
+        if sha is not None:
+            metrics["policy"] = explorer.policy_name  # type: ignore[attr-defined]
+            metrics["weights_sha256"] = sha
         return TeamEpisodeResult(
             metrics, curve, [np.array(c).reshape(-1, 2) for c in self.own_curves], logs,
             GridMap(grid.data.copy(), grid.resolution, grid.origin),

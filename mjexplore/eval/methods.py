@@ -17,6 +17,7 @@ import json
 from mjexplore.episode.explorer import Explorer
 from mjexplore.errors import UserInputError
 from mjexplore.explorers import make_explorer as make_classic
+from mjexplore.explorers.team import TEAM_METHODS, make_team_explorers
 from mjexplore.policies.models import (
     DEFAULT_MODEL,
     resolve_policy,
@@ -150,6 +151,22 @@ def parse_method(spec: str) -> MethodSpec:
     raise UserInputError(f"unknown explorer {text!r}: use one of {', '.join(METHODS)}, "
                          "METHOD:POLICY for a learned one, or a shipped model's run label "
                          "('mjexplore policies' lists them).")
+
+
+def team_explorers(spec: str, n: int) -> tuple[list[Explorer], str]:
+    """The ``n`` explorers of a team method spec and the run's label: a coordinated method
+    by name (:data:`~mjexplore.explorers.team.TEAM_METHODS`), else the naive team of the
+    single-robot method ``spec``, each robot running it on its own (labelled
+    ``naive_LABEL``).
+
+    Raises:
+        UserInputError: an unknown method.
+    """
+    if spec in TEAM_METHODS:
+        return make_team_explorers(spec, n), spec
+    parsed = parse_method(spec)
+    explorers = [parsed.build() for _ in range(n)]
+    return explorers, f"naive_{getattr(explorers[0], 'label', parsed.label)}"
 
 
 def make_explorer(spec: str, **kwargs) -> Explorer:

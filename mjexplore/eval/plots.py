@@ -19,6 +19,9 @@ COLOURS = {"gvn": "tab:red", "potential": "tab:blue", "nearest": "tab:green",
            "rrt": "tab:orange", "cnn": "tab:purple", "explore_lite": "tab:brown",
            "frontier_tsp": "tab:cyan", "oracle": "black", "gvn_v2": "tab:olive",
            "gvn_v3": "magenta", "cnn_v2": "tab:gray", "pocket_nearest": "limegreen"}
+# A team's robots, in order.
+ROBOT_COLOURS = ("tab:green", "tab:red", "tab:blue", "tab:orange", "tab:purple", "tab:brown",
+                 "tab:pink", "tab:cyan")
 # How a method is named in tables and plots where its name alone would mislead.
 METHOD_LABELS = {"oracle": "oracle (ground-truth bound)"}
 
@@ -94,9 +97,15 @@ def kinematics_figure(logs: dict[str, list], path: str | os.PathLike, title: str
     _save(fig, path)
 
 
-def map_figure(grid: GridMap, path_xy: np.ndarray, goals: np.ndarray,
+def map_figure(grid: GridMap, trajectories: list[np.ndarray], goals: list[np.ndarray],
                path: str | os.PathLike, title: str = "", ter=None) -> None:
-    """The final map with the trajectory (green), the goals (blue) and optionally a TER."""
+    """The final map with each robot's trajectory and goals (one robot: green and blue; a
+    team: a colour per robot, its start ringed) and optionally a TER.
+
+    Args:
+        trajectories: Per robot, (k, 2) positions (x, y) over time.
+        goals: Per robot, (m, 3) decision time and goal (x, y).
+    """
     img = np.full(grid.shape, 0.6)
     img[grid.free] = 1.0
     img[grid.occupied] = 0.0
@@ -109,12 +118,42 @@ def map_figure(grid: GridMap, path_xy: np.ndarray, goals: np.ndarray,
             ax.plot(*ter.positions[[a, b]].T, color="tab:orange", lw=0.6)
         ax.scatter(ter.positions[:, 0], ter.positions[:, 1], s=6,
                    c=np.where(ter.flags > 0, "tab:blue", "tab:red"))
-    ax.plot(path_xy[:, 0], path_xy[:, 1], color="lime", lw=1.2)
-    if len(goals):
-        ax.scatter(goals[:, 1], goals[:, 2], s=10, color="tab:blue", zorder=3)
+    team = len(trajectories) > 1
+    for i, (xy, chosen) in enumerate(zip(trajectories, goals)):
+        colour = ROBOT_COLOURS[i % len(ROBOT_COLOURS)] if team else "lime"
+        ax.plot(xy[:, 0], xy[:, 1], color=colour, lw=1.1 if team else 1.2,
+                label=f"robot_{i}" if team else None)
+        if team:
+            ax.scatter(xy[0, 0], xy[0, 1], s=40, color=colour, marker="o", edgecolor="black",
+                       zorder=4)
+        if len(chosen):
+            ax.scatter(chosen[:, 1], chosen[:, 2], s=8 if team else 10, zorder=3,
+                       color=colour if team else "tab:blue", marker="x" if team else "o")
+    if team:
+        ax.legend(loc="upper right", fontsize=8)
     ax.set_title(title)
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
+    _save(fig, path)
+
+
+def team_ratio_figure(curve: np.ndarray, robot_curves: list[np.ndarray],
+                      path: str | os.PathLike, title: str = "") -> None:
+    """A team's exploration ratio over time (black) beside each robot's own coverage
+    (what its own scans saw), with the 80, 90 and 98.5 % levels dotted."""
+    fig, ax = plt.subplots(figsize=(7, 4))
+    ax.plot(curve[:, 0], curve[:, 1], color="black", lw=1.6, label="team")
+    for i, c in enumerate(robot_curves):
+        if len(c):
+            ax.plot(c[:, 0], c[:, 1], color=ROBOT_COLOURS[i % len(ROBOT_COLOURS)], lw=1.0,
+                    label=f"robot_{i} (own scans)")
+    for level in (0.80, 0.90, 0.985):
+        ax.axhline(level, color="grey", lw=0.5, ls=":")
+    ax.set_xlabel("simulated time (s)")
+    ax.set_ylabel("exploration ratio")
+    ax.set_ylim(0, 1.02)
+    ax.legend(loc="lower right", fontsize=8)
+    ax.set_title(title)
     _save(fig, path)
 
 

@@ -38,14 +38,14 @@ class EpisodeProgress:
 
     def _draw(self) -> None:
         episode = self._episode
-        self.progress.detail_text = (f"ratio {episode.curve[-1][1]:.1%}, "
-                                     f"decisions {len(episode.goals)}")
-        self.progress.set(min(episode.sim.time, self.progress.total))
+        self.progress.detail_text = (f"ratio {episode.ratio:.1%}, decisions "
+                                     f"{sum(len(a.goals) for a in episode.agents)}")
+        self.progress.set(min(episode.time, self.progress.total))
 
-    def on_scan(self, episode, scan) -> None:
-        self._episode = episode
+    def on_scan(self, agent, scan) -> None:
+        self._episode = agent.episode
 
-    def on_decision(self, episode, state) -> None:
+    def on_decision(self, agent, state) -> None:
         pass
 
     def on_step(self, episode) -> None:

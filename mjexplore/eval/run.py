@@ -1,9 +1,13 @@
-"""The ``explore`` job: one episode written to a run folder.
+"""The ``explore`` job: one episode, of one robot or a team, written to a run folder.
 
 Run folder: ``metrics.json`` (the paper's metrics), ``config.json`` (resolved settings and
 git revision), ``ratio.csv`` (exploration ratio over simulated time), ``kinematics.csv``,
-``ratio.png``, ``kinematics.png``, ``map.png`` (final map and trajectory) and
-``episode.mcap``. The folder appears complete or not at all.
+``ratio.png``, ``kinematics.png``, ``map.png`` (final map and trajectory), ``ter.png`` (the
+final map and TER) and ``episode.mcap``. A team's run (N > 1 robots) has the team's
+metrics (``per_robot`` among them), ratio and map, and per robot ``robot_I/kinematics.csv``
+and ``robot_I/coverage.csv`` (its own scans' exploration ratio over time) in place of
+``kinematics.csv``; its MCAP has the topics of each robot under ``/robot_I``. The folder
+appears complete or not at all.
 
 Ctrl-C (SIGINT, main thread) during :func:`write_run`: before the episode starts it stops the
 job at once, with nothing written; from then on the first one only ends the episode
@@ -21,10 +25,12 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from mjexplore.episode import Episode, EpisodeConfig, EpisodeResult, Interrupted
+from mjexplore.episode import Episode, EpisodeConfig, Interrupted
 from mjexplore.episode.engine import SigintFlag
-from mjexplore.eval.methods import make_explorer
-from mjexplore.eval.plots import kinematics_figure, map_figure, ratio_figure
+from mjexplore.episode.team import TeamConfig
+from mjexplore.errors import UserInputError
+from mjexplore.eval.methods import make_explorer, team_explorers
+from mjexplore.eval.plots import kinematics_figure, map_figure, ratio_figure, team_ratio_figure
 from mjexplore.eval.progress import EpisodeProgress
 from mjexplore.io.atomic import atomic_directory, write_bytes_atomic, write_text_atomic
 from mjexplore.io.mcap_log import FoxgloveEpisodeLog
@@ -84,11 +90,6 @@ class Observers:
             if hasattr(o, "on_decision"):
                 o.on_decision(agent, state)
 
-    def on_goal(self, episode, index, t, x, y) -> None:
-        for o in self.observers:
-            if hasattr(o, "on_goal"):
-                o.on_goal(episode, index, t, x, y)
-
     def on_step(self, episode) -> None:
         for o in self.observers:
             if hasattr(o, "on_step"):
@@ -107,8 +108,15 @@ class Observers:
 
 
 def _episode_logs(mcap_path: str | os.PathLike | None, mcap_profile: str,
-                  live: Any) -> list[Any]:
-    """The MCAP log in ``mcap_profile`` and the live stream (Foxglove messages)."""
+                  live: Any, robots: int = 1) -> list[Any]:
+    """The MCAP log in ``mcap_profile`` and the live stream (Foxglove messages); a team's
+    MCAP has each robot's topics under its namespace."""
+    if robots > 1:
+        if mcap_profile == "ros2" or live is not None:
+            raise UserInputError("a team's episode is logged with Foxglove messages to "
+                                 "episode.mcap only: drop --mcap-profile ros2 and --live with "
+                                 "--robots.")
+        return [] if mcap_path is None else [FoxgloveEpisodeLog(mcap_path)]
     logs: list[Any] = []
     if mcap_profile == "ros2" and mcap_path is not None:
         from mjexplore.io.ros2_mcap import Ros2EpisodeLog
@@ -126,29 +134,44 @@ def run_episode(scene: SceneFiles, explorer: str, seed: int, config: EpisodeConf
                 video_path: str | os.PathLike | None = None,
                 video: Any = None, stills_dir: str | os.PathLike | None = None,
                 progress: bool = False, mcap_profile: str = "foxglove",
-                live: Any = None, on_start: Callable[[], None] | None = None) -> EpisodeResult:
+                live: Any = None, on_start: Callable[[], None] | None = None,
+                robots: int = 1, starts: list | None = None,
+                team_config: TeamConfig | None = None) -> Any:
     """Runs one episode, optionally logging it to MCAP (``mcap_profile``: ``foxglove`` or
     ``ros2`` messages), streaming it (``live``: a started
     :class:`~mjexplore.io.live.LiveServer`, which may hold the start until a client
     subscribes), filming it (``video_path`` with a
     :class:`~mjexplore.render.recorder.VideoConfig`), writing still figures and showing a
     progress bar on stderr (``progress``; drawn only when stderr is a terminal).
-    ``on_start``: called with no arguments once the episode is built, as it starts."""
+    ``on_start``: called with no arguments once the episode is built, as it starts.
+    ``robots`` > 1: a team of that many robots, each running the method ``spec`` names (a
+    team method's coordinated members, or the single-robot method alone each), from
+    ``starts`` (None: drawn) with ``team_config``; a team's MCAP is Foxglove's, not live.
+
+    Returns:
+        The episode's :class:`~mjexplore.episode.EpisodeResult`, a team's
+        :class:`~mjexplore.episode.team.TeamEpisodeResult`.
+    """
     title = f"{scene.metadata.get('name', Path(scene.xml).parent.name)} / {explorer} / seed {seed}"
+    if robots > 1:
+        if explorer_kwargs:
+            raise UserInputError("a team's explorers are built by their method's name alone.")
+        title = title.replace(" / seed", f" / {robots} robots / seed")
+    logs = _episode_logs(mcap_path, mcap_profile, live, robots)
     film = None
     if video_path is not None:
         from mjexplore.render.recorder import EpisodeVideo
 
         film = EpisodeVideo(video_path, video, title)
-    observers = Observers(*_episode_logs(mcap_path, mcap_profile, live), film,
-                          EpisodeProgress(config.max_time) if progress else None)
+    observers = Observers(*logs, film, EpisodeProgress(config.max_time) if progress else None)
     interrupted = None
     try:
         if live is not None:
             live.wait_for_subscriber()  # Before the episode is built: it takes the first scan.
-        built = make_explorer(spec or explorer, **(explorer_kwargs or {}))
-        episode = Episode(scene, built, seed,
-                          config, observer=observers)
+        built: Any = team_explorers(spec or explorer, robots)[0] if robots > 1 else \
+            make_explorer(spec or explorer, **(explorer_kwargs or {}))
+        episode = Episode(scene, built, seed, config, observer=observers, starts=starts,
+                          team_config=team_config)
         if on_start is not None:
             on_start()
         result = episode.run()
@@ -156,7 +179,7 @@ def run_episode(scene: SceneFiles, explorer: str, seed: int, config: EpisodeConf
         interrupted, result = exc, exc.result
     finally:
         observers.close()  # Also on Ctrl-C: the MCAP and video are finished, readable files.
-    recipe = getattr(built, "policy_recipe", None)  # A learned explorer's policy.
+    recipe = getattr(episode.agents[0].explorer, "policy_recipe", None)  # A learned policy's.
     if recipe is not None:
         result.metrics["policy_recipe"] = recipe
     if stills_dir is not None:
@@ -195,8 +218,11 @@ def write_run(out_dir: str | os.PathLike, scene: SceneFiles, explorer: str, seed
               explorer_kwargs: dict | None = None, video: Any = None,
               progress: bool = False, live: Any = None, spec: str | None = None,
               video_path: str | os.PathLike | None = None,
-              command: str | None = None) -> dict[str, Any]:
+              command: str | None = None, robots: int = 1, starts: list | None = None,
+              team_config: TeamConfig | None = None) -> dict[str, Any]:
     """Runs an episode and writes its run folder atomically; returns the metrics.
+
+    ``robots``, ``starts``, ``team_config``: a team, as :func:`run_episode` says.
 
     ``mcap``: a false value for no ``episode.mcap``, True or ``"foxglove"`` for one with
     Foxglove messages, ``"ros2"`` for ROS 2 ones. ``live`` as :func:`run_episode`.
@@ -218,9 +244,10 @@ def write_run(out_dir: str | os.PathLike, scene: SceneFiles, explorer: str, seed
     try:
         sigint = _HeldSigint()
         with sigint:
+            team = {"robots": robots, "starts": starts, "team_config": team_config}
             metrics = _write_run_folder(out_dir, scene, explorer, seed, config, mcap,
                                         explorer_kwargs, video, progress, live, spec, sigint,
-                                        command)
+                                        command, team)
             kept.append(out_dir)
             film = out_dir / "video.mp4"
             if video_path is not None and film.is_file():
@@ -237,8 +264,10 @@ def write_run(out_dir: str | os.PathLike, scene: SceneFiles, explorer: str, seed
 def _write_run_folder(out_dir: Path, scene: SceneFiles, explorer: str, seed: int,
                       config: EpisodeConfig, mcap: bool | str, explorer_kwargs: dict | None,
                       video: Any, progress: bool, live: Any, spec: str | None,
-                      sigint: _HeldSigint, command: str | None) -> dict[str, Any]:
+                      sigint: _HeldSigint, command: str | None,
+                      team: dict[str, Any]) -> dict[str, Any]:
     """:func:`write_run`'s folder; holds Ctrl-C (``sigint``) from the episode's start."""
+    robots = team["robots"]
     with atomic_directory(out_dir, "metrics.json") as tmp:
         try:
             result = run_episode(scene, explorer, seed, config,
@@ -246,23 +275,40 @@ def _write_run_folder(out_dir: Path, scene: SceneFiles, explorer: str, seed: int
                                  video_path=tmp / "video.mp4" if video is not None else None,
                                  video=video, stills_dir=tmp, progress=progress,
                                  mcap_profile=mcap if isinstance(mcap, str) else "foxglove",
-                                 live=live, spec=spec, on_start=sigint.hold)
+                                 live=live, spec=spec, on_start=sigint.hold, **team)
         except Interrupted as exc:
             # Ctrl-C: the run so far becomes a complete folder (end_reason 'interrupted').
             sigint.raised, result = True, exc.result  # A second Ctrl-C stops at once.
         metrics = {"scene": scene.metadata.get("name", Path(scene.xml).parent.name),
                    "explorer": explorer, "seed": seed, **result.metrics}
         write_text_atomic(tmp / "metrics.json", json.dumps(metrics, indent=2) + "\n")
-        write_text_atomic(tmp / "config.json", json.dumps(
-            resolved_config(scene, explorer, seed, config, explorer_kwargs, spec, metrics,
-                            command), indent=2, default=str) + "\n")
+        resolved = resolved_config(scene, explorer, seed, config, explorer_kwargs, spec,
+                                   metrics, command)
+        if robots > 1:
+            resolved.update({"robots": robots, "starts": [list(p) for p in result.starts],
+                             "team": dataclasses.asdict(team["team_config"] or TeamConfig())})
+        write_text_atomic(tmp / "config.json", json.dumps(resolved, indent=2, default=str) +
+                          "\n")
         write_text_atomic(tmp / "ratio.csv", "t,exploration_ratio\n" + "".join(
             f"{t:.3f},{r:.6f}\n" for t, r in result.ratio_curve))
-        write_text_atomic(tmp / "kinematics.csv", result.kinematics.to_csv())
         title = f"{metrics['scene']} / {explorer} / seed {seed}"
+        if robots > 1:
+            for i, (log, curve) in enumerate(zip(result.kinematics, result.robot_curves)):
+                folder = tmp / f"robot_{i}"
+                folder.mkdir()
+                write_text_atomic(folder / "kinematics.csv", log.to_csv())
+                write_text_atomic(folder / "coverage.csv", "t,coverage\n" + "".join(
+                    f"{t:.3f},{r:.6f}\n" for t, r in curve))
+            title = title.replace(" / seed", f" / {robots} robots / seed")
+            team_ratio_figure(result.ratio_curve, result.robot_curves, tmp / "ratio.png", title)
+            map_figure(result.grid, [log.pose[:, :2] for log in result.kinematics],
+                       result.goals, tmp / "map.png", title)
+            return metrics
+        write_text_atomic(tmp / "kinematics.csv", result.kinematics.to_csv())
         ratio_figure({explorer: [result.ratio_curve]}, tmp / "ratio.png", title)
         kinematics_figure({explorer: [result.kinematics]}, tmp / "kinematics.png", title)
-        map_figure(result.grid, result.kinematics.pose[:, :2], result.goals, tmp / "map.png", title)
+        map_figure(result.grid, [result.kinematics.pose[:, :2]], [result.goals],
+                   tmp / "map.png", title)
     return metrics
 
 

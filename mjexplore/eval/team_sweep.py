@@ -1,7 +1,7 @@
 """Sweeps of team episodes (``bench --robots N``), with the single robot's time beside.
 
 Every scene x start placement x team method x seed runs as a team episode
-(:func:`~mjexplore.eval.team_run.write_team_run`) into
+(:func:`~mjexplore.eval.run.write_run`) into
 ``OUT/runs/SCENE/PLACEMENT/METHOD/seedK`` (``PLACEMENT``: ``close`` or ``far``, Explore-Bench's
 on its maps, or ``drawn``: robot 0 at the scene's start, the others drawn around it); each
 scene and seed also runs the single robot with ``single`` (default ``nearest``) into
@@ -27,6 +27,8 @@ import numpy as np
 from mjexplore.episode import EpisodeConfig
 from mjexplore.episode.team import TeamConfig
 from mjexplore.errors import UserInputError
+from mjexplore.eval.methods import team_explorers
+from mjexplore.eval.placements import DRAWN, check_placements, team_starts
 from mjexplore.eval.run import write_run
 from mjexplore.eval.sweep import (
     SWEEP_OUTPUTS,
@@ -39,7 +41,6 @@ from mjexplore.eval.sweep import (
     run_jobs,
     scene_label,
 )
-from mjexplore.eval.team_run import DRAWN, check_placements, team_starts, write_team_run
 from mjexplore.io.atomic import refuse_foreign_files, write_text_atomic
 from mjexplore.io.provenance import git_revision
 from mjexplore.scenes.canonical import resolve_scene
@@ -87,9 +88,10 @@ def run_team_job(job: TeamJob, folder: Path, config: EpisodeConfig,
         if job.robots == 1:
             return write_run(folder, scene, job.method, job.seed, config, mcap=False)
         starts = team_starts(scene, job.placement, job.robots, poses=False)
-        return write_team_run(folder, scene, job.method, job.robots, job.seed, config,
-                              starts, mcap=False,
-                              team_config=TeamConfig(unknown_starts=job.unknown_starts))
+        label = team_explorers(job.method, job.robots)[1]
+        return write_run(folder, scene, label, job.seed, config, mcap=False, spec=job.method,
+                         robots=job.robots, starts=starts,
+                         team_config=TeamConfig(unknown_starts=job.unknown_starts))
     except Exception as exc:  # noqa: BLE001 - one broken episode must not end the sweep
         return team_failure(job, exc)
 

@@ -6,7 +6,10 @@ write it: :class:`FoxgloveEpisodeLog` (this module; to an MCAP file and/or a liv
 WebSocket server, see :mod:`mjexplore.io.live`) and
 :class:`~mjexplore.io.ros2_mcap.Ros2EpisodeLog` (ROS 2 messages).
 
-Foxglove topics (Foxglove schemas, protobuf encoded by ``foxglove-sdk``):
+Foxglove topics (Foxglove schemas, protobuf encoded by ``foxglove-sdk``), a robot alone's;
+a team's robots each have /scan, /pose, /odom, /goal and /kinematics under their namespace
+(``/robot_0/scan``, ...) and their frames prefixed by it (``robot_0/base_link``, as ROS
+multi-robot setups prefix their ``tf`` frames), beside the shared /tf, /map and /ter:
     /scan        foxglove.LaserScan in ``base_scan`` (every scan)
     /tf          foxglove.FrameTransforms: map->odom, odom->base_link, base_link->base_scan
     /pose        foxglove.PoseInFrame: ground-truth pose of base_link in ``map``
@@ -73,6 +76,7 @@ KINEMATICS_SCHEMA = {
         "angular_acceleration")},
 }
 TOPICS = ("/scan", "/tf", "/pose", "/odom", "/map", "/ter", "/goal", "/kinematics")
+ROBOT_TOPICS = ("scan", "pose", "odom", "goal", "kinematics")  # Namespaced in a team.
 # TER node colours (r, g, b, a) by node flag: 0 explored, 1 frontier, -1 dead end.
 NODE_RGBA = {0.0: (0.1, 0.8, 0.1, 1.0), 1.0: (0.1, 0.3, 1.0, 1.0), -1.0: (0.9, 0.2, 0.2, 1.0)}
 EDGE_RGBA = (0.9, 0.6, 0.1, 1.0)
@@ -80,6 +84,17 @@ NODE_SIZE = 0.25  # Sphere diameter, metres.
 EDGE_WIDTH = 0.04  # Line width, metres.
 TER_HEIGHT = 0.2  # Height of the drawn TER above the floor, metres.
 _NODE_COLOURS = {flag: Color(r=r, g=g, b=b, a=a) for flag, (r, g, b, a) in NODE_RGBA.items()}
+
+
+def robot_namespace(agent) -> str:
+    """The namespace of ``agent``'s topics and frames: none for a robot alone, ``robot_I``
+    for robot I of a team."""
+    return "" if len(agent.episode.agents) == 1 else f"robot_{agent.index}"
+
+
+def robot_topics(name: str) -> tuple[str, ...]:
+    """The topics of the team robot namespaced ``name`` (``robot_0``...)."""
+    return tuple(f"/{name}/{t}" for t in ROBOT_TOPICS)
 
 
 def yaw_quaternion(yaw: float) -> tuple[float, float, float, float]:
@@ -145,34 +160,36 @@ class EpisodeLogger:
         self._map_logged = -math.inf  # Time of the last map written...
         # ...and (time, live map) at the last scan.
         self._last_scan: tuple[float, GridMap] | None = None
-        self._last_kin = 0
+        self._last_kin: dict[str, int] = {}  # Per robot namespace.
 
     # Observer hooks ---------------------------------------------------------------
 
-    def on_scan(self, episode, scan) -> None:
+    def on_scan(self, agent, scan) -> None:
+        robot = robot_namespace(agent)
         t = scan.stamp
-        self.write_scan(episode, scan, ScanFrames.of(episode, t))
+        self.write_scan(agent, scan, ScanFrames.of(agent, t), robot)
+        grid = agent.episode.mapper.grid
         if t >= self._next_map - 1e-9:
             self._next_map = t + self.map_period
-            self.write_map(t, episode.mapper.grid)
+            self.write_map(t, grid)
             self._map_logged = t
-        self._last_scan = (t, episode.mapper.grid)
-        rows = episode.sim.kinematics_rows
-        start = max(self._last_kin, 1)
+        self._last_scan = (t, grid)
+        rows = agent.sim.kinematics_rows
+        start = max(self._last_kin.get(robot, 0), 1)
         if len(rows) > start:
             t, v, w = rows[start - 1:, 0], rows[start - 1:, 1], rows[start - 1:, 2]
             dt = np.diff(t)
             self.write_kinematics(np.column_stack(
-                [t[1:], v[1:], w[1:], np.diff(v) / dt, np.diff(w) / dt]))
-        self._last_kin = len(rows)
+                [t[1:], v[1:], w[1:], np.diff(v) / dt, np.diff(w) / dt]), robot)
+        self._last_kin[robot] = len(rows)
 
-    def on_decision(self, episode, state) -> None:
-        t = episode.sim.time
-        goal = episode.goal
-        self.write_goal(t, float(goal[0]), float(goal[1]))
+    def on_decision(self, agent, state) -> None:
+        t = agent.sim.time
+        goal = agent.goal
+        self.write_goal(t, float(goal[0]), float(goal[1]), robot_namespace(agent))
         ter = state.extras.get("ter")
         if ter is None:
-            ter, _, _ = episode.tracker.ter(state.grid, state.pose)
+            ter, _, _ = agent.tracker.ter(state.grid, state.pose)
             state.extras["ter"] = ter  # Shared with other observers.
         self.write_ter(t, ter)
 
@@ -187,24 +204,26 @@ class EpisodeLogger:
 
     # For subclasses -------------------------------------------------------------------
 
-    def write_scan(self, episode, scan, frames: ScanFrames) -> None:
-        """The scan, the frames and the poses at ``frames.t``."""
+    def write_scan(self, agent, scan, frames: ScanFrames, robot: str = "") -> None:
+        """The scan, the frames and the poses at ``frames.t`` of the robot namespaced
+        ``robot`` (:func:`robot_namespace`)."""
         raise NotImplementedError
 
     def write_map(self, t: float, grid) -> None:
         """The occupancy map (:class:`~mjexplore.maps.GridMap`) at ``t``."""
         raise NotImplementedError
 
-    def write_goal(self, t: float, x: float, y: float) -> None:
-        """The goal chosen at ``t``, in ``map``."""
+    def write_goal(self, t: float, x: float, y: float, robot: str = "") -> None:
+        """The goal robot ``robot`` chose at ``t``, in ``map``."""
         raise NotImplementedError
 
     def write_ter(self, t: float, ter) -> None:
         """The TER at ``t``: nodes (``positions`` in ``map``, ``flags``) and ``edges``."""
         raise NotImplementedError
 
-    def write_kinematics(self, rows: np.ndarray) -> None:
-        """Samples (t s, v m/s, omega rad/s, dv/dt m/s^2, domega/dt rad/s^2), one a row."""
+    def write_kinematics(self, rows: np.ndarray, robot: str = "") -> None:
+        """Robot ``robot``'s samples (t s, v m/s, omega rad/s, dv/dt m/s^2, domega/dt
+        rad/s^2), one a row."""
         raise NotImplementedError
 
     def finish(self) -> None:
@@ -230,6 +249,22 @@ def _transform(t: float, parent: str, child: str, x: float, y: float, yaw: float
     return FrameTransform(timestamp=_stamp(t), parent_frame_id=parent, child_frame_id=child,
                           translation=Vector3(x=float(x), y=float(y), z=z),
                           rotation=_quaternion(yaw))
+
+
+class _RobotChannels:
+    """One robot's channels: /scan, /pose, /odom, /goal and /kinematics, under its
+    namespace in a team."""
+
+    def __init__(self, name: str, context: foxglove.Context) -> None:
+        topic = (lambda t: f"/{name}/{t}") if name else (lambda t: f"/{t}")
+        self.scan = LaserScanChannel(topic("scan"), context=context)
+        self.pose = PoseInFrameChannel(topic("pose"), context=context)
+        self.odom = PoseInFrameChannel(topic("odom"), context=context)
+        self.goal = PoseInFrameChannel(topic("goal"), context=context)
+        self.kinematics = foxglove.Channel(
+            topic("kinematics"), message_encoding="json", context=context,
+            schema=foxglove.Schema(name="mjexplore.Kinematics", encoding="jsonschema",
+                                   data=json.dumps(KINEMATICS_SCHEMA).encode()))
 
 
 class FoxgloveEpisodeLog(EpisodeLogger):
@@ -260,54 +295,57 @@ class FoxgloveEpisodeLog(EpisodeLogger):
             self.writer = foxglove.open_mcap(self._tmp, allow_overwrite=True,
                                              context=self.context)
         ctx = self.context
-        self.scan = LaserScanChannel("/scan", context=ctx)
         self.tf = FrameTransformsChannel("/tf", context=ctx)
-        self.pose = PoseInFrameChannel("/pose", context=ctx)
-        self.odom = PoseInFrameChannel("/odom", context=ctx)
         self.map = GridChannel("/map", context=ctx)
         self.ter = SceneUpdateChannel("/ter", context=ctx)
-        self.goal = PoseInFrameChannel("/goal", context=ctx)
-        self.kinematics = foxglove.Channel(
-            "/kinematics", message_encoding="json", context=ctx,
-            schema=foxglove.Schema(name="mjexplore.Kinematics", encoding="jsonschema",
-                                   data=json.dumps(KINEMATICS_SCHEMA).encode()))
+        self._robots: dict[str, _RobotChannels] = {"": _RobotChannels("", ctx)}
 
-    def write_scan(self, episode, scan, frames: ScanFrames) -> None:
+    def robot(self, name: str) -> _RobotChannels:
+        """The channels of the robot namespaced ``name`` (made on its first message)."""
+        if name not in self._robots:
+            self._robots[name] = _RobotChannels(name, self.context)
+        return self._robots[name]
+
+    def write_scan(self, agent, scan, frames: ScanFrames, robot: str = "") -> None:
         t = frames.t
         ns = sim_ns(t)
-        if self.scan.has_sinks():
-            self.scan.log(FoxgloveLaserScan(
-                timestamp=_stamp(t), frame_id="base_scan", pose=_pose(0.0, 0.0, 0.0),
+        ch = self.robot(robot)
+        p = f"{robot}/" if robot else ""  # Its frames' prefix.
+        if ch.scan.has_sinks():
+            ch.scan.log(FoxgloveLaserScan(
+                timestamp=_stamp(t), frame_id=p + "base_scan", pose=_pose(0.0, 0.0, 0.0),
                 start_angle=float(scan.angles[0]), end_angle=float(scan.angles[-1]),
                 ranges=scan.ranges.tolist(),  # +-inf as REP-117 has them.
                 intensities=[]), log_time=ns)
         if self.tf.has_sinks():
             sx, sy, sz = SCAN_OFFSET
             self.tf.log(FrameTransforms(transforms=[
-                _transform(t, "map", "odom", *frames.map_odom),
-                _transform(t, "odom", "base_link", *frames.odom_base),
-                _transform(t, "base_link", "base_scan", sx, sy, 0.0, sz)]), log_time=ns)
-        if self.pose.has_sinks():
-            self.pose.log(PoseInFrame(timestamp=_stamp(t), frame_id="map",
-                                      pose=_pose(*frames.pose)), log_time=ns)
-        if self.odom.has_sinks():
-            self.odom.log(PoseInFrame(timestamp=_stamp(t), frame_id="odom",
-                                      pose=_pose(*frames.odom_base)), log_time=ns)
+                _transform(t, "map", p + "odom", *frames.map_odom),
+                _transform(t, p + "odom", p + "base_link", *frames.odom_base),
+                _transform(t, p + "base_link", p + "base_scan", sx, sy, 0.0, sz)]), log_time=ns)
+        if ch.pose.has_sinks():
+            ch.pose.log(PoseInFrame(timestamp=_stamp(t), frame_id="map",
+                                    pose=_pose(*frames.pose)), log_time=ns)
+        if ch.odom.has_sinks():
+            ch.odom.log(PoseInFrame(timestamp=_stamp(t), frame_id=p + "odom",
+                                    pose=_pose(*frames.odom_base)), log_time=ns)
         if self.live is not None:
             self.live.pace(t)
 
-    def write_kinematics(self, rows: np.ndarray) -> None:
-        if not self.kinematics.has_sinks():
+    def write_kinematics(self, rows: np.ndarray, robot: str = "") -> None:
+        channel = self.robot(robot).kinematics
+        if not channel.has_sinks():
             return
         for t, v, w, a, alpha in rows.tolist():
-            self.kinematics.log({"t": t, "linear_velocity": v, "angular_velocity": w,
-                                 "linear_acceleration": a, "angular_acceleration": alpha},
-                                log_time=sim_ns(t))
+            channel.log({"t": t, "linear_velocity": v, "angular_velocity": w,
+                         "linear_acceleration": a, "angular_acceleration": alpha},
+                        log_time=sim_ns(t))
 
-    def write_goal(self, t: float, x: float, y: float) -> None:
-        if self.goal.has_sinks():
-            self.goal.log(PoseInFrame(timestamp=_stamp(t), frame_id="map",
-                                      pose=_pose(x, y, 0.0)), log_time=sim_ns(t))
+    def write_goal(self, t: float, x: float, y: float, robot: str = "") -> None:
+        channel = self.robot(robot).goal
+        if channel.has_sinks():
+            channel.log(PoseInFrame(timestamp=_stamp(t), frame_id="map",
+                                    pose=_pose(x, y, 0.0)), log_time=sim_ns(t))
 
     def write_map(self, t: float, grid) -> None:
         if not self.map.has_sinks():

@@ -208,9 +208,10 @@ class Ros2EpisodeLog(EpisodeLogger):
         ns = sim_ns(t)
         self.writer.add_message(channel, log_time=ns, data=payload, publish_time=ns)
 
-    def write_scan(self, episode, scan, frames: ScanFrames) -> None:
+    def write_scan(self, agent, scan, frames: ScanFrames, robot: str = "") -> None:
+        assert not robot, "ROS 2 logs are of one robot"  # run_episode refuses a team's.
         t = frames.t
-        lidar = episode.sim.lidar.config
+        lidar = agent.sim.lidar.config
         angles = scan.angles
         self._write("/scan", t, {
             "header": _header(t, "base_scan"), "angle_min": float(angles[0]),
@@ -231,7 +232,7 @@ class Ros2EpisodeLog(EpisodeLogger):
             "pose": {"pose": _pose(*frames.odom_base)},
             "twist": {"twist": {"linear": _xyz(v, 0, 0), "angular": _xyz(0, 0, w)}}})
 
-    def write_kinematics(self, rows: np.ndarray) -> None:
+    def write_kinematics(self, rows: np.ndarray, robot: str = "") -> None:
         for t, v, w, a, alpha in rows.tolist():
             header = _header(t, "base_link")
             self._write("/kinematics/velocity", t, {"header": header, "twist": {
@@ -239,7 +240,7 @@ class Ros2EpisodeLog(EpisodeLogger):
             self._write("/kinematics/acceleration", t, {"header": header, "accel": {
                 "linear": _xyz(a, 0, 0), "angular": _xyz(0, 0, alpha)}})
 
-    def write_goal(self, t: float, x: float, y: float) -> None:
+    def write_goal(self, t: float, x: float, y: float, robot: str = "") -> None:
         self._write("/goal", t, {"header": _header(t, "map"), "pose": _pose(x, y, 0.0)})
 
     def write_map(self, t: float, grid) -> None:

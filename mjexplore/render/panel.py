@@ -24,6 +24,26 @@ GOAL = (230, 30, 30)
 EDGE = (240, 150, 30)
 ROBOT = (20, 200, 20)
 OTHER_NODE = (200, 40, 40)
+# A team's other robots (robot 1, 2, ...): body, trajectory and path in one hue each.
+TEAMMATE_COLOURS = ((230, 120, 20), (160, 60, 200), (20, 170, 190), (200, 60, 130),
+                    (140, 110, 60), (90, 90, 230), (180, 180, 30))
+
+
+@dataclasses.dataclass
+class RobotOverlay:
+    """A teammate as a panel draws it (``map`` frame, metres).
+
+    Attributes:
+        pose: (x, y, yaw).
+        trajectory: (k, 2) driven path or None.
+        goal: (x, y) or None.
+        path: (k, 2) planned path or None.
+    """
+
+    pose: np.ndarray
+    trajectory: np.ndarray | None = None
+    goal: np.ndarray | None = None
+    path: np.ndarray | None = None
 
 
 @dataclasses.dataclass
@@ -41,6 +61,8 @@ class PanelContent:
         trajectory: (k, 2) driven path or None.
         pose: (x, y, yaw) or None.
         text: Lines written at the top left.
+        teammates: A team's other robots, each in a colour of its own
+            (``TEAMMATE_COLOURS``); the fields above are robot 0's.
     """
 
     grid: GridMap
@@ -55,6 +77,7 @@ class PanelContent:
     trajectory: np.ndarray | None = None
     pose: np.ndarray | None = None
     text: tuple[str, ...] = ()
+    teammates: tuple[RobotOverlay, ...] = ()
 
 
 class PanelLayout:
@@ -89,6 +112,15 @@ class PanelLayout:
 def _polyline(img, layout: PanelLayout, xy, colour, thickness: int) -> None:
     if xy is not None and len(xy) > 1:
         cv2.polylines(img, [layout.to_pixels(xy)], False, colour, thickness, cv2.LINE_AA)
+
+
+def _robot_marker(img, layout: PanelLayout, pose, size: float, colour) -> None:
+    """A triangle at ``pose`` (x, y, yaw) pointing along its heading, ``size`` metres."""
+    x, y, yaw = pose
+    tri = np.array([[x + size * np.cos(yaw), y + size * np.sin(yaw)],
+                    [x + size * np.cos(yaw + 2.5), y + size * np.sin(yaw + 2.5)],
+                    [x + size * np.cos(yaw - 2.5), y + size * np.sin(yaw - 2.5)]])
+    cv2.fillPoly(img, [layout.to_pixels(tri)], colour, cv2.LINE_AA)
 
 
 def render_panel(content: PanelContent, width: int, height: int) -> np.ndarray:
@@ -129,13 +161,17 @@ def render_panel(content: PanelContent, width: int, height: int) -> np.ndarray:
     if content.goal is not None:
         g = tuple(map(int, layout.to_pixels(content.goal)[0]))
         cv2.drawMarker(img, g, GOAL, cv2.MARKER_STAR, max(10, 6 * thick), 2)
+    size = max(0.35, 6 / layout.scale * content.grid.resolution)
+    for k, mate in enumerate(content.teammates):
+        colour = TEAMMATE_COLOURS[k % len(TEAMMATE_COLOURS)]
+        _polyline(img, layout, mate.trajectory, colour, max(1, thick // 2))
+        _polyline(img, layout, mate.path, colour, thick)
+        if mate.goal is not None:
+            g = tuple(map(int, layout.to_pixels(mate.goal)[0]))
+            cv2.drawMarker(img, g, colour, cv2.MARKER_STAR, max(10, 6 * thick), 2)
+        _robot_marker(img, layout, mate.pose, size, colour)
     if content.pose is not None:
-        x, y, yaw = content.pose
-        size = max(0.35, 6 / layout.scale * content.grid.resolution)
-        tri = np.array([[x + size * np.cos(yaw), y + size * np.sin(yaw)],
-                        [x + size * np.cos(yaw + 2.5), y + size * np.sin(yaw + 2.5)],
-                        [x + size * np.cos(yaw - 2.5), y + size * np.sin(yaw - 2.5)]])
-        cv2.fillPoly(img, [layout.to_pixels(tri)], ROBOT, cv2.LINE_AA)
+        _robot_marker(img, layout, content.pose, size, ROBOT)
     if content.text:
         width_px = max(cv2.getTextSize(t, cv2.FONT_HERSHEY_SIMPLEX, 0.5, 1)[0][0]
                        for t in content.text)

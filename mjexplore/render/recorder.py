@@ -17,7 +17,7 @@ import numpy as np
 from mjexplore.errors import UserInputError
 from mjexplore.io.atomic import write_bytes_atomic
 from mjexplore.io.video import VideoWriter
-from mjexplore.render.panel import PanelContent, gvd_segments, render_panel
+from mjexplore.render.panel import PanelContent, RobotOverlay, gvd_segments, render_panel
 from mjexplore.render.scene_view import CameraConfig, SceneView
 from mjexplore.topology.frontiers import estimated_information_gain
 
@@ -72,12 +72,16 @@ def encode_png_rgb(img: np.ndarray) -> bytes:
 
 def episode_panel(episode, width: int, height: int, ter=None, frontiers=None,
                   gains=None, title: str = "") -> np.ndarray:
-    """The 2D panel of an episode's current state."""
-    sim = episode.sim
-    rows = sim.kinematics_rows
+    """The 2D panel of an episode's current state: the map, robot 0's goal, path and
+    trajectory, and a team's other robots in colours of their own."""
+    lead, *others = episode.agents
     ratio = episode.curve[-1][1] if episode.curve else 0.0
-    text = tuple(t for t in (title, f"t = {sim.time:7.1f} s (simulated)",
+    text = tuple(t for t in (title, f"t = {episode.time:7.1f} s (simulated)",
                              f"explored {100 * ratio:5.1f} %") if t)
+
+    def planned(agent) -> np.ndarray | None:
+        return agent.navigator.path if agent.navigator.status.value == "active" else None
+
     content = PanelContent(
         grid=episode.mapper.grid,
         gvd_segments=gvd_segments(episode.tracker.graph(episode.mapper.grid),
@@ -86,10 +90,22 @@ def episode_panel(episode, width: int, height: int, ter=None, frontiers=None,
         ter_edges=None if ter is None else ter.edges,
         ter_flags=None if ter is None else ter.flags,
         frontier_cells=None if frontiers is None else [f.cells for f in frontiers],
-        frontier_gains=gains, goal=episode.goal,
-        path=episode.navigator.path if episode.navigator.status.value == "active" else None,
-        trajectory=rows[:, 5:7], pose=sim.pose, text=text)
+        frontier_gains=gains, goal=lead.goal, path=planned(lead),
+        trajectory=lead.sim.kinematics_rows[:, 5:7], pose=lead.sim.pose, text=text,
+        teammates=tuple(RobotOverlay(a.sim.pose, a.sim.kinematics_rows[:, 5:7], a.goal,
+                                     planned(a)) for a in others))
     return render_panel(content, width, height)
+
+
+def camera_target(episode, distance: float) -> tuple[np.ndarray, float]:
+    """Where the 3D panel looks: robot 0 (x, y, yaw), or a team's centre with robot 0's
+    heading, from ``distance`` metres or as far as keeps every robot in view."""
+    poses = np.array([a.sim.pose for a in episode.agents])
+    if len(poses) == 1:
+        return poses[0], distance
+    centre = poses[:, :2].mean(axis=0)
+    spread = float(np.hypot(*(poses[:, :2] - centre).T).max())
+    return np.array([*centre, poses[0, 2]]), max(distance, 2.5 * spread + 1.0)
 
 
 class EpisodeVideo:
@@ -119,16 +135,20 @@ class EpisodeVideo:
     def frame(self, episode) -> np.ndarray:
         """The current composite frame (height, 2 width, 3)."""
         c = self.config
+        world = episode.world
+        target, distance = camera_target(episode, c.camera.distance)
+        camera = dataclasses.replace(c.camera, distance=distance)
         if self._view is None:
-            self._view = SceneView(episode.sim.model, c.width, c.height, c.camera)
-        sim = episode.sim
-        left = self._view.render(sim.data, sim.pose, sim.kinematics_rows[:, 5:7])
+            self._view = SceneView(world.model, c.width, c.height, camera)
+        self._view.config = camera  # A team's camera backs off as the robots spread.
+        left = self._view.render(world.data, target,
+                                 episode.agents[0].sim.kinematics_rows[:, 5:7])
         right = episode_panel(episode, c.width, c.height, self._ter, self._frontiers,
                               self._gains, self.title)
         return np.concatenate([left, right], axis=1)
 
-    def on_scan(self, episode, scan) -> None:
-        self._episode = episode
+    def on_scan(self, agent, scan) -> None:
+        episode = self._episode = agent.episode
         if scan.stamp + 1e-9 >= self._next:
             frame = self.frame(episode)
             self._last_frame_time = scan.stamp
@@ -136,10 +156,10 @@ class EpisodeVideo:
                 self.writer.append(frame)
                 self._next += self.config.sim_seconds_per_frame
 
-    def on_decision(self, episode, state) -> None:
+    def on_decision(self, agent, state) -> None:
         ter = state.extras.get("ter")
         if ter is None:
-            ter, _, _ = episode.tracker.ter(state.grid, state.pose)
+            ter, _, _ = agent.tracker.ter(state.grid, state.pose)
             state.extras["ter"] = ter
         self._ter = ter
         self._frontiers = state.frontiers
@@ -153,7 +173,7 @@ class EpisodeVideo:
         leaves a playable file."""
         try:
             ep = self._episode
-            if ep is not None and ep.sim.time > self._last_frame_time + 1e-9:
+            if ep is not None and ep.time > self._last_frame_time + 1e-9:
                 self.writer.append(self.frame(ep))
         finally:
             self.writer.close()
@@ -169,7 +189,7 @@ def write_stills(episode, out_dir: str | os.PathLike, title: str = "",
     """
     out_dir = Path(out_dir)
     grid = episode.mapper.grid
-    ter, frontiers, gains = episode.tracker.ter(grid, episode.sim.pose)
+    ter, frontiers, gains = episode.tracker.ter(grid, episode.agents[0].sim.pose)
     img = episode_panel(episode, 1200, 900, ter, frontiers, gains, title)
     written = [out_dir / "ter.png"]
     write_bytes_atomic(written[0], encode_png_rgb(img))
@@ -177,10 +197,10 @@ def write_stills(episode, out_dir: str | os.PathLike, title: str = "",
         rows, cols = grid.shape
         extent = max(rows, cols) * grid.resolution
         centre = np.array(grid.origin[:2]) + np.array([cols, rows]) * grid.resolution / 2
-        view = SceneView(episode.sim.model, 1200, 900, CameraConfig(
+        view = SceneView(episode.world.model, 1200, 900, CameraConfig(
             distance=1.1 * extent, elevation=-70.0, azimuth=90.0))
-        img = view.render(episode.sim.data, np.array([*centre, 0.0]),
-                          episode.sim.kinematics_rows[:, 5:7])
+        img = view.render(episode.world.data, np.array([*centre, 0.0]),
+                          episode.agents[0].sim.kinematics_rows[:, 5:7])
         written.append(out_dir / "scene.png")
         write_bytes_atomic(written[1], encode_png_rgb(img))
     return written
