@@ -34,9 +34,7 @@ test: system-deps $(VENV)/.installed-test
 
 bench: system-deps $(VENV)/.installed-test
 	$(BIN)/python tools/bench_sim.py
-	$(BIN)/python tools/bench_topology.py
-	$(BIN)/python tools/bench_scan_matching.py
-	$(BIN)/python tools/bench_localizer.py
+	$(BIN)/python tools/bench_replay.py
 	$(BIN)/python tools/bench_train.py
 	$(BIN)/python tools/bench_render.py
 	$(BIN)/python tools/bench_policy.py
