@@ -1,15 +1,17 @@
-"""The team as a PettingZoo ParallelEnv (its API test) and independent PPO on it."""
+"""The team as a PettingZoo ParallelEnv (its API test), its decisions one at a time as a
+Gymnasium env, and a team trained by ``mjexplore train`` on SB3."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
-import torch
 from pettingzoo.test import parallel_api_test
 
 from mjexplore.envs.team import TeamExplorationEnv
 from mjexplore.episode import EpisodeConfig
-from mjexplore.learning.team_ppo import TeamPPOConfig, train_independent_ppo
+from mjexplore.errors import UserInputError
 from mjexplore.sim.simulator import SimConfig
 
 
@@ -54,19 +56,72 @@ def test_chosen_candidates_become_goals():
     np.testing.assert_allclose(env.episode.agents[0].goals[0][1:], cands[0][0])
 
 
-def test_independent_ppo_smoke():
-    torch.set_num_threads(1)
-    env = _env(robots=2)
-    policies, log = train_independent_ppo(env, TeamPPOConfig(steps=32, rollout=16, seed=0))
-    assert set(policies) == {"robot_0", "robot_1"}
-    assert len(log) == 2
-    for line in log:
-        assert line["agents_updated"] == 2
-        assert np.isfinite([line["policy_loss"], line["value_loss"], line["entropy"]]).all()
-    assert policies["robot_0"].logit.weight.abs().sum() > 0
-    # The two agents learn apart: their weights differ after training.
-    a, b = (policies[k].logit.weight for k in ("robot_0", "robot_1"))
-    assert not torch.allclose(a, b)
+def test_the_team_decides_in_turn_in_one_gymnasium_env():
+    """``TeamDecisionEnv``: one policy's steps are each robot's decisions in turn."""
+    from mjexplore.envs.exploration import EnvConfig
+    from mjexplore.envs.observation import ObservationConfig
+    from mjexplore.envs.team_gvn import TeamDecisionEnv
+
+    config = EnvConfig(scenes=("train_loop",), robots=2, max_decisions=40,
+                       observation=ObservationConfig(max_nodes=64, max_neighbours=4,
+                                                     memory_length=3),
+                       episode=EpisodeConfig(sim=SimConfig(dynamics="kinematic"),
+                                             max_time=120.0))
+    env = TeamDecisionEnv(config)
+    obs, info = env.reset(seed=0)
+    deciders, rewards = [], []
+    for _ in range(30):
+        assert env.observation_space.contains(obs)
+        mask = env.action_masks()
+        assert mask.any() and np.array_equal(mask, obs["action_mask"].astype(bool))
+        deciders.append(info["robot"])
+        obs, reward, terminated, truncated, info = env.step(int(np.flatnonzero(mask)[0]))
+        rewards.append(reward)
+        if terminated or truncated:
+            assert info["episode_metrics"]["robots"] == 2
+            break
+    assert {"robot_0", "robot_1"} <= set(deciders)
+    assert any(r != 0.0 for r in rewards)
+    with pytest.raises(UserInputError, match="robots"):
+        EnvConfig(scenes=("train_loop",), robots=2, decisions="grid")
+
+
+@pytest.mark.slow
+def test_mjexplore_train_trains_a_team_on_sb3(tmp_path):
+    """A team trains with ``mjexplore train`` (MaskablePPO, one policy shared by the
+    robots) and gives a policy file like a single robot's."""
+    import subprocess
+    import sys
+
+    from mjexplore.policies.weights import load_policy
+
+    cfg = tmp_path / "team.yaml"
+    cfg.write_text(TEAM_RECIPE)
+    out = tmp_path / "run"
+    r = subprocess.run([sys.executable, "-m", "mjexplore.cli", "train", "--no-progress",
+                        "--config", str(cfg), "--out", str(out)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout.splitlines()[-1])["num_timesteps"] == 16
+    _, meta = load_policy(out / "policy.safetensors", expected_kind="gvn")
+    assert meta["layout"]["max_nodes"] == 64
+
+
+TEAM_RECIPE = """
+kind: gvn
+total_steps: 16
+n_envs: 1
+checkpoint_every: 8
+env:
+  scenes: [train_loop]
+  max_decisions: 12
+  robots: 2
+  observation: {max_nodes: 64, max_neighbours: 4, memory_length: 3}
+  episode:
+    sim: {dynamics: kinematic}
+policy: {hidden: 16}
+ppo: {n_steps: 8, batch_size: 8, n_epochs: 1}
+eval: {every: 0}
+"""
 
 
 @pytest.mark.parametrize("robots", [1, 2])

@@ -146,6 +146,9 @@ class EnvConfig:
         valid_actions: 'frontiers' (invalid action masking: frontier nodes that are not
             blacklisted) or 'all_nodes' (every TER node; the paper's "without IAM").
         max_decisions: Decisions after which an episode is truncated.
+        robots: Robots exploring together. More than one: the team's decisions one at a
+            time, every robot's made by the one policy
+            (:class:`~mjexplore.envs.team_gvn.TeamDecisionEnv`; ``decisions`` 'ter').
     """
 
     scenes: tuple[str, ...] = ()
@@ -157,8 +160,12 @@ class EnvConfig:
     reward: RewardConfig = dataclasses.field(default_factory=RewardConfig)
     valid_actions: str = "frontiers"
     max_decisions: int = 400
+    robots: int = 1
 
     def __post_init__(self) -> None:
+        if self.robots < 1 or (self.robots > 1 and self.decisions != "ter"):
+            raise UserInputError(f"robots {self.robots}: give 1, or 2 or more with decisions "
+                                 "'ter' (a team trains the GVN).")
         if self.decisions not in DECISIONS:
             raise UserInputError(f"decisions {self.decisions!r} is unknown: use one of "
                                  f"{', '.join(DECISIONS)}.")
@@ -169,6 +176,19 @@ class EnvConfig:
             raise UserInputError("the env needs scenes: give 'scenes' or 'procedural'.")
         if self.max_decisions < 1:
             raise UserInputError(f"max_decisions must be >= 1, not {self.max_decisions}.")
+
+
+def draw_scene(config: EnvConfig, rng: np.random.Generator,
+               cache: dict[str, SceneFiles]) -> SceneFiles:
+    """An episode's scene: one of ``config.scenes`` (loaded once into ``cache``), or a fresh
+    generated layout with ``config.procedural``; drawn from ``rng``."""
+    proc = config.procedural
+    if proc is None:
+        name = config.scenes[int(rng.integers(len(config.scenes)))]
+        if name not in cache:
+            cache[name] = resolve_scene(name)
+        return cache[name]
+    return load_scene_files(procedural_scene(proc, rng))
 
 
 # Generator seeds of held-out layouts start here: the training stream draws its seeds
@@ -336,13 +356,7 @@ class ExplorationEnv(gym.Env):
     # ------------------------------------------------------------------ scenes
 
     def _scene(self, rng: np.random.Generator) -> SceneFiles:
-        proc = self.config.procedural
-        if proc is None:
-            name = self.config.scenes[int(rng.integers(len(self.config.scenes)))]
-            if name not in self._scene_cache:
-                self._scene_cache[name] = resolve_scene(name)
-            return self._scene_cache[name]
-        return load_scene_files(procedural_scene(proc, rng))
+        return draw_scene(self.config, rng, self._scene_cache)
 
     # ------------------------------------------------------------------ decisions
 

@@ -84,6 +84,17 @@ def teammate_goal_distance(positions: np.ndarray, node_mask: np.ndarray,
     return out
 
 
+def agent_observation_space(decisions: TerDecisions) -> gym.spaces.Dict:
+    """An agent's observation space: the single-robot TER observation's of ``decisions``
+    and the team keys."""
+    n = decisions.config.max_nodes
+    return gym.spaces.Dict({
+        **decisions.observation_space.spaces,
+        GOAL_KEY: gym.spaces.Box(0.0, GOAL_CAP, (n,), np.float32),
+        "action_mask": gym.spaces.Box(0, 1, (n,), np.int8),
+    })
+
+
 class TeamGvnEnv(TeamExplorationEnv):
     """See the module docstring."""
 
@@ -110,13 +121,8 @@ class TeamGvnEnv(TeamExplorationEnv):
         self.observation_config = obs_cfg
         self.decisions = [TerDecisions(obs_cfg, valid_actions, topology)
                           for _ in range(robots)]
-        n = obs_cfg.max_nodes
-        single = self.decisions[0].observation_space.spaces
-        self._observation_spaces = {a: gym.spaces.Dict({
-            **single,
-            GOAL_KEY: gym.spaces.Box(0.0, GOAL_CAP, (n,), np.float32),
-            "action_mask": gym.spaces.Box(0, 1, (n,), np.int8),
-        }) for a in self.possible_agents}
+        space = agent_observation_space(self.decisions[0])
+        self._observation_spaces = {a: space for a in self.possible_agents}
 
     def reset(self, seed: int | None = None, options: dict | None = None):
         for d in self.decisions:
@@ -169,5 +175,109 @@ def parallel_env(**kwargs) -> TeamGvnEnv:
     return TeamGvnEnv(**kwargs)
 
 
-__all__ = ["GOAL_KEY", "TEAM_KEYS", "TeamGvnEnv", "parallel_env", "single_robot_observation",
-           "teammate_goal_distance"]
+class TeamDecisionEnv(gym.Env):
+    """A team's decisions one at a time, as a Gymnasium env: one policy decides for every
+    robot (parameter sharing), so that SB3's (Maskable)PPO trains a team with the
+    single-robot recipe's machinery (``mjexplore train`` with ``env.robots`` > 1).
+
+    Each reset draws a scene as the single-robot env does (:func:`~mjexplore.envs.
+    exploration.draw_scene`) and runs a :class:`TeamGvnEnv` on it. A step is one deciding
+    robot's choice, its observation that robot's (:func:`agent_observation_space`); robots
+    that decide at the same instant decide in turn (reward 0 between them, the world
+    standing still), and once every deciding robot has chosen the team runs on to the next
+    decision, the step's reward the team's (``env.reward``'s ``time`` terms: -time_scale per
+    simulated second, time_scale x gain_s_per_m2 per m^2 seen, time_scale x completion_s
+    on finishing). The episode ends as :class:`TeamGvnEnv`'s.
+
+    Args:
+        config: The env's settings (``robots`` > 1, ``decisions`` 'ter').
+    """
+
+    metadata = {"render_modes": []}
+    # Only in a worker process: its threads per library (learning.vec_envs.worker_env).
+    worker_threads: dict[str, int]
+
+    def __init__(self, config) -> None:
+        from mjexplore.envs.exploration import EnvConfig
+
+        if not isinstance(config, EnvConfig) or config.robots < 2:
+            raise ValueError("TeamDecisionEnv needs an EnvConfig with robots >= 2")
+        self.config = config
+        decisions = TerDecisions(config.observation, config.valid_actions)
+        self.spaces = agent_observation_space(decisions)
+        self.observation_space = self.spaces
+        self.action_space = decisions.action_space
+        self.team: TeamGvnEnv | None = None
+        self._scene_cache: dict[str, SceneFiles] = {}
+        self._obs: dict[str, dict[str, np.ndarray]] = {}
+        self._queue: list[str] = []  # The agents still to decide at this instant.
+        self._actions: dict[str, int] = {}
+        self._last: dict[str, np.ndarray] | None = None
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        from mjexplore.envs.exploration import draw_scene
+
+        super().reset(seed=seed)
+        cfg = self.config
+        reward = cfg.reward
+        rng = self.np_random
+        self.team = TeamGvnEnv(draw_scene(cfg, rng, self._scene_cache), cfg.robots,
+                               observation=cfg.observation, valid_actions=cfg.valid_actions,
+                               config=cfg.episode, max_decisions=cfg.max_decisions,
+                               time_scale=reward.time_scale,
+                               gain_scale=reward.time_scale * reward.gain_s_per_m2,
+                               completion=reward.time_scale * reward.completion_s)
+        obs, infos = self.team.reset(seed=int(rng.integers(2**31 - 1)))
+        self._take(obs, infos)
+        return self._current(), self._info()
+
+    def _take(self, obs, infos) -> None:
+        self._obs = obs
+        self._queue = [a for a in obs if infos.get(a, {}).get("deciding")]
+        self._actions = {}
+
+    def _current(self) -> dict[str, np.ndarray]:
+        if self._queue:
+            self._last = self._obs[self._queue[0]]
+        elif self._obs:
+            self._last = next(iter(self._obs.values()))
+        if self._last is None:  # Ended before any decision: a blank observation.
+            blank = self.spaces.sample()
+            self._last = {k: np.zeros_like(v) for k, v in blank.items()}
+        return self._last
+
+    def _info(self) -> dict:
+        team = self.team
+        assert team is not None and team.episode is not None
+        ep = team.episode
+        return {"exploration_ratio": float(ep.ratio), "sim_time": float(ep.time),
+                "end_reason": ep.end_reason,
+                "robot": self._queue[0] if self._queue else None}
+
+    def action_masks(self) -> np.ndarray:
+        """Valid actions of the deciding robot (bool), for sb3-contrib's MaskablePPO."""
+        mask = self._current()["action_mask"].astype(bool)
+        return mask if mask.any() else np.ones_like(mask)  # Invalid: its nearest frontier.
+
+    def step(self, action):
+        team = self.team
+        if team is None:
+            raise RuntimeError("call reset() before step()")
+        if self._queue:
+            self._actions[self._queue.pop(0)] = int(action)
+        if self._queue:  # Another robot decides at the same instant.
+            return self._current(), 0.0, False, False, self._info()
+        obs, rewards, terms, truncs, infos = team.step(self._actions)
+        reward = float(next(iter(rewards.values()), 0.0))
+        terminated = any(terms.values())
+        truncated = any(truncs.values()) and not terminated
+        self._take(obs, infos)
+        info = self._info()
+        if terminated or truncated:
+            assert team.episode is not None
+            info["episode_metrics"] = team.episode.result().metrics
+        return self._current(), reward, terminated, truncated, info
+
+
+__all__ = ["GOAL_KEY", "TEAM_KEYS", "TeamDecisionEnv", "TeamGvnEnv", "agent_observation_space",
+           "parallel_env", "single_robot_observation", "teammate_goal_distance"]

@@ -11,12 +11,19 @@ from pathlib import Path
 from typing import Any
 
 from mjexplore.envs.exploration import EnvConfig, ExplorationEnv
+from mjexplore.envs.team_gvn import TeamDecisionEnv
 from mjexplore.episode.workers import init_episode_worker, single_thread_children, thread_counts
 from mjexplore.errors import UserInputError
 from mjexplore.learning.train_config import TrainConfig
 
 
-def worker_env(config: EnvConfig, report: str | None = None) -> ExplorationEnv:
+def training_env(config: EnvConfig) -> ExplorationEnv | TeamDecisionEnv:
+    """A training env of ``config``: one robot's (:class:`ExplorationEnv`), or with
+    ``robots`` > 1 a team's decisions one at a time (:class:`TeamDecisionEnv`)."""
+    return ExplorationEnv(config) if config.robots == 1 else TeamDecisionEnv(config)
+
+
+def worker_env(config: EnvConfig, report: str | None = None) -> ExplorationEnv | TeamDecisionEnv:
     """An env in a worker process of its own (a subprocess or a Ray actor): the worker runs
     one thread per library (:func:`~mjexplore.episode.workers.init_episode_worker`) and the
     env records them in ``worker_threads``.
@@ -29,7 +36,7 @@ def worker_env(config: EnvConfig, report: str | None = None) -> ExplorationEnv:
     """
     init_episode_worker()
     try:
-        env = ExplorationEnv(config)
+        env = training_env(config)
     except UserInputError as exc:
         if report is None:
             raise
@@ -71,7 +78,7 @@ def env_maker(config: EnvConfig, own_process: bool, report: str | None = None):
     file)."""
     # Partials of module-level callables: plain pickle sends them to any worker or machine.
     if not own_process:
-        return functools.partial(ExplorationEnv, config)
+        return functools.partial(training_env, config)
     return functools.partial(worker_env, config, report)
 
 
