@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from mjexplore.episode import Episode, EpisodeConfig
+from mjexplore.episode.explorer import ExplorationState
 from mjexplore.errors import UserInputError
 from mjexplore.explorers import make_explorer
 from mjexplore.explorers.oracle import lookahead_expert
@@ -106,3 +107,39 @@ def test_a_missing_predictor_says_how_to_make_one(tmp_path):
         PredictedTour(predictor=tmp_path / "none.safetensors")
     with pytest.raises(UserInputError, match="source"):
         PredictedTour(source="crystal_ball")
+
+
+def test_a_coarse_wall_cell_is_seen_once_its_face_is_mapped():
+    """On planning cells coarser than the map, a wall's cell stops being 'to see' once any
+    of its cells is mapped (the lidar maps a wall's face, never its inside); other cells
+    while at least half of theirs are unmapped."""
+    from mjexplore.explorers.predicted_tour import PredictedPlan
+    from mjexplore.maps import GridMap
+
+    data = np.full((8, 8), UNKNOWN, np.int8)
+    data[:, :4] = FREE
+    data[0:4, 4] = OCCUPIED  # The face of the wall block (rows 0-3, cols 4-7) is mapped.
+    grid = GridMap(data, 0.05, (0.0, 0.0, 0.0))
+    truth = GridMap(np.where(np.arange(8)[None, :] >= 4, OCCUPIED, FREE).repeat(
+        8, 0).astype(np.int8), 0.05, (0.0, 0.0, 0.0))
+    planner = PredictedPlan(source="truth", resolution=0.2)
+    planner.reset(np.random.default_rng(0))
+    state = ExplorationState(grid, np.array([0.05, 0.05, 0.0]), 0.0, [], None,
+                             np.zeros((0, 2)), ground_truth=truth)
+    planner.ground_truth_costmap(state)
+    planner._plan.data[...] = planner._planning_map(state)
+    assert planner._plan.data[0, 1] == OCCUPIED and planner._plan.data[1, 1] == OCCUPIED
+    unknown = planner.coarse_unknown(grid)
+    assert not unknown[0, 0] and not unknown[0, 1]  # Free; a wall whose face is mapped.
+    assert unknown[1, 1]  # A wall cell with nothing of it mapped yet.
+
+
+def test_predicted_plan_on_the_truth_explores_with_few_give_ups():
+    """The planner's viewpoints are driven to on the robot's own map; on the truth within
+    5 m it explores without standing at viewpoints that see nothing (each such stop would be
+    given up as 'seen_open')."""
+    scene = resolve_scene("train_loop")
+    explorer = make_explorer("predicted_plan_truth")
+    m = Episode(scene, explorer, 0, GRID).run().metrics
+    assert m["end_reason"] == "explored"
+    assert m["given_up"]["seen_open"] <= m["decisions"] // 3

@@ -47,6 +47,10 @@ METHODS: dict[str, str] = {
                       "prediction saves > 5 m",
     "predicted_tour_inpainting": "predicted_tour with inpainting as the prediction (ablation)",
     "predicted_tour_truth": "predicted_tour with the true map as the prediction (privileged)",
+    "predicted_plan": "the oracle's planner on the map plus the learned prediction within 5 m, "
+                      "followed on the robot's map",
+    "predicted_plan_inpainting": "predicted_plan with inpainting as the prediction (ablation)",
+    "predicted_plan_truth": "predicted_plan with the true map as the prediction (privileged)",
     "gvn": "the learned GVN policy on the TER (--policy picks the model; default gvn_v3)",
     "cnn": "the 'Naive Exp' CNN on the map image (--policy picks the model; default cnn_paper)",
 }

@@ -34,6 +34,11 @@ CLASSIC: dict[str, tuple] = {
                                   {"source": "inpainting"}),
     "predicted_tour_truth": ("mjexplore.explorers.predicted_tour", "PredictedTour",
                              {"source": "truth"}),
+    "predicted_plan": ("mjexplore.explorers.predicted_tour", "PredictedPlan"),
+    "predicted_plan_inpainting": ("mjexplore.explorers.predicted_tour", "PredictedPlan",
+                                  {"source": "inpainting"}),
+    "predicted_plan_truth": ("mjexplore.explorers.predicted_tour", "PredictedPlan",
+                             {"source": "truth"}),
 }
 
 

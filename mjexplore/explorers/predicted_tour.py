@@ -33,7 +33,7 @@ from mjexplore.errors import UserInputError
 from mjexplore.explorers.map_planner import PlanningMapOracle
 from mjexplore.explorers.oracle import LOOKAHEAD_MARGIN
 from mjexplore.explorers.pocket_nearest import PocketNearest
-from mjexplore.maps import FREE, OCCUPIED
+from mjexplore.maps import FREE, OCCUPIED, UNKNOWN
 
 SOURCES = ("learned", "inpainting", "truth")
 MAP_PREDICTOR = "models/map_predictor/predictor.safetensors"
@@ -150,3 +150,90 @@ class PredictedTour(PocketNearest):
             return goal
         self.departures += 1
         return candidates[pick].copy()
+
+
+class PredictedPlan(PredictedMapPlanner):
+    """The oracle's coverage plan on the robot's map plus the prediction within ``horizon``
+    metres of its mapped cells, followed on the robot's own map: the horizon oracle
+    (:class:`~mjexplore.explorers.map_planner.HorizonOracle`) with the truth it reads
+    replaced by a prediction.
+
+    At each decision the planner re-plans (carrying its tour over where its viewpoints are
+    still candidates) and the robot drives to the tour's first viewpoint when its own map
+    has a path there (it stays the goal while it still sees unknown cells, as the
+    oracle's); when the viewpoint lies in predicted space the robot's map cannot reach, it
+    drives to the frontier of least path from the robot plus straight distance on to the
+    viewpoint (the frontier's own test then applies). It never drives on the prediction.
+
+    Args:
+        horizon: How far beyond the mapped cells the prediction is planned on, metres.
+        source: The prediction: ``learned``, ``inpainting`` or ``truth``.
+        **kwargs: :class:`PredictedMapPlanner`'s settings.
+    """
+
+    plans_on_ground_truth = False  # It drives on the robot's map.
+
+    def __init__(self, horizon: float = 5.0, source: str = "learned",
+                 resolution: float | None = PLAN_RESOLUTION, **kwargs) -> None:
+        if horizon < 0:
+            raise ValueError("horizon must be >= 0 (metres)")
+        kwargs.setdefault("rays", 720 if resolution is None else 360)
+        super().__init__(source, resolution=resolution, **kwargs)
+        self.horizon = float(horizon)
+        self.name = "predicted_plan" if source == "learned" else f"predicted_plan_{source}"
+        self.steered = 0  # Decisions sent to a frontier towards an unreachable viewpoint.
+
+    def reset(self, rng: np.random.Generator) -> None:
+        super().reset(rng)
+        self.steered = 0
+
+    def planning_data(self, state: ExplorationState) -> np.ndarray:
+        from mjexplore.explorers.map_planner import _distance_to
+
+        data = super().planning_data(state)
+        grid = state.grid
+        outside = _distance_to(grid.known) * grid.resolution > self.horizon
+        data[outside] = UNKNOWN
+        return data
+
+    def goal_open(self, grid) -> bool | None:
+        """The current viewpoint stays worth reaching while it still sees ``min_gain``
+        planning cells unknown in ``grid`` (on the planning cells); None for a frontier
+        goal."""
+        if self.current is None:
+            return None
+        views = self.views
+        assert views is not None  # The current viewpoint is one of them.
+        cells = views.idx[views.ptr[self.current]:views.ptr[self.current + 1]]
+        return bool(self.coarse_unknown(grid).reshape(-1)[cells].sum() >= self.min_gain)
+
+    def select_goal(self, state: ExplorationState) -> np.ndarray | None:
+        viewpoint = super().select_goal(state)
+        if viewpoint is None:
+            return None
+        costmap = state.costmap
+        # A viewpoint given up before (the robot stood there and its cells stayed unknown,
+        # or no path led there) is steered towards through a frontier instead.
+        if state.allowed([viewpoint])[0] and \
+                costmap.nearest_traversable(viewpoint, radius=0.3) >= 0 and np.isfinite(
+                costmap.distances_from(state.pose[:2], _disk(costmap.grid, viewpoint, 0.3),
+                                       stop_after=1)).any():
+            return viewpoint
+        self.current = None  # A frontier goal: the runner's frontier test applies.
+        if not state.frontiers:
+            return None
+        goals = np.array([f.goal for f in state.frontiers], float)
+        path = costmap.distances_from(state.pose[:2])
+        cells = np.array([costmap.grid.world_to_cell(g) for g in goals])
+        cost = path[cells[:, 0], cells[:, 1]] + np.linalg.norm(goals - viewpoint, axis=1)
+        if not np.isfinite(cost).any():
+            return None
+        self.steered += 1
+        return goals[int(np.argmin(cost))].copy()
+
+
+def _disk(grid, xy: np.ndarray, radius: float) -> np.ndarray:
+    """(rows, cols) bool: the cells within ``radius`` metres of ``xy``."""
+    r, c = grid.world_to_cell(np.asarray(xy, float))
+    rr, cc = np.ogrid[:grid.shape[0], :grid.shape[1]]
+    return (rr - r) ** 2 + (cc - c) ** 2 <= (radius / grid.resolution) ** 2
