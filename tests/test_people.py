@@ -1,0 +1,75 @@
+"""Pedestrians (mjexplore/sim/people.py): the social force model walking people between
+goals around the walls, seeded, never inside a wall, out of a robot's way, and a crowd the
+building cannot hold refused."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mjexplore.errors import UserInputError
+from mjexplore.scenes.canonical import resolve_scene
+from mjexplore.sim.people import Crowd, PeopleConfig
+
+
+@pytest.fixture(scope="module")
+def office():
+    return resolve_scene("office").ground_truth
+
+
+def _walk(gt, seed, seconds=20.0, count=10, robots=None):
+    crowd = Crowd(PeopleConfig(count=count), gt, np.random.default_rng(seed),
+                  keep_clear=np.array([[13.0, 17.8]]))
+    track = [crowd.positions.copy()]
+    for _ in range(int(seconds / 0.5)):
+        crowd.step(0.5, robots)
+        track.append(crowd.positions.copy())
+    return crowd, np.array(track)
+
+
+def test_a_seed_replays_the_same_crowd(office):
+    _, a = _walk(office, 3)
+    _, b = _walk(office, 3)
+    _, c = _walk(office, 4)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+def test_people_walk_between_goals_and_stay_out_of_the_walls(office):
+    crowd, track = _walk(office, 0, seconds=60.0)
+    cfg = crowd.config
+    start = track[0]
+    assert np.linalg.norm(start - [13.0, 17.8], axis=1).min() >= cfg.keep_clear
+    # Apart at the start: a body's width between any two.
+    gaps = np.linalg.norm(start[:, None] - start[None], axis=2) + np.eye(len(start)) * 99
+    assert gaps.min() >= 2 * cfg.radius
+    rc = office.world_to_cell(track.reshape(-1, 2))
+    assert office.free[rc[:, 0], rc[:, 1]].all()  # Never on a wall cell.
+    speeds = np.linalg.norm(np.diff(track, axis=0), axis=2) / 0.5
+    assert speeds.max() <= 1.3 * cfg.speed[1] + 1e-9
+    assert speeds.mean() > 0.4  # They walk, and not only in place.
+    # Goals 3 m or more away, most beyond 20 m: most reach one in a minute, few give up.
+    assert crowd.goals_reached >= len(crowd) // 2
+    assert crowd.goals_abandoned <= crowd.goals_reached
+
+
+def test_people_step_around_a_standing_robot(office):
+    robot = np.array([[13.0, 17.8]])
+    crowd = Crowd(PeopleConfig(count=6), office, np.random.default_rng(1))
+    # Every goal right past the robot: each walks by it.
+    crowd.goals[:] = robot[0] + (0.0, 2.0)
+    crowd._fields = [crowd._guide.distance_field(g) for g in crowd.goals]
+    crowd.positions[:] = robot[0] - (0.0, 2.0) + np.linspace(-1.0, 1.0, 6)[:, None] * (1, 0)
+    nearest = []
+    for _ in range(80):
+        crowd.step(0.1, robot)
+        nearest.append(crowd.distances_to(robot)[0])
+    assert min(nearest) > 0.194 - 0.05  # The robot's bounding circle, barely touched.
+
+
+def test_a_crowd_the_building_cannot_hold_is_refused(office):
+    with pytest.raises(UserInputError, match=r"holds \d+ walking; give --people \d+"):
+        Crowd(PeopleConfig(count=100_000), office, np.random.default_rng(0))
+    with pytest.raises(UserInputError, match="0 or more"):
+        PeopleConfig(count=-1)
+    assert len(Crowd(PeopleConfig(), office, np.random.default_rng(0))) == 0
