@@ -41,7 +41,7 @@ import numpy as np
 from mjexplore.episode.agent import RobotAgent
 from mjexplore.episode.explorer import ExplorationState, Explorer
 from mjexplore.episode.merging import MapMerging
-from mjexplore.episode.metrics import KnownCounter, episode_metrics, pose_errors
+from mjexplore.episode.metrics import KnownCounter, episode_metrics, pose_errors, team_result
 from mjexplore.episode.team import Team, TeamConfig
 from mjexplore.errors import UserInputError
 from mjexplore.mapping.metrics import exploration_ratio, iou, observable_ground_truth
@@ -571,9 +571,9 @@ class Episode:
 
     def result(self) -> Any:
         """What the episode produced: an :class:`EpisodeResult` for one robot, a
-        :class:`~mjexplore.episode.team.TeamEpisodeResult` for a team."""
+        :class:`~mjexplore.episode.metrics.TeamEpisodeResult` for a team."""
         if self.team is not None:
-            return self.team.result(self)
+            return team_result(self)
         agent = self.agent
         curve = np.array(self.curve)
         grid = self.mapper.grid

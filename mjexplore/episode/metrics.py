@@ -3,10 +3,12 @@ simulated time."""
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
 
+from mjexplore.mapping.metrics import iou
 from mjexplore.maps import GridMap
 from mjexplore.sim.kinematics import KinematicsLog
 
@@ -19,6 +21,8 @@ def first_time_at(curve: np.ndarray, level: float) -> float | None:
 
 # Exploration ratios whose first times are metrics (the paper's Fig. 5), and their keys.
 MILESTONES = ((0.80, "t80_s"), (0.985, "t985_s"))
+# Those of a team's metrics.
+TEAM_MILESTONES = ((0.80, "t80_s"), (0.90, "t90_s"), (0.985, "t985_s"))
 
 
 def episode_metrics(curve: np.ndarray, log: KinematicsLog, final_iou: float,
@@ -97,3 +101,107 @@ class KnownCounter:
             self.count += int((new & ref).sum() - (self.known[flat] & ref).sum())
             self.known[flat] = new
         return self.count / self.total
+
+
+@dataclasses.dataclass
+class TeamEpisodeResult:
+    """What a team episode produced.
+
+    Attributes:
+        metrics: The team's metrics, with ``per_robot`` (a list of dicts).
+        ratio_curve: (n, 2) time (s) and the team's exploration ratio after each scan.
+        robot_curves: Each robot's (m, 2) time and own coverage ratio.
+        kinematics: Each robot's kinematics log.
+        grid: The final shared map.
+        goals: Each robot's (m, 3) decision time and goal.
+        starts: The robots' start poses.
+    """
+
+    metrics: dict[str, Any]
+    ratio_curve: np.ndarray
+    robot_curves: list[np.ndarray]
+    kinematics: list[KinematicsLog]
+    grid: GridMap
+    goals: list[np.ndarray]
+    starts: list[tuple[float, float, float]]
+
+
+def team_result(episode: Any) -> TeamEpisodeResult:
+    """What a team's ``episode`` (an :class:`~mjexplore.episode.engine.Episode` of N > 1
+    robots) produced: the team's metrics, with map merging's when the starts were unknown.
+
+    Metrics beside a single robot's: the robots' summed and longest path, robot-robot
+    collisions, Explore-Bench's overlap ratio (the robots' own explored areas summed over
+    the team's, less one: 0 when no cell was seen by two robots, 1 when each saw
+    everything), the times to 80, 90 and 98.5 %, and per robot its path, coverage (what its
+    own scans saw), collisions, decisions, waits and yields (and its pose errors with a
+    localiser).
+    """
+    team = episode.team
+    curve = np.array(episode.curve).reshape(-1, 2)
+    grid = episode.mapper.grid
+    counter = episode.counter
+    world = episode.world
+    logs = [r.kinematics() for r in world.robots]
+    paths = [log.path_length() for log in logs]
+    t_end = float(curve[-1, 0]) if len(curve) else 0.0
+    own_known = [c.count for c in team.own_counters]
+    t = episode.time
+    per_robot = []
+    for a, log, path, known in zip(team.agents, logs, paths, own_known):
+        odom = log.odom_pose[:, :2]
+        wait = a.wait_time + (t - a.waiting_since if a.waiting_since is not None else 0.0)
+        idle = a.idle_time + (t - a.idle_since if a.idle_until is not None else 0.0)
+        per_robot.append({
+            "robot": a.sim.name,
+            "start": [round(v, 4) for v in episode.starts[a.index]],
+            "path_length_m": round(path, 3),
+            "odometry_path_length_m": round(
+                float(np.linalg.norm(np.diff(odom, axis=0), axis=1).sum()), 3),
+            "coverage": round(known / counter.total, 5),
+            "collisions": int(a.sim.collisions),
+            "robot_contacts": int(a.sim.robot_contacts),
+            "decisions": len(a.goals),
+            "fallbacks": a.fallbacks,
+            "reoffers": a.reoffers,
+            "given_up": a.blacklist.reasons(),
+            "waits": a.waits,
+            "wait_time_s": round(wait, 3),
+            "yields": a.yields,
+            "idle_time_s": round(max(idle, 0.0), 3),
+            "state": a.retired or ("idle" if a.idle_until is not None else "exploring"),
+            "mean_speed_mps": round(path / t_end, 4) if t_end > 0 else 0.0,
+        })
+        if a.localizer is not None:  # Its estimate against its true pose, per scan.
+            positions = np.array(a._positions, np.float64).reshape(-1, 4)
+            per_robot[-1].update(pose_errors(positions[:, :2], positions[:, 2:]))
+    metrics: dict[str, Any] = {
+        "robots": len(team.agents),
+        "iou": round(iou(grid, episode.reference), 5),
+        "exploration_ratio": round(float(curve[-1, 1]), 5) if len(curve) else 0.0,
+        "exploration_time_s": round(t_end, 3),
+        **{key: first_time_at(curve, level) for level, key in TEAM_MILESTONES},
+        "path_length_m": round(float(sum(paths)), 3),
+        "max_path_length_m": round(float(max(paths)), 3),
+        "overlap_ratio": round(sum(own_known) / max(counter.count, 1) - 1.0, 5),
+        "collisions": int(sum(r.collisions for r in world.robots)),
+        "robot_collisions": int(world.robot_collisions),
+        "end_reason": episode.end_reason or "running",
+        "decisions": sum(len(a.goals) for a in team.agents),
+        "waits": sum(a.waits for a in team.agents),
+        "yields": sum(a.yields for a in team.agents),
+        "masked_returns": team.masked_returns,
+        "localization": episode.config.localization,
+        "per_robot": per_robot,
+    }
+    if episode.merging is not None:
+        metrics.update(episode.merging.metrics(counter))
+    explorer = team.agents[0].explorer
+    sha = getattr(explorer, "weights_sha256", None)  # A learned explorer's weights.
+    if sha is not None:
+        metrics["policy"] = explorer.policy_name
+        metrics["weights_sha256"] = sha
+    return TeamEpisodeResult(
+        metrics, curve, [np.array(c).reshape(-1, 2) for c in team.own_curves], logs,
+        GridMap(grid.data.copy(), grid.resolution, grid.origin),
+        [np.array(a.goals).reshape(-1, 3) for a in team.agents], list(episode.starts))

@@ -150,7 +150,7 @@ def run_episode(scene: SceneFiles, explorer: str, seed: int, config: EpisodeConf
 
     Returns:
         The episode's :class:`~mjexplore.episode.EpisodeResult`, a team's
-        :class:`~mjexplore.episode.team.TeamEpisodeResult`.
+        :class:`~mjexplore.episode.metrics.TeamEpisodeResult`.
     """
     title = f"{scene.metadata.get('name', Path(scene.xml).parent.name)} / {explorer} / seed {seed}"
     if robots > 1:
