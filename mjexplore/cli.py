@@ -476,6 +476,16 @@ def cmd_plot_training(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_probe_policy(args: argparse.Namespace) -> int:
+    from mjexplore.eval.probe import probe_policy
+
+    print(json.dumps(probe_policy(args.weights, args.config, episodes=args.episodes,
+                                  seed_base=args.seed_base, heldout=args.heldout,
+                                  unseen=args.unseen, modes=args.modes.split(","),
+                                  workers=args.workers)))
+    return 0
+
+
 def cmd_policies(args: argparse.Namespace) -> int:
     from mjexplore.policies.models import DEFAULT_MODEL, MODELS_DIR, shipped_models
 
@@ -1012,6 +1022,39 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the policy for --departures (default: RUN/best.safetensors, else "
                     "RUN/policy.safetensors)")
     pt.set_defaults(func=cmd_plot_training)
+
+    from mjexplore.eval.probe import DEFAULT_MODES, MODES  # Light: the episodes load lazily.
+
+    pp = sub.add_parser(
+        "probe-policy", help="a trained policy against random and greedy choices, same layouts",
+        description="Run whole episodes of a config's training env with each mode choosing "
+                    "every action: the trained policy (its most probable valid action), a "
+                    "uniformly random valid action, the greedy valid action nearest the robot "
+                    "and a residual policy's prior alone (prior), on the same layouts and "
+                    "start poses; with --heldout or --unseen a classic explorer's name is a "
+                    "mode too, driving the same episode on its own. Prints one JSON line: per "
+                    "mode the mean return, exploration time (s), path length (m) and episodes "
+                    "explored, and learned_fraction, where the policy's mean return lies "
+                    "between random (0) and greedy (1) (docs/guide/training.md).")
+    pp.add_argument("--weights", required=True, help="exported policy (.safetensors)")
+    pp.add_argument("--config", default=None,
+                    help="training YAML whose env is used (default: the config stored with "
+                    "the weights)")
+    pp.add_argument("--episodes", type=_count, default=10, metavar="N",
+                    help="episodes, on seeds --seed-base on (without --heldout or --unseen)")
+    pp.add_argument("--seed-base", type=_seed, default=10_000, metavar="SEED",
+                    help="the first episode's seed")
+    pp.add_argument("--heldout", action="store_true",
+                    help="the config's model-selection layouts instead of --episodes")
+    pp.add_argument("--unseen", type=_whole("", 0), default=0, metavar="N",
+                    help="this many generated layouts past the model-selection ones instead "
+                    "of --episodes")
+    pp.add_argument("--modes", default=",".join(DEFAULT_MODES),
+                    help=f"comma-separated, of {', '.join(MODES)} and, with --heldout or "
+                    "--unseen, explorer names (nearest, oracle, ...)")
+    pp.add_argument("--workers", type=_count, default=2,
+                    help="processes running the episodes")
+    pp.set_defaults(func=cmd_probe_policy)
 
     n_scenes, n_explorers = len(BENCH_SCENES.split(",")), len(BENCH_EXPLORERS.split(","))
     bench = sub.add_parser(

@@ -195,7 +195,8 @@ def test_teammates_are_not_mapped_as_walls(dumbbell):
     raw = episode.world.robots[0].latest_scan
     masked = episode.team.mask(0, raw, episode._body_centres())
     # The beams whose return came from robot 1's silhouette (the lidar's last cast).
-    teammate = episode.world.robots[0].lidar._geomid == episode.world._silhouettes[1]
+    lidar = episode.world.robots[0].lidar
+    teammate = lidar._geomid == lidar._silhouettes[0]
     assert teammate.sum() > 5
     assert np.isnan(masked.ranges[teammate]).all()
     assert np.isnan(masked.ranges).sum() == teammate.sum()

@@ -21,8 +21,8 @@ from mjexplore.scenes.team import (
     parse_starts,
     team_spec,
 )
-from mjexplore.sim.simulator import SimConfig
-from mjexplore.sim.team import TeamSimulator, ray_boxes, robot_seed
+from mjexplore.sim.lidar import ray_boxes
+from mjexplore.sim.simulator import SimConfig, Simulator, robot_seed
 from mjexplore.sim.team_grid import TeamGridWorld, make_team_world
 from mjexplore.sim.world import make_world
 
@@ -60,7 +60,7 @@ def test_team_spec_has_n_prefixed_robots(office):
 
 def test_lidars_see_teammates_not_themselves(office, open_spot):
     x, y = open_spot
-    team = TeamSimulator(office, [(x - 0.75, y, 0.0), (x + 0.75, y, math.pi)])
+    team = Simulator(office, starts=[(x - 0.75, y, 0.0), (x + 0.75, y, math.pi)])
     a, b = (r.latest_scan for r in team.robots)
     # Beam 0 of each looks at the other: lidar 0.064 m behind base_link, the teammate's
     # box (0.281 m long, centred 0.064 m behind its axle) facing it.
@@ -74,12 +74,12 @@ def test_lidars_see_teammates_not_themselves(office, open_spot):
 @pytest.mark.parametrize("dynamics", ["physics", "kinematic"])
 def test_robots_collide_with_each_other(office, open_spot, dynamics):
     x, y = open_spot
-    team = TeamSimulator(office, [(x - 0.75, y, 0.0), (x + 0.75, y, math.pi)],
-                         SimConfig(dynamics=dynamics))
+    team = Simulator(office, SimConfig(dynamics=dynamics),
+                     starts=[(x - 0.75, y, 0.0), (x + 0.75, y, math.pi)])
     for _ in range(60):
         for r in team.robots:
             r.command(0.3, 0.0)
-        team.step(0.1)
+        team.step_all(0.1)
     assert team.robot_collisions == 1  # One long push: one collision.
     assert [r.robot_contacts for r in team.robots] == [1, 1]
     assert [r.collisions for r in team.robots] == [0, 0]  # Walls are counted apart.
@@ -96,14 +96,14 @@ def test_team_of_one_is_the_single_robot(office, dynamics):
     config = SimConfig(dynamics=dynamics, seed=3)
     single = make_world(office, config)
     team = make_team_world(office, [office.start], config)
-    assert isinstance(team, TeamGridWorld if dynamics == "grid" else TeamSimulator)
+    assert isinstance(team, TeamGridWorld if dynamics == "grid" else Simulator)
     robot = team.robots[0]
     rng = np.random.default_rng(0)
     for _ in range(100):
         v, w = rng.uniform(-0.2, 0.5), rng.uniform(-1.0, 1.0)
         single.command(v, w)
         robot.command(v, w)
-        a, b = single.step(0.1), team.step(0.1)[0]
+        a, b = single.step(0.1), team.step_all(0.1)[0]
     tolerance = 0.0 if dynamics == "grid" else 1e-9  # The grid world's pose is exact.
     np.testing.assert_allclose(robot.pose, single.pose, rtol=0.0, atol=tolerance)
     np.testing.assert_allclose(robot.odom_pose, single.odom_pose, rtol=0.0, atol=tolerance)
@@ -114,10 +114,10 @@ def test_team_of_one_is_the_single_robot(office, dynamics):
 def test_each_robot_has_its_own_noise_and_logs(office, open_spot):
     x, y = open_spot
     config = SimConfig(lidar=None, seed=5, odometry_error="typical")
-    team = TeamSimulator(office, [(x - 1.0, y, 0.0), (x + 1.0, y, 0.0)], config)
+    team = Simulator(office, starts=[(x - 1.0, y, 0.0), (x + 1.0, y, 0.0)], config=config)
     assert robot_seed(5, 0) == 5 and robot_seed(5, 1) != 5
     team.robots[0].command(0.3, 0.0)
-    team.step(2.0)
+    team.step_all(2.0)
     k0, k1 = (r.kinematics() for r in team.robots)
     assert len(k0.t) == len(k1.t) == 41
     assert k0.linear_velocity[-1] > 0.2 and abs(k1.linear_velocity[-1]) < 1e-3
@@ -127,20 +127,24 @@ def test_each_robot_has_its_own_noise_and_logs(office, open_spot):
 def test_random_driving_raises_no_warnings(office):
     """Menagerie's model test: step the team under random commands, no MuJoCo warning."""
     starts = draw_starts(office.ground_truth, office.start, 3, np.random.default_rng(1))
-    team = TeamSimulator(office, starts)
+    team = Simulator(office, starts=starts)
     rng = np.random.default_rng(2)
     for _ in range(100):
         for r in team.robots:
             r.command(rng.uniform(-0.5, 0.5), rng.uniform(-1.8, 1.8))
-        team.step(0.1)
+        team.step_all(0.1)
     assert team.warnings() == {}
     assert all(r.is_upright for r in team.robots)
 
 
-def test_team_robots_refuse_their_own_reset(office):
-    team = TeamSimulator(office, [office.start])
-    with pytest.raises(TypeError, match="together"):
-        team.robots[0].step(0.1)
+def test_a_robot_alone_is_its_worlds_robot_0(office):
+    """One world class: a robot alone (the scene's MJCF untouched) is the world's robot 0,
+    stepped by the world; a team's robots are stepped together by theirs."""
+    alone = Simulator(office)
+    assert alone.robots == [alone] and alone.name == "robot_0"
+    team = Simulator(office, starts=[office.start, (office.start[0] + 1.0, office.start[1], 0.0)])
+    assert team.robots[0] is team and len(team) == 2
+    assert len(team.step_all(0.2)) == 2 and len(team.step(0.1)) == 1
 
 
 def test_parse_starts():
@@ -191,9 +195,9 @@ def test_explore_bench_placements_refuse_other_maps():
         explore_bench_starts("room", "near")
 
 
-def test_team_needs_physics_or_kinematic(office):
-    with pytest.raises(UserInputError, match="physics or kinematic"):
-        TeamSimulator(office, [office.start], SimConfig(dynamics="grid"))
+def test_the_mujoco_world_refuses_the_grid_dynamics(office):
+    with pytest.raises(UserInputError, match="runs without MuJoCo"):
+        Simulator(office, starts=[office.start], config=SimConfig(dynamics="grid"))
 
 
 def test_model_compiles_fast(office):
@@ -210,13 +214,13 @@ def test_silhouette_rays_match_mujoco(office, open_spot):
     x, y = open_spot
     rng = np.random.default_rng(4)
     starts = [(x, y, 0.3), (x + 1.2, y + 0.4, 1.1), (x - 0.9, y - 1.0, -2.0)]
-    team = TeamSimulator(office, starts)
+    team = Simulator(office, starts=starts)
     lidar = team.robots[0].lidar
     d = team.data
     origin = d.site_xpos[lidar.site_id].copy()
     angles = rng.uniform(-np.pi, np.pi, 500)
     vec = np.column_stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)])
-    ids = np.array(team._silhouettes[1:])
+    ids = lidar._silhouettes  # Robot 1's and 2's, as robot 0's lidar sees them.
     dist, which, normal = ray_boxes(origin, vec, d.geom_xpos[ids],
                                     d.geom_xmat[ids].reshape(-1, 3, 3),
                                     team.model.geom_size[ids[0]])
@@ -246,9 +250,9 @@ def test_grid_team_sees_and_blocks_teammates(office, open_spot):
     for _ in range(60):
         for r in team.robots:
             r.command(0.3, 0.0)
-        team.step(0.1)
+        team.step_all(0.1)
     assert team.robot_collisions == 1 and [r.robot_contacts for r in team.robots] == [1, 1]
     assert all(r.in_collision for r in team.robots)
     a, b = (np.array(r.body_centre) for r in team.robots)
     assert np.hypot(*(a - b)) >= 2 * 0.194 - 0.05
-    assert isinstance(make_team_world(office, [office.start]), TeamSimulator)
+    assert isinstance(make_team_world(office, [office.start]), Simulator)

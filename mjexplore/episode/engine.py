@@ -530,7 +530,7 @@ class Episode:
             for scan in self.world.step(dt):
                 self._integrate(0, scan)
         else:
-            scans = self.world.step(dt)
+            scans = self.world.step_all(dt)
             for k in range(max((len(s) for s in scans), default=0)):
                 for i, robot_scans in enumerate(scans):
                     if k < len(robot_scans):

@@ -7,7 +7,7 @@ in ``RUN/eval.csv`` against the decisions trained, with horizontal lines measure
 same validation layouts (the run's ``eval.scene_list()``) with the same episode settings and
 seed: ``pocket_nearest`` (the policy's prior alone: the nearest node by path, counting each
 ``policy.prior_pocket_m`` metres farther per unit of pocket probability; ``prior`` mode of
-``tools/probe_policy.py``; v2 and v3 observations only), ``nearest`` (the classic
+``mjexplore probe-policy``; v2 and v3 observations only), ``nearest`` (the classic
 nearest-frontier explorer; its mode there) and ``oracle`` (the ground-truth explorer). They
 are measured once and cached in ``RUN/baselines.json`` (see
 :mod:`mjexplore.eval.learning_curve`); ``--recompute-baselines`` measures them again,
@@ -139,7 +139,7 @@ def applicable_baselines(config) -> list[str]:
 
 def measure_baselines(config_path: Path, workers: int):
     """A measuring function for :func:`~mjexplore.eval.learning_curve.cached_baselines`:
-    ``tools/probe_policy.py``'s ``prior``, ``nearest`` and ``oracle`` episodes on the
+    ``mjexplore probe-policy``'s ``prior``, ``nearest`` and ``oracle`` episodes on the
     config's validation layouts."""
     def measure(config, names: list[str]) -> dict[str, list[dict]]:
         jobs = [(str(config_path), PROBE_MODES[n], config.eval.seed, scene)

@@ -7,8 +7,8 @@ a *silhouette*: a box over the body's footprint from the base plate to the top o
 lidar, which is what a teammate's horizontal scan plane meets (geom group
 :data:`SILHOUETTE_GROUP`, which renderers hide by default; no contacts, no mass; not fully
 transparent, since MuJoCo's rays skip geoms of alpha 0); the lidar casts against the walls
-and these (:class:`mjexplore.sim.team.TeamSimulator`). The robots' collision geoms collide
-with each other as with the walls.
+and these (:class:`mjexplore.sim.simulator.Simulator` with ``starts``). The robots'
+collision geoms collide with each other as with the walls.
 
 Start poses come from the command line (:func:`parse_starts`), from Explore-Bench's
 two-robot launch files (:data:`EXPLORE_BENCH_TEAM_STARTS`: "close" and "far" placements of

@@ -241,6 +241,50 @@ class StaticRayScene:
         return model, data
 
 
+def ray_boxes(origin: np.ndarray, vec: np.ndarray, centres: np.ndarray, rot: np.ndarray,
+              half: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rays against boxes whose axes include the vertical (upright bodies): the slab
+    method in each box's horizontal frame, with the hit's height checked.
+
+    Args:
+        origin: (3,) the rays' origin, metres.
+        vec: (n, 3) unit ray directions.
+        centres: (k, 3) box centres.
+        rot: (k, 3, 3) box orientations (columns: the box axes in the world).
+        half: (3,) half sizes.
+
+    Returns:
+        (n,) distance to the nearest box hit (-1 for none), (n,) the box hit (-1), and
+        (n, 3) the unit normal of the face hit.
+    """
+    n = len(vec)
+    best = np.full(n, -1.0)
+    which = np.full(n, -1, np.int64)
+    normal = np.zeros((n, 3))
+    for b in range(len(centres)):
+        axes = rot[b][:, :2]  # The box's horizontal axes in the world.
+        o = (origin - centres[b]) @ axes
+        d = vec @ axes
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / np.where(np.abs(d) < 1e-12, 1e-12, d)
+            t1 = (-half[:2] - o) * inv
+            t2 = (half[:2] - o) * inv
+        tmin, tmax = np.minimum(t1, t2), np.maximum(t1, t2)
+        near = tmin.max(axis=1)
+        far = tmax.min(axis=1)
+        z = origin[2] + near * vec[:, 2] - centres[b][2]
+        hit = (near <= far) & (near > 0) & (np.abs(z) <= half[2])
+        hit &= (best < 0) | (near < best)
+        if not hit.any():
+            continue
+        best[hit] = near[hit]
+        which[hit] = b
+        face = np.argmax(tmin[hit], axis=1)
+        sign = -np.sign(d[hit, face])
+        normal[hit] = sign[:, None] * axes.T[face]
+    return best, which, normal
+
+
 class Lidar:
     """Casts scans for the lidar mounted at a site of a MuJoCo model.
 
@@ -248,16 +292,25 @@ class Lidar:
     (:meth:`observe_base_pose`); the pose of each beam's instant is interpolated between
     them.
 
+    In a team's model the lidar also sees its teammates' silhouettes (upright boxes; not
+    its own robot's): the walls are cast as a robot alone's, the silhouettes by
+    :func:`ray_boxes` (the geometry MuJoCo's rays would meet, at a fraction of a full-model
+    ``mj_multiRay``), and the nearer return wins.
+
     Args:
         model: The compiled model; the site's body is the robot's free base.
-        site: Name of the lidar frame site (``base_scan``).
+        site: Name of the lidar frame site (``base_scan``, ``robot_{i}/base_scan``).
         config: Lidar settings.
         rng: Generator for range noise and dropouts (needed only when they are on).
+        silhouettes: Geom ids of the teammates' silhouettes (boxes of one size).
     """
 
     def __init__(self, model: mujoco.MjModel, site: str, config: LidarConfig,
-                 rng: np.random.Generator | None = None) -> None:
+                 rng: np.random.Generator | None = None,
+                 silhouettes: list[int] | tuple[int, ...] = ()) -> None:
         self.model = model
+        self._silhouettes = np.asarray(silhouettes, np.int64)
+        self._half = model.geom_size[self._silhouettes[0]].copy() if len(silhouettes) else None
         self.config = config
         self.site_id = model.site(site).id
         self.rng = rng if rng is not None else np.random.default_rng(0)
@@ -305,6 +358,26 @@ class Lidar:
         mujoco.mj_multiRay(model, ray_data, origin, self._vec[i0:i1].reshape(-1),
                            SCAN_GEOMGROUP, 1, -1, self._geomid[i0:i1], self._dist[i0:i1],
                            normal, i1 - i0, self.config.range_max + 0.1)
+        ids = self._silhouettes
+        if len(ids) == 0:
+            return
+        assert self._half is not None  # Set whenever there are silhouettes.
+        centres = data.geom_xpos[ids]
+        reach = self.config.range_max + 0.3
+        near = np.hypot(centres[:, 0] - origin[0], centres[:, 1] - origin[1]) <= reach
+        if not near.any():
+            return
+        dist, which, hit_normal = ray_boxes(np.asarray(origin, float), self._vec[i0:i1],
+                                            centres[near],
+                                            data.geom_xmat[ids[near]].reshape(-1, 3, 3),
+                                            self._half)
+        walls = self._dist[i0:i1]
+        nearer = (dist >= 0) & ((walls < 0) | (dist < walls))
+        if nearer.any():
+            walls[nearer] = dist[nearer]
+            self._geomid[i0:i1][nearer] = ids[near][which[nearer]]
+            if self._normal is not None:
+                self._normal[i0:i1][nearer] = hit_normal[nearer]
 
     def cast(self, data: mujoco.MjData) -> np.ndarray:
         """Raw distances (float64, -1 for no hit) from the site at the current state, all

@@ -1,4 +1,9 @@
-"""The MuJoCo simulator core: a diff-drive robot with a 2D lidar in a scene.
+"""The MuJoCo simulator core: diff-drive robots with 2D lidars in a scene's world.
+
+One world (:class:`Simulator`) owns the model, the data, the clock and its robots
+(:class:`MujocoRobot`): a robot alone loads the scene's MJCF untouched and is the world's
+robot 0; a team's model holds N copies of the robot (``starts``), which see and touch each
+other, stepped together on the same grids of physics steps.
 
 Time is simulated time only. Physics runs at the model's time step; three things happen
 on fixed grids of physics steps:
@@ -39,6 +44,7 @@ import numpy as np
 from mjexplore.errors import UserInputError
 from mjexplore.robot import TURTLEBOT3_WAFFLE, MotionProfile, motion_profile
 from mjexplore.scenes.scene import SceneFiles, load_scene_files
+from mjexplore.scenes.team import SILHOUETTE, robot_prefix, team_spec
 from mjexplore.sim.kinematics import KinematicsRecorder
 from mjexplore.sim.lidar import LaserScan, Lidar, LidarConfig
 from mjexplore.sim.motion import (  # noqa: F401 (re-exported)
@@ -201,51 +207,61 @@ def compile_scene(scene: SceneFiles) -> mujoco.MjModel:
                              "file or regenerate it with 'mjexplore scene-gen'.") from None
 
 
-class Simulator(RobotWorld):
-    """Steps a scene's MuJoCo model with the robot driven by (v, omega) commands.
+def robot_seed(seed: int, i: int) -> int:
+    """The seed of robot ``i``'s noise and errors: ``seed`` itself for robot 0."""
+    if i == 0:
+        return seed
+    return int(np.random.SeedSequence([seed, i]).generate_state(1)[0])
 
-    Args:
-        scene: A scene folder, its ``scene.xml``, any MJCF containing the robot, or
-            :class:`SceneFiles`.
-        config: Simulator settings.
+
+def float_pose(values) -> tuple[float, float, float]:
+    """A pose (x, y, yaw) given as any three numbers, as floats."""
+    x, y, yaw = (float(v) for v in values)
+    return x, y, yaw
+
+
+class MujocoRobot(RobotWorld):
+    """One robot of a :class:`Simulator`'s model: its addresses in the model, lidar, wheel
+    odometry, kinematics log, acceleration limiter and contacts; the world steps it.
 
     Attributes:
-        model: The compiled ``MjModel``.
-        data: Its ``MjData``.
-        scene: Paths and facts of the loaded scene (ground truth, start pose).
-        profile: The motion profile in force.
-        lidar: The lidar.
+        index: The robot's number in the world.
+        name: Its namespace (``robot_{index}`` in a team).
+        lidar: The lidar (a teammate's silhouette stops its beams too).
         collisions: Number of collisions with walls since reset; contacts less than
             ``COLLISION_GAP_S`` apart count as one.
+        robot_contacts: Contacts with teammates since reset, counted the same way.
     """
 
-    def __init__(self, scene: str | os.PathLike | SceneFiles, config: SimConfig | None = None):
-        self.config = config or SimConfig()
-        self.scene = scene if isinstance(scene, SceneFiles) else load_scene_files(scene)
-        self.model = compile_scene(self.scene)
-        self.data = mujoco.MjData(self.model)
-        self.profile: MotionProfile = motion_profile(self.config.profile)
-        m = self.model
-        self._bind_robot("")
-        # Walls are static, so any contact with one involves the robot.
-        self._is_wall_geom = (m.geom_bodyid == 0) & (m.geom_group == 0) & (
-            m.geom_type != mujoco.mjtGeom.mjGEOM_PLANE)
-        dt = m.opt.timestep
-        self._sample_every = _steps_per(1.0 / self.config.sample_rate_hz, dt, "sample")
-        lidar_cfg = self.config.resolved_lidar()
-        self._scan_every = _steps_per(1.0 / lidar_cfg.rate_hz, dt, "lidar scan")
+    config: SimConfig
+    scene: SceneFiles
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    _sample_every: int
+    _scan_every: int
+    _clearance: np.ndarray | None
+
+    def __init__(self, world: Simulator, index: int, prefix: str,
+                 silhouettes: list[int]) -> None:  # noqa: D107
+        self._world = world
+        self.index = index
+        self.name = prefix.rstrip("/") or "robot_0"
+        self.config = dataclasses.replace(world.config, seed=robot_seed(world.config.seed,
+                                                                       index))
+        self.scene = world.scene
+        self.model, self.data = world.model, world.data
+        self.profile: MotionProfile = world.profile
+        self._bind_robot(prefix)
+        self._sample_every = world._sample_every
+        self._scan_every = world._scan_every
+        self._clearance = world._clearance
         self._rng = np.random.default_rng(self.config.seed)
-        self.lidar = Lidar(m, SCAN_SITE, lidar_cfg, self._rng)
+        lidar_cfg = self.config.resolved_lidar()
+        self.lidar = Lidar(self.model, prefix + SCAN_SITE, lidar_cfg, self._rng, silhouettes)
         self._skew = lidar_cfg.motion_skew
         self.odometry = self.config.make_odometry()
         self._kinematics = KinematicsRecorder()
-        self._clearance: np.ndarray | None = None
-        if self.config.dynamics == "grid":
-            raise UserInputError("dynamics 'grid' runs without MuJoCo: build the world with "
-                                 "mjexplore.sim.world.make_world(scene, config).")
-        if self.config.dynamics == "kinematic":
-            self._clearance = wall_clearance(self.scene.ground_truth)
-        self.reset()
+        self._start = np.zeros(3)
 
     def _bind_robot(self, prefix: str) -> None:
         """Finds the robot whose MJCF names start with ``prefix`` (``""`` for a scene's one
@@ -281,9 +297,14 @@ class Simulator(RobotWorld):
     # ------------------------------------------------------------------ state
 
     @property
+    def _steps(self) -> int:  # type: ignore[override]
+        """Physics steps of the world since reset (its clock; the robot never steps)."""
+        return self._world._world_steps
+
+    @property
     def time(self) -> float:
         """Simulated time since reset in seconds."""
-        return self._steps * self.model.opt.timestep
+        return self._world._world_steps * self.model.opt.timestep
 
     @property
     def pose(self) -> np.ndarray:
@@ -318,79 +339,62 @@ class Simulator(RobotWorld):
         return {mujoco.mjtWarning(i).name: int(w.number)
                 for i, w in enumerate(self.data.warning) if w.number}
 
-    # ------------------------------------------------------------------ control
+    @property
+    def in_collision(self) -> bool:
+        """Touching a wall or a teammate."""
+        return self._in_contact or self._teammate_contact
 
-    def reset(self, pose: tuple[float, float, float] | None = None) -> LaserScan:
-        """Puts the robot at rest at ``pose`` (default: the scene's start) at time 0.
+    @property
+    def body_centre(self) -> tuple[float, float]:
+        """Centre of the body's bounding circle (radius ``BODY_RADIUS``), ``map`` frame."""
+        x, y, yaw = self.pose
+        return x + BODY_CENTRE_X * math.cos(yaw), y + BODY_CENTRE_X * math.sin(yaw)
 
-        Returns:
-            The first scan, taken at time 0.
-        """
-        m, d = self.model, self.data
-        mujoco.mj_resetData(m, d)
-        x, y, yaw = self.scene.start if pose is None else pose
-        d.qpos[self._qpos0:self._qpos0 + 7] = [x, y, self._z0, math.cos(yaw / 2), 0, 0,
-                                                math.sin(yaw / 2)]
-        mujoco.mj_forward(m, d)
+    # ------------------------------------------------------------------ the world's calls
+
+    def _place(self, pose: tuple[float, float, float]) -> None:
+        x, y, yaw = pose
+        self.data.qpos[self._qpos0:self._qpos0 + 7] = [x, y, self._z0, math.cos(yaw / 2), 0, 0,
+                                                       math.sin(yaw / 2)]
         self._start = np.array([x, y, yaw], dtype=float)
-        self._steps = 0
+
+    def _reset_state(self) -> None:
+        """At rest, no command, nothing recorded (after the world placed every robot)."""
         self._target = (0.0, 0.0)
         self._cmd_base = (0.0, 0.0)
         self._cmd = (0.0, 0.0)
         self._apply_cmd()
         self.collisions = 0
+        self.robot_contacts = 0
         self._in_contact = False
+        self._teammate_contact = False
         self._last_contact = -math.inf
+        self._last_teammate = -math.inf
         self._kinematic_contact = False
-        self.odometry.reset(d.qpos[self._wheel_qpos], 0.0, true_yaw=yaw)
+        self._kinematic_teammate = False
+        self.odometry.reset(self.data.qpos[self._wheel_qpos], 0.0, true_yaw=self._start[2])
         self._kinematics.clear()
         self.lidar.clear_history()
-        self._sample()
-        self._scan = self.lidar.scan(d, 0.0)
-        return self._scan
 
-    def step(self, duration: float) -> list[LaserScan]:
-        """Advances simulated time by ``duration`` seconds (rounded to physics steps).
-
-        Returns:
-            The scans taken during the step, oldest first.
-        """
-        m, d = self.model, self.data
-        target = self._steps + max(0, round(duration / m.opt.timestep))
-        scans: list[LaserScan] = []
-        while self._steps < target:
-            next_sample = (self._steps // self._sample_every + 1) * self._sample_every
-            next_scan = (self._steps // self._scan_every + 1) * self._scan_every
-            stop = min(next_sample, next_scan, target)
-            if self._clearance is None:
-                mujoco.mj_step(m, d, nstep=stop - self._steps)
-            else:
-                self._move_kinematic(stop)
-            self._steps = stop
-            if stop % self._sample_every == 0:
-                self._sample()
-                self._cmd_base = self._cmd
-                self._ramp()
-            if stop % self._scan_every == 0:
-                mujoco.mj_kinematics(m, d)
-                self._scan = self.lidar.scan(d, self.time)
-                scans.append(self._scan)
-        return scans
-
-    # ------------------------------------------------------------------ internals
     # These run every sample period: plain floats, no small numpy arrays.
 
     def _move_kinematic(self, stop: int) -> None:
-        """Moves the base from step ``self._steps`` to ``stop`` along the commanded unicycle
-        path (the wheel set-points ramp linearly over each sample period)."""
+        """Moves the base from the world's step to ``stop`` along the commanded unicycle
+        path (the wheel set-points ramp linearly over each sample period); a move that
+        would bring the body into a teammate's (bounding circles, nearer than before) is
+        refused as well as one into a wall."""
         # Kinematic dynamics: the clearance was made from the ground truth.
         assert self._clearance is not None and self.scene.ground_truth is not None
         d = self.data
+        q = d.qpos
+        i = self._qpos0
+        teammates = len(self._world.robots) > 1
+        if teammates:
+            before = q[i:i + 7].copy(), q[self._wheel_qpos].copy()
+            centre = self.body_centre
         v, w = mean_ramp_twist(self._cmd_base, self._cmd, self._steps, stop,
                                self._sample_every)
         duration = (stop - self._steps) * self.model.opt.timestep
-        q = d.qpos
-        i = self._qpos0
         x, y = float(q[i]), float(q[i + 1])
         yaw = math.atan2(2.0 * (q[i + 3] * q[i + 6] + q[i + 4] * q[i + 5]),
                          1.0 - 2.0 * (q[i + 5] ** 2 + q[i + 6] ** 2))
@@ -401,6 +405,25 @@ class Simulator(RobotWorld):
         q[self._wheel_qpos[1]] += right
         j = self._qvel0
         d.qvel[j:j + 6] = (v * math.cos(nyaw), v * math.sin(nyaw), 0.0, 0.0, 0.0, w)
+        if teammates:
+            self._kinematic_teammate = self._moved_into_teammate(centre)
+            if self._kinematic_teammate:
+                q[i:i + 7], q[self._wheel_qpos] = before
+                d.qvel[j:j + 6] = 0.0
+
+    def _moved_into_teammate(self, centre_before: tuple[float, float]) -> bool:
+        """Whether the move just made, from a body centre at ``centre_before``, brought the
+        body into a teammate's (bounding circles overlapping, and nearer than before)."""
+        after = self.body_centre
+        for other in self._world.robots:
+            if other is self:
+                continue
+            ox, oy = other.body_centre
+            d = math.hypot(after[0] - ox, after[1] - oy)
+            if d < 2 * BODY_RADIUS and d < math.hypot(centre_before[0] - ox,
+                                                      centre_before[1] - oy):
+                return True
+        return False
 
     def _ramp(self) -> None:
         self._cmd = ramp_command(self._cmd_base, self._target, self.profile,
@@ -445,9 +468,215 @@ class Simulator(RobotWorld):
         self._in_contact = touching
 
     def _touching(self) -> bool:
-        """Whether the robot touches a wall now (a refused kinematic move counts)."""
+        """Whether the robot touches a wall now (a refused kinematic move counts;
+        teammates are counted apart)."""
         if self._clearance is not None:
             return self._kinematic_contact
-        d = self.data
-        ncon = d.ncon
-        return ncon > 0 and bool(self._is_wall_geom[d.contact.geom[:ncon]].any())
+        return bool(self._world._wall_touch[self.index])
+
+    def _note_teammate(self, touching: bool) -> None:
+        t = self.time
+        if touching:
+            if t - self._last_teammate > COLLISION_GAP_S:
+                self.robot_contacts += 1
+            self._last_teammate = t
+        self._teammate_contact = touching
+
+
+class Simulator(MujocoRobot):
+    """A scene's MuJoCo world with its robots driven by (v, omega) commands; the world is
+    also its robot 0, so that a robot alone is driven through it.
+
+    Args:
+        scene: A scene folder, its ``scene.xml``, any MJCF containing the robot, or
+            :class:`SceneFiles`.
+        config: Simulator settings (``seed``: robot 0's; robot ``i``'s is derived from it,
+            :func:`robot_seed`).
+        starts: None: the scene's one robot, its MJCF untouched. Otherwise one pose per
+            robot: the scene's MJCF with its robot replaced by that many copies
+            (:func:`~mjexplore.scenes.team.team_spec`, names prefixed ``robot_{i}/``), that
+            see each other (each lidar casts against the others' silhouettes) and collide.
+
+    Attributes:
+        model: The compiled ``MjModel``.
+        data: Its ``MjData``.
+        scene: Paths and facts of the loaded scene (ground truth, start pose).
+        profile: The motion profile in force.
+        robots: The robots, robot 0 (this object) first.
+        robot_collisions: Robot-robot contacts since reset per pair, contacts less than
+            ``COLLISION_GAP_S`` apart counting as one.
+    """
+
+    def __init__(self, scene: str | os.PathLike | SceneFiles, config: SimConfig | None = None,
+                 starts: list | None = None):
+        self.config = config or SimConfig()
+        if self.config.dynamics == "grid":
+            raise UserInputError("dynamics 'grid' runs without MuJoCo: build the world with "
+                                 "mjexplore.sim.world.make_world(scene, config).")
+        self.scene = scene if isinstance(scene, SceneFiles) else load_scene_files(scene)
+        if starts is None:
+            self.model = compile_scene(self.scene)
+            prefixes = [""]
+            self.starts = [float_pose(self.scene.start)]
+        else:
+            self.starts = [float_pose(p) for p in starts]
+            try:
+                self.model = team_spec(self.scene.xml, self.starts).compile()
+            except ValueError as exc:
+                raise UserInputError(f"the team's MJCF from {str(self.scene.xml)!r} failed to "
+                                     f"compile: {exc}. Regenerate the scene with "
+                                     "'mjexplore scene-gen'.") from None
+            prefixes = [robot_prefix(i) for i in range(len(self.starts))]
+        self.data = mujoco.MjData(self.model)
+        self.profile = motion_profile(self.config.profile)
+        m = self.model
+        # Walls are static, so any contact with one involves a robot.
+        self._is_wall_geom = (m.geom_bodyid == 0) & (m.geom_group == 0) & (
+            m.geom_type != mujoco.mjtGeom.mjGEOM_PLANE)
+        dt = m.opt.timestep
+        self._sample_every = _steps_per(1.0 / self.config.sample_rate_hz, dt, "sample")
+        self._scan_every = _steps_per(1.0 / self.config.resolved_lidar().rate_hz, dt,
+                                      "lidar scan")
+        self._clearance = None
+        if self.config.dynamics == "kinematic":
+            if self.scene.ground_truth is None:
+                raise UserInputError("the kinematic world needs the scene's ground-truth map.")
+            self._clearance = wall_clearance(self.scene.ground_truth)
+        self._world_steps = 0
+        self._wall_touch = np.zeros(len(prefixes), bool)
+        silhouettes = [] if len(prefixes) == 1 else \
+            [m.geom(p + SILHOUETTE).id for p in prefixes]
+        body_robot = np.full(m.nbody, -1)
+        for i, prefix in enumerate(prefixes):
+            body_robot[m.body_rootid == m.body(prefix + BASE_BODY).id] = i
+        self.geom_robot = body_robot[m.geom_bodyid]
+        self.robots: list[MujocoRobot] = []
+        others = [[g for j, g in enumerate(silhouettes) if j != i] for i in range(len(prefixes))]
+        MujocoRobot.__init__(self, self, 0, prefixes[0], others[0])
+        self.robots = [self] + [MujocoRobot(self, i, prefixes[i], others[i])
+                                for i in range(1, len(prefixes))]
+        for r in self.robots[1:]:  # One tile cache of the walls for all lidars.
+            r.lidar.static_scene = self.lidar.static_scene
+        self.reset()
+
+    def __len__(self) -> int:
+        return len(self.robots)
+
+    def poses(self) -> np.ndarray:
+        """(n, 3) ground-truth (x, y, yaw) of every robot's ``base_link``."""
+        return np.array([r.pose for r in self.robots])
+
+    # ------------------------------------------------------------------ control
+
+    def reset(self, pose: tuple[float, float, float] | None = None,
+              poses: list | None = None) -> LaserScan:
+        """Puts the robots at rest at time 0: robot 0 at ``pose`` (default: its start, the
+        scene's for a robot alone), or every robot at ``poses``.
+
+        Returns:
+            Robot 0's first scan, taken at time 0 (each robot's is its ``latest_scan``).
+        """
+        m, d = self.model, self.data
+        if poses is None:
+            poses = [self.starts[0] if pose is None else pose, *self.starts[1:]]
+        poses = [float_pose(p) for p in poses]
+        if len(poses) != len(self.robots):
+            raise ValueError(f"{len(poses)} poses for {len(self.robots)} robots")
+        mujoco.mj_resetData(m, d)
+        self._world_steps = 0
+        for r, p in zip(self.robots, poses):
+            r._place(p)
+        mujoco.mj_forward(m, d)
+        self.robot_collisions = 0
+        self._pair_last: dict[tuple[int, int], float] = {}
+        for r in self.robots:
+            r._reset_state()
+        self._sample_all()
+        for r in self.robots:
+            r._scan = r.lidar.scan(d, 0.0)
+        return self._scan
+
+    def step(self, duration: float) -> list[LaserScan]:
+        """Advances simulated time by ``duration`` seconds (rounded to physics steps).
+
+        Returns:
+            Robot 0's scans taken during the step, oldest first (:meth:`step_all`: every
+            robot's).
+        """
+        return self.step_all(duration)[0]
+
+    def step_all(self, duration: float) -> list[list[LaserScan]]:
+        """Advances simulated time by ``duration`` seconds (rounded to physics steps).
+
+        Returns:
+            Each robot's scans taken during the step, oldest first.
+        """
+        m, d = self.model, self.data
+        target = self._world_steps + max(0, round(duration / m.opt.timestep))
+        scans: list[list[LaserScan]] = [[] for _ in self.robots]
+        while self._world_steps < target:
+            steps = self._world_steps
+            next_sample = (steps // self._sample_every + 1) * self._sample_every
+            next_scan = (steps // self._scan_every + 1) * self._scan_every
+            stop = min(next_sample, next_scan, target)
+            if self._clearance is None:
+                mujoco.mj_step(m, d, nstep=stop - steps)
+            else:
+                for r in self.robots:
+                    r._move_kinematic(stop)
+            self._world_steps = stop
+            if stop % self._sample_every == 0:
+                self._sample_all()
+                for r in self.robots:
+                    r._cmd_base = r._cmd
+                    r._ramp()
+            if stop % self._scan_every == 0:
+                mujoco.mj_kinematics(m, d)
+                t = self.time
+                for r, out in zip(self.robots, scans):
+                    r._scan = r.lidar.scan(d, t)
+                    out.append(r._scan)
+        return scans
+
+    def _sample_all(self) -> None:
+        """Contacts, then every robot's sample (odometry, kinematics, collisions)."""
+        touching = self._contacts()
+        for r in self.robots:
+            r._note_teammate(bool(touching[r.index]))
+            r._sample()
+
+    def _contacts(self) -> np.ndarray:
+        """Which robots touch a teammate now; sets which touch a wall, and counts the
+        pairs' collisions."""
+        n = len(self.robots)
+        teammate = np.zeros(n, bool)
+        self._wall_touch[:] = False
+        pairs: set[tuple[int, int]] = set()
+        if self._clearance is not None:
+            for r in self.robots:
+                if r._kinematic_teammate:
+                    teammate[r.index] = True
+                    cx, cy = r.body_centre
+                    for o in self.robots:
+                        ox, oy = o.body_centre
+                        if o is not r and math.hypot(cx - ox, cy - oy) < 2 * BODY_RADIUS + 0.01:
+                            teammate[o.index] = True
+                            pairs.add((min(r.index, o.index), max(r.index, o.index)))
+        else:
+            d = self.data
+            if d.ncon:
+                g = d.contact.geom[:d.ncon]
+                owner = self.geom_robot[g]
+                wall = self._is_wall_geom[g]
+                self._wall_touch[owner[:, 0][wall[:, 1] & (owner[:, 0] >= 0)]] = True
+                self._wall_touch[owner[:, 1][wall[:, 0] & (owner[:, 1] >= 0)]] = True
+                both = (owner >= 0).all(axis=1) & (owner[:, 0] != owner[:, 1])
+                for a, b in owner[both]:
+                    teammate[[a, b]] = True
+                    pairs.add((int(min(a, b)), int(max(a, b))))
+        t = self.time
+        for pair in pairs:
+            if t - self._pair_last.get(pair, -math.inf) > COLLISION_GAP_S:
+                self.robot_collisions += 1
+            self._pair_last[pair] = t
+        return teammate

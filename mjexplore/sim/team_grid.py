@@ -1,11 +1,11 @@
 """A team of robots in the grid world: N :class:`~mjexplore.sim.grid_world.GridWorld` robots
 on one clock, seeing and blocking each other.
 
-The grid world's robot, N times, stepped together as :class:`~mjexplore.sim.team.
-TeamSimulator` steps its MuJoCo robots (moves, then samples, then scans, on the same grids
-of 0.005 s steps), with what a team adds: each lidar also sees its teammates' silhouettes
-(the same boxes the MuJoCo team's lidars see, cast with
-:func:`~mjexplore.sim.team.ray_boxes`), and a move that would bring a robot's bounding circle
+The grid world's robot, N times, stepped together as a team's
+:class:`~mjexplore.sim.simulator.Simulator` steps its MuJoCo robots (moves, then samples,
+then scans, on the same grids of 0.005 s steps), with what a team adds: each lidar also
+sees its teammates' silhouettes (the same boxes the MuJoCo team's lidars see, cast with
+:func:`~mjexplore.sim.lidar.ray_boxes`), and a move that would bring a robot's bounding circle
 into a teammate's is refused (as in the kinematic world) and counted as a robot-robot
 contact. Seeds as in the MuJoCo team: robot 0 draws from the config's seed.
 """
@@ -22,16 +22,9 @@ from mjexplore.errors import UserInputError
 from mjexplore.scenes.scene import SceneFiles, load_scene_files
 from mjexplore.scenes.team import SILHOUETTE_HALF, SILHOUETTE_POS, robot_prefix
 from mjexplore.sim.grid_world import GridLidar, GridWorld
-from mjexplore.sim.lidar import LaserScan
-from mjexplore.sim.motion import BODY_RADIUS
-from mjexplore.sim.simulator import COLLISION_GAP_S, SimConfig
-from mjexplore.sim.team import (
-    TeammateBody,
-    TeamSimulator,
-    float_pose,
-    ray_boxes,
-    robot_seed,
-)
+from mjexplore.sim.lidar import LaserScan, ray_boxes
+from mjexplore.sim.motion import BODY_CENTRE_X, BODY_RADIUS
+from mjexplore.sim.simulator import COLLISION_GAP_S, SimConfig, Simulator, float_pose, robot_seed
 
 SCAN_HEIGHT = 0.132  # base_scan above the floor, metres (the MJCF's).
 
@@ -83,6 +76,41 @@ class TeamGridLidar(GridLidar):
         return dist
 
 
+class TeammateBody:
+    """What a robot of a team adds to its world: contacts with teammates count as
+    collisions, and its body's bounding circle for the teammates' costmaps and lidars."""
+
+    _in_contact: bool
+    _teammate_contact: bool
+    _team: TeamGridWorld
+    pose: np.ndarray  # The world's (x, y, yaw) of base_link.
+
+    @property
+    def in_collision(self) -> bool:
+        """Touching a wall or a teammate."""
+        return self._in_contact or self._teammate_contact
+
+    @property
+    def body_centre(self) -> tuple[float, float]:
+        """Centre of the body's bounding circle (radius ``BODY_RADIUS``), ``map`` frame."""
+        x, y, yaw = self.pose
+        return x + BODY_CENTRE_X * math.cos(yaw), y + BODY_CENTRE_X * math.sin(yaw)
+
+    def _moved_into_teammate(self, centre_before: tuple[float, float]) -> bool:
+        """Whether the move just made, from a body centre at ``centre_before``, brought the
+        body into a teammate's (bounding circles overlapping, and nearer than before)."""
+        after = self.body_centre
+        for other in self._team.robots:
+            if other is self:
+                continue
+            ox, oy = other.body_centre
+            d = math.hypot(after[0] - ox, after[1] - oy)
+            if d < 2 * BODY_RADIUS and d < math.hypot(centre_before[0] - ox,
+                                                      centre_before[1] - oy):
+                return True
+        return False
+
+
 class TeamGridRobot(TeammateBody, GridWorld):
     """One robot of a :class:`TeamGridWorld`: the grid world's robot; the team steps."""
 
@@ -122,7 +150,7 @@ class TeamGridRobot(TeammateBody, GridWorld):
 class TeamGridWorld:
     """N robots on a scene's ground-truth grid, stepped together (the grid world's team).
 
-    Args and attributes as :class:`~mjexplore.sim.team.TeamSimulator`'s.
+    Args and attributes as a team's :class:`~mjexplore.sim.simulator.Simulator`'s.
     """
 
     def __init__(self, scene: str | os.PathLike | SceneFiles, starts: list,
@@ -174,7 +202,9 @@ class TeamGridWorld:
         self._pair_last = {}
         return [r.latest_scan for r in self.robots]
 
-    def step(self, duration: float) -> list[list[LaserScan]]:
+    def step_all(self, duration: float) -> list[list[LaserScan]]:
+        """Advances simulated time by ``duration`` seconds; each robot's scans, oldest
+        first."""
         first = self.robots[0]
         end = first._steps + max(0, round(duration / first.timestep))
         sample, scan = first._sample_every, first._scan_every
@@ -217,13 +247,14 @@ class TeamGridWorld:
 
 
 def make_team_world(scene: str | os.PathLike | SceneFiles, starts: list,
-                    config: SimConfig | None = None) -> TeamSimulator | TeamGridWorld:
-    """The team's world ``config.dynamics`` asks for: MuJoCo (physics or kinematic,
-    :class:`~mjexplore.sim.team.TeamSimulator`) or the grid (:class:`TeamGridWorld`)."""
+                    config: SimConfig | None = None) -> Simulator | TeamGridWorld:
+    """The team's world ``config.dynamics`` asks for: MuJoCo (physics or kinematic, a
+    :class:`~mjexplore.sim.simulator.Simulator` of ``len(starts)`` robots) or the grid
+    (:class:`TeamGridWorld`)."""
     config = config or SimConfig()
     if config.dynamics == "grid":
         return TeamGridWorld(scene, starts, config)
-    return TeamSimulator(scene, starts, config)
+    return Simulator(scene, config, starts)
 
 
-__all__ = ["TeamGridLidar", "TeamGridRobot", "TeamGridWorld", "make_team_world"]
+__all__ = ["TeamGridLidar", "TeamGridRobot", "TeamGridWorld", "TeammateBody", "make_team_world"]

@@ -5,7 +5,7 @@ cloning of the oracle, then its DAgger rounds) on a fresh policy in this process
 thread, saves the weights, then runs whole episodes of the config's training env on the first
 ``--layouts`` of its **validation** layouts (``eval.scene_list()``: model selection's, generator
 seeds ``2**31 + i``; never the test layouts after them, ``eval.unseen_scenes``) with each mode of
-``tools/probe_policy.py``:
+``mjexplore probe-policy``:
 
 * ``policy``: the warm-started policy, its most probable valid action;
 * ``prior``: the prior alone (v3: nearest node by path, ``policy.prior_pocket_m`` metres more

@@ -2,7 +2,7 @@
 generated layouts, in the training world; prints one JSON line.
 
 Modes (comma-separated ``--modes``), each driving the same episodes (layout, start, seed and
-settings of a training config's evaluation, as ``tools/probe_policy.py --unseen`` does):
+settings of a training config's evaluation, as ``mjexplore probe-policy --unseen`` does):
 
 * ``nearest``: nearest-frontier;
 * ``truth:A``: nearest-frontier passing over frontiers whose *true* pocket (the ground
