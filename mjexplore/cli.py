@@ -248,12 +248,15 @@ def _episode_config(args: argparse.Namespace):
 
     if not 0 < args.target_ratio <= 1:
         raise UserInputError(f"--target-ratio {args.target_ratio} must be in (0, 1].")
+    from mjexplore.sim.people import PeopleConfig
+
     lidar = _lidar_config(args, ideal_noise=0.01)
+    people = PeopleConfig(count=args.people) if args.people else None
     return EpisodeConfig(max_time=args.max_time, target_ratio=args.target_ratio,
                          localization=args.localization,
                          sim=SimConfig(profile=args.profile, lidar=lidar,
                                        odometry_error=args.odometry_error,
-                                       odometry_heading=args.odometry_heading))
+                                       odometry_heading=args.odometry_heading, people=people))
 
 
 def _team_config(args: argparse.Namespace):
@@ -801,6 +804,10 @@ def _add_episode_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lidar-noise", type=float, default=None,
                    help="the ideal lidar's Gaussian range noise std in metres "
                    "(default: 0.01)")
+    p.add_argument("--people", type=_whole("", 0), default=0, metavar="N",
+                   help="N pedestrians walking between random goals (the social force "
+                        "model, sim/people.py), seen by the lidar and touched by the robot "
+                        "(default: nobody)")
     _add_lidar_model_arg(p)
 
 

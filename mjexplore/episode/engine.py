@@ -41,7 +41,13 @@ import numpy as np
 from mjexplore.episode.agent import RobotAgent
 from mjexplore.episode.explorer import ExplorationState, Explorer
 from mjexplore.episode.merging import MapMerging
-from mjexplore.episode.metrics import KnownCounter, episode_metrics, pose_errors, team_result
+from mjexplore.episode.metrics import (
+    KnownCounter,
+    episode_metrics,
+    people_metrics,
+    pose_errors,
+    team_result,
+)
 from mjexplore.episode.team import Team, TeamConfig
 from mjexplore.errors import UserInputError
 from mjexplore.mapping.metrics import exploration_ratio, iou, observable_ground_truth
@@ -593,6 +599,9 @@ class Episode:
         if sha is not None:
             metrics["policy"] = cast(Any, agent.explorer).policy_name
             metrics["weights_sha256"] = sha
+        crowd = getattr(self.world, "crowd", None)
+        if crowd is not None:
+            metrics.update(people_metrics(self.world, crowd, log))
         return EpisodeResult(metrics, curve, log,
                              GridMap(grid.data.copy(), grid.resolution, grid.origin),
                              np.array(agent.goals).reshape(-1, 3))

@@ -51,6 +51,26 @@ def episode_metrics(curve: np.ndarray, log: KinematicsLog, final_iou: float,
     }
 
 
+# A robot slower than these stands still (m/s, rad/s).
+STOPPED_SPEED = (0.02, 0.05)
+
+
+def people_metrics(robot: Any, crowd: Any, log: KinematicsLog) -> dict[str, Any]:
+    """A robot's figures among people: ``people``, how many walked; ``people_collisions``
+    (robot-person contacts, those less than 0.5 s apart as one); ``people_min_distance_m``
+    (the least gap between the robot's bounding circle and a person, sampled at 20 Hz;
+    negative: they touched); ``time_stopped_s`` (simulated time the robot stood still,
+    slower than ``STOPPED_SPEED``); ``people_goals_reached``."""
+    dt = np.diff(log.t, prepend=log.t[:1])
+    still = (np.abs(log.linear_velocity) < STOPPED_SPEED[0]) & \
+        (np.abs(log.angular_velocity) < STOPPED_SPEED[1])
+    gap = robot.people_min_distance
+    return {"people": len(crowd), "people_collisions": int(robot.people_collisions),
+            "people_min_distance_m": round(float(gap), 3) if np.isfinite(gap) else None,
+            "time_stopped_s": round(float(dt[still].sum()), 3),
+            "people_goals_reached": int(crowd.goals_reached)}
+
+
 def pose_errors(estimated: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     """Position errors of an estimated trajectory, as is and after the rigid alignment that
     fits it best to the truth.

@@ -31,6 +31,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import math
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -309,6 +310,9 @@ class Lidar:
                  rng: np.random.Generator | None = None,
                  silhouettes: list[int] | tuple[int, ...] = ()) -> None:
         self.model = model
+        # People walking in the scene (a Crowd: ``positions`` (n, 2), ``config.radius``),
+        # cast as upright cylinders taller than the scan plane; None: no one.
+        self.people: Any = None
         self._silhouettes = np.asarray(silhouettes, np.int64)
         self._half = model.geom_size[self._silhouettes[0]].copy() if len(silhouettes) else None
         self.config = config
@@ -358,6 +362,8 @@ class Lidar:
         mujoco.mj_multiRay(model, ray_data, origin, self._vec[i0:i1].reshape(-1),
                            SCAN_GEOMGROUP, 1, -1, self._geomid[i0:i1], self._dist[i0:i1],
                            normal, i1 - i0, self.config.range_max + 0.1)
+        if self.people is not None and len(self.people.positions):
+            self._cast_people(origin, i0, i1)
         ids = self._silhouettes
         if len(ids) == 0:
             return
@@ -378,6 +384,37 @@ class Lidar:
             self._geomid[i0:i1][nearer] = ids[near][which[nearer]]
             if self._normal is not None:
                 self._normal[i0:i1][nearer] = hit_normal[nearer]
+
+    def _cast_people(self, origin: np.ndarray, i0: int, i1: int) -> None:
+        """The people's discs (``people.positions``, radius ``people.config.radius``) met
+        by beams ``i0:i1`` from ``origin``, where nearer than the walls."""
+        centres = self.people.positions
+        r = self.people.config.radius
+        reach = self.config.range_max + 0.1 + r
+        rel = centres - np.asarray(origin[:2], float)
+        near = np.hypot(rel[:, 0], rel[:, 1]) <= reach
+        if not near.any():
+            return
+        rel = rel[near]
+        vec = self._vec[i0:i1, :2]
+        horizontal = np.linalg.norm(vec, axis=1)
+        b = vec @ rel.T  # (beams, people): projection of each centre on each beam.
+        c = (rel ** 2).sum(axis=1)[None, :] - r * r
+        a = np.maximum(horizontal ** 2, 1e-12)[:, None]
+        disc = b * b - a * c
+        t = np.where(disc >= 0, (b - np.sqrt(np.maximum(disc, 0.0))) / a, np.inf)
+        t = np.where(t > 0, t, np.inf).min(axis=1)
+        walls = self._dist[i0:i1]
+        nearer = np.isfinite(t) & ((walls < 0) | (t < walls))
+        if nearer.any():
+            walls[nearer] = t[nearer]
+            self._geomid[i0:i1][nearer] = -2  # A person (no geom of the ray scene).
+            if self._normal is not None:
+                hit = vec[nearer] * t[nearer, None]
+                out = hit[:, None, :] - rel[None, :, :]
+                k = np.argmin(np.abs(np.hypot(out[..., 0], out[..., 1]) - r), axis=1)
+                n2 = out[np.arange(len(k)), k] / r
+                self._normal[i0:i1][nearer] = np.column_stack([n2, np.zeros(len(k))])
 
     def cast(self, data: mujoco.MjData) -> np.ndarray:
         """Raw distances (float64, -1 for no hit) from the site at the current state, all

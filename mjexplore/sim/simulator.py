@@ -44,7 +44,7 @@ import numpy as np
 from mjexplore.errors import UserInputError
 from mjexplore.robot import TURTLEBOT3_WAFFLE, MotionProfile, motion_profile
 from mjexplore.scenes.scene import SceneFiles, load_scene_files
-from mjexplore.scenes.team import SILHOUETTE, robot_prefix, team_spec
+from mjexplore.scenes.team import PERSON, SILHOUETTE, add_people, robot_prefix, team_spec
 from mjexplore.sim.kinematics import KinematicsRecorder
 from mjexplore.sim.lidar import LaserScan, Lidar, LidarConfig
 from mjexplore.sim.motion import (  # noqa: F401 (re-exported)
@@ -62,6 +62,7 @@ from mjexplore.sim.odometry import (
     odometry_error_config,
     wheel_odometry,
 )
+from mjexplore.sim.people import Crowd, PeopleConfig
 from mjexplore.sim.robot_world import RobotWorld
 
 BASE_BODY = "base_link"
@@ -77,6 +78,7 @@ UPRIGHT_COS = math.cos(math.radians(30.0))
 # against a wall bounces on and off it).
 COLLISION_GAP_S = 0.5
 DYNAMICS = ("physics", "kinematic", "grid")
+PEOPLE_STREAM = 51  # The people's generator: [seed, PEOPLE_STREAM].
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -131,6 +133,8 @@ class SimConfig:
             with ``use_imu``; its errors are ``odometry_error``'s ``gyro_*``).
         scan_travel: Grid world only (a training setting): scans by travel
             (:class:`ScanTravel`); None scans at the lidar's rate.
+        people: Pedestrians walking in the building (:class:`~mjexplore.sim.people.
+            PeopleConfig`; the physics and kinematic worlds); None: nobody.
     """
 
     profile: str = "sim"
@@ -142,8 +146,12 @@ class SimConfig:
     odometry_error: str | OdometryErrorConfig = "none"
     odometry_heading: str = "wheels"
     scan_travel: ScanTravel | None = None
+    people: PeopleConfig | None = None
 
     def __post_init__(self) -> None:
+        if self.people is not None and self.people.count and self.dynamics == "grid":
+            raise UserInputError("people walk in the physics and kinematic worlds so far: use "
+                                 "dynamics physics or kinematic with --people.")
         odometry_error_config(self.odometry_error)  # Refuses an unknown preset now.
         if self.odometry_heading not in HEADINGS:
             raise UserInputError(f"odometry_heading {self.odometry_heading!r} is unknown: use "
@@ -372,6 +380,10 @@ class MujocoRobot(RobotWorld):
         self._last_teammate = -math.inf
         self._kinematic_contact = False
         self._kinematic_teammate = False
+        self._kinematic_person = False
+        self.people_collisions = 0
+        self.people_min_distance = math.inf
+        self._last_person = -math.inf
         self.odometry.reset(self.data.qpos[self._wheel_qpos], 0.0, true_yaw=self._start[2])
         self._kinematics.clear()
         self.lidar.clear_history()
@@ -388,7 +400,8 @@ class MujocoRobot(RobotWorld):
         d = self.data
         q = d.qpos
         i = self._qpos0
-        teammates = len(self._world.robots) > 1
+        crowd = self._world.crowd
+        teammates = len(self._world.robots) > 1 or crowd is not None
         if teammates:
             before = q[i:i + 7].copy(), q[self._wheel_qpos].copy()
             centre = self.body_centre
@@ -406,15 +419,25 @@ class MujocoRobot(RobotWorld):
         j = self._qvel0
         d.qvel[j:j + 6] = (v * math.cos(nyaw), v * math.sin(nyaw), 0.0, 0.0, 0.0, w)
         if teammates:
-            self._kinematic_teammate = self._moved_into_teammate(centre)
-            if self._kinematic_teammate:
+            refused = self._moved_into_teammate(centre)
+            self._kinematic_teammate = refused and not self._kinematic_person
+            if refused:
                 q[i:i + 7], q[self._wheel_qpos] = before
                 d.qvel[j:j + 6] = 0.0
 
     def _moved_into_teammate(self, centre_before: tuple[float, float]) -> bool:
         """Whether the move just made, from a body centre at ``centre_before``, brought the
-        body into a teammate's (bounding circles overlapping, and nearer than before)."""
+        body into a teammate's or a person's (discs overlapping, and nearer than before)."""
         after = self.body_centre
+        crowd = self._world.crowd
+        self._kinematic_person = False
+        if crowd is not None and len(crowd):
+            reach = BODY_RADIUS + crowd.config.radius
+            d_after = np.hypot(*(crowd.positions - after).T)
+            d_before = np.hypot(*(crowd.positions - centre_before).T)
+            if ((d_after < reach) & (d_after < d_before)).any():
+                self._kinematic_person = True
+                return True
         for other in self._world.robots:
             if other is self:
                 continue
@@ -482,6 +505,18 @@ class MujocoRobot(RobotWorld):
             self._last_teammate = t
         self._teammate_contact = touching
 
+    def _note_people(self, touching: bool, crowd: Crowd) -> None:
+        """Counts a contact with a person (those less than ``COLLISION_GAP_S`` apart as
+        one) and the least distance from the body's bounding circle to a person."""
+        t = self.time
+        if touching:
+            if t - self._last_person > COLLISION_GAP_S:
+                self.people_collisions += 1
+            self._last_person = t
+        self._teammate_contact = self._teammate_contact or touching
+        gap = float(crowd.distances_to(np.array(self.body_centre))[0]) - BODY_RADIUS
+        self.people_min_distance = min(self.people_min_distance, gap)
+
 
 class Simulator(MujocoRobot):
     """A scene's MuJoCo world with its robots driven by (v, omega) commands; the world is
@@ -514,19 +549,30 @@ class Simulator(MujocoRobot):
             raise UserInputError("dynamics 'grid' runs without MuJoCo: build the world with "
                                  "mjexplore.sim.world.make_world(scene, config).")
         self.scene = scene if isinstance(scene, SceneFiles) else load_scene_files(scene)
-        if starts is None:
+        people = self.config.people
+        crowd = people is not None and people.count > 0
+        if starts is None and not crowd:
             self.model = compile_scene(self.scene)
             prefixes = [""]
             self.starts = [float_pose(self.scene.start)]
         else:
-            self.starts = [float_pose(p) for p in starts]
+            if starts is None:  # A robot alone among people: the scene's robot, untouched.
+                self.starts = [float_pose(self.scene.start)]
+                prefixes = [""]
+                spec = mujoco.MjSpec.from_file(str(self.scene.xml))
+            else:
+                self.starts = [float_pose(p) for p in starts]
+                prefixes = [robot_prefix(i) for i in range(len(self.starts))]
+                spec = team_spec(self.scene.xml, self.starts)
+            if crowd:
+                assert people is not None
+                add_people(spec, people.count, people.radius, people.height)
             try:
-                self.model = team_spec(self.scene.xml, self.starts).compile()
+                self.model = spec.compile()
             except ValueError as exc:
-                raise UserInputError(f"the team's MJCF from {str(self.scene.xml)!r} failed to "
+                raise UserInputError(f"the MJCF made from {str(self.scene.xml)!r} failed to "
                                      f"compile: {exc}. Regenerate the scene with "
                                      "'mjexplore scene-gen'.") from None
-            prefixes = [robot_prefix(i) for i in range(len(self.starts))]
         self.data = mujoco.MjData(self.model)
         self.profile = motion_profile(self.config.profile)
         m = self.model
@@ -550,6 +596,13 @@ class Simulator(MujocoRobot):
         for i, prefix in enumerate(prefixes):
             body_robot[m.body_rootid == m.body(prefix + BASE_BODY).id] = i
         self.geom_robot = body_robot[m.geom_bodyid]
+        # The people's mocap slots, in order, and which geoms are theirs.
+        count = people.count if crowd and people is not None else 0
+        self._person_mocap = np.array([m.body(PERSON.format(i)).mocapid[0]
+                                       for i in range(count)], np.int64)
+        self._is_person_geom = np.isin(m.geom_bodyid, [m.body(PERSON.format(i)).id
+                                                       for i in range(count)])
+        self.crowd: Crowd | None = None
         self.robots: list[MujocoRobot] = []
         others = [[g for j, g in enumerate(silhouettes) if j != i] for i in range(len(prefixes))]
         MujocoRobot.__init__(self, self, 0, prefixes[0], others[0])
@@ -586,6 +639,15 @@ class Simulator(MujocoRobot):
         self._world_steps = 0
         for r, p in zip(self.robots, poses):
             r._place(p)
+        if len(self._person_mocap):
+            assert self.config.people is not None and self.scene.ground_truth is not None
+            # Their own stream of the seed: a run without people draws nothing of it.
+            self.crowd = Crowd(self.config.people, self.scene.ground_truth,
+                               np.random.default_rng([self.config.seed, PEOPLE_STREAM]),
+                               keep_clear=np.array([q[:2] for q in poses]))
+            self._place_people()
+            for r in self.robots:
+                r.lidar.people = self.crowd
         mujoco.mj_forward(m, d)
         self.robot_collisions = 0
         self._pair_last: dict[tuple[int, int], float] = {}
@@ -626,6 +688,11 @@ class Simulator(MujocoRobot):
                     r._move_kinematic(stop)
             self._world_steps = stop
             if stop % self._sample_every == 0:
+                if self.crowd is not None:
+                    self.crowd.step(self._sample_every * m.opt.timestep,
+                                    np.array([r.body_centre for r in self.robots]),
+                                    BODY_RADIUS)
+                    self._place_people()
                 self._sample_all()
                 for r in self.robots:
                     r._cmd_base = r._cmd
@@ -638,11 +705,20 @@ class Simulator(MujocoRobot):
                     out.append(r._scan)
         return scans
 
+    def _place_people(self) -> None:
+        """Moves the people's bodies to where the crowd has them."""
+        assert self.crowd is not None
+        pos = self.data.mocap_pos
+        pos[self._person_mocap, :2] = self.crowd.positions
+        pos[self._person_mocap, 2] = 0.0
+
     def _sample_all(self) -> None:
         """Contacts, then every robot's sample (odometry, kinematics, collisions)."""
         touching = self._contacts()
         for r in self.robots:
             r._note_teammate(bool(touching[r.index]))
+            if self.crowd is not None:
+                r._note_people(self._people_touch[r.index], self.crowd)
             r._sample()
 
     def _contacts(self) -> np.ndarray:
@@ -651,7 +727,12 @@ class Simulator(MujocoRobot):
         n = len(self.robots)
         teammate = np.zeros(n, bool)
         self._wall_touch[:] = False
+        self._people_touch = np.zeros(n, bool)
         pairs: set[tuple[int, int]] = set()
+        if self.crowd is not None and len(self.crowd):
+            for r in self.robots:  # Bodies within 1 cm, or a kinematic move refused.
+                self._people_touch[r.index] = r._kinematic_person or bool(
+                    self.crowd.distances_to(np.array(r.body_centre))[0] < BODY_RADIUS + 0.01)
         if self._clearance is not None:
             for r in self.robots:
                 if r._kinematic_teammate:
