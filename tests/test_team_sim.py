@@ -21,9 +21,9 @@ from mjexplore.scenes.team import (
     parse_starts,
     team_spec,
 )
+from mjexplore.sim.grid_world import GridWorld
 from mjexplore.sim.lidar import ray_boxes
 from mjexplore.sim.simulator import SimConfig, Simulator, robot_seed
-from mjexplore.sim.team_grid import TeamGridWorld, make_team_world
 from mjexplore.sim.world import make_world
 
 
@@ -95,8 +95,8 @@ def test_robots_collide_with_each_other(office, open_spot, dynamics):
 def test_team_of_one_is_the_single_robot(office, dynamics):
     config = SimConfig(dynamics=dynamics, seed=3)
     single = make_world(office, config)
-    team = make_team_world(office, [office.start], config)
-    assert isinstance(team, TeamGridWorld if dynamics == "grid" else Simulator)
+    team = make_world(office, config, [office.start])
+    assert isinstance(team, GridWorld if dynamics == "grid" else Simulator)
     robot = team.robots[0]
     rng = np.random.default_rng(0)
     for _ in range(100):
@@ -241,9 +241,9 @@ def test_silhouette_rays_match_mujoco(office, open_spot):
 
 def test_grid_team_sees_and_blocks_teammates(office, open_spot):
     x, y = open_spot
-    team = make_team_world(office, [(x - 0.75, y, 0.0), (x + 0.75, y, math.pi)],
-                           SimConfig(dynamics="grid"))
-    assert isinstance(team, TeamGridWorld)
+    team = make_world(office, SimConfig(dynamics="grid"),
+                      [(x - 0.75, y, 0.0), (x + 0.75, y, math.pi)])
+    assert isinstance(team, GridWorld) and team.robots[0] is team
     expected = 1.5 + 0.064 + 0.064 - 0.1405  # As the MuJoCo lidars see each other.
     for r in team.robots:
         assert r.latest_scan.ranges[0] == pytest.approx(expected, abs=1e-3)
@@ -255,4 +255,4 @@ def test_grid_team_sees_and_blocks_teammates(office, open_spot):
     assert all(r.in_collision for r in team.robots)
     a, b = (np.array(r.body_centre) for r in team.robots)
     assert np.hypot(*(a - b)) >= 2 * 0.194 - 0.05
-    assert isinstance(make_team_world(office, [office.start]), Simulator)
+    assert isinstance(make_world(office, starts=[office.start]), Simulator)

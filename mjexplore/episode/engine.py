@@ -60,7 +60,6 @@ from mjexplore.scenes.scene import SceneFiles, check_start
 from mjexplore.scenes.team import check_starts, draw_starts
 from mjexplore.sim.kinematics import KinematicsLog
 from mjexplore.sim.simulator import SimConfig
-from mjexplore.sim.team_grid import make_team_world
 from mjexplore.sim.world import make_world
 from mjexplore.topology.pipeline import TopologyConfig, TopologyTracker
 
@@ -251,7 +250,7 @@ class Episode:
             self.world.reset(starts[0])
             robots = [self.world]
         else:
-            self.world = make_team_world(scene, starts, sim_cfg)
+            self.world = make_world(scene, sim_cfg, starts)
             robots = list(self.world.robots)
         self.sim = self.world
         self.mapper = OccupancyMapper.like(gt, MapperConfig(resolution=gt.resolution))

@@ -46,18 +46,36 @@ import numba
 import numpy as np
 from scipy.ndimage import distance_transform_edt
 
+from mjexplore.errors import UserInputError
 from mjexplore.maps import GridMap, traversal_start
 from mjexplore.robot import TURTLEBOT3_WAFFLE, MotionProfile, motion_profile
 from mjexplore.scenes.scene import PHYSICS_TIMESTEP, SceneFiles, load_scene_files
+from mjexplore.scenes.team import SILHOUETTE_HALF, SILHOUETTE_POS, robot_prefix
 from mjexplore.sim.kinematics import KinematicsRecorder
-from mjexplore.sim.lidar import LaserScan, LidarConfig, measure_ranges
-from mjexplore.sim.motion import kinematic_step, mean_ramp_twist, ramp_command, wall_clearance
+from mjexplore.sim.lidar import LaserScan, LidarConfig, measure_ranges, ray_boxes
+from mjexplore.sim.motion import (
+    BODY_CENTRE_X,
+    BODY_RADIUS,
+    kinematic_step,
+    mean_ramp_twist,
+    ramp_command,
+    wall_clearance,
+)
 from mjexplore.sim.robot_world import RobotWorld
-from mjexplore.sim.simulator import BASE_BODY, COLLISION_GAP_S, NO_IMU, SimConfig, _steps_per
+from mjexplore.sim.simulator import (
+    BASE_BODY,
+    COLLISION_GAP_S,
+    NO_IMU,
+    SimConfig,
+    _steps_per,
+    float_pose,
+    robot_seed,
+)
 
 # Rays are cast this far past range_max, as the MuJoCo lidar's cutoff: noise may bring a
 # return just beyond range_max back within it.
 CAST_MARGIN = 0.1
+SCAN_HEIGHT = 0.132  # base_scan above the floor, metres (the MJCF's).
 
 
 @numba.njit(cache=True)
@@ -158,6 +176,8 @@ class GridLidar:
         self._beam_dt = self.time_increment * np.arange(n)
         self._history: collections.deque[tuple[float, float, float, float]] = (
             collections.deque())
+        # A team's other robots (their ``_pose``), whose silhouettes stop the beams too.
+        self.teammates: list = []
 
     def clear_history(self) -> None:
         """Forgets the poses observed so far (at a reset)."""
@@ -196,7 +216,39 @@ class GridLidar:
         cast_rays(self._cells, sx, sy, yaw + self._angles,
                   (self.config.range_max + CAST_MARGIN) / gt.resolution, gt.resolution,
                   self._dist, self._cos)
+        if self.teammates:
+            self._cast_teammates(x, y, yaw)
         return self._dist
+
+    def _cast_teammates(self, x, y, yaw) -> None:
+        """The teammates' silhouettes (the MuJoCo team's boxes, cast by
+        :func:`~mjexplore.sim.lidar.ray_boxes`) where nearer than the walls."""
+        dist = self._dist
+        # Beams from the scan's origin (under motion skew: the origin of its last beam).
+        bx, by, byaw = (float(np.ravel(v)[-1]) for v in (x, y, yaw))
+        ox, oy = self._offset
+        c, s = math.cos(byaw), math.sin(byaw)
+        origin = np.array([bx + c * ox - s * oy, by + s * ox + c * oy, SCAN_HEIGHT])
+        heading = np.asarray(yaw) + self._angles
+        vec = np.column_stack([np.cos(heading), np.sin(heading), np.zeros(len(heading))])
+        centres, rots = [], []
+        reach = self.config.range_max + 0.3
+        for r in self.teammates:
+            rx, ry, ryaw = r._pose
+            cx = rx + SILHOUETTE_POS[0] * math.cos(ryaw)
+            cy = ry + SILHOUETTE_POS[0] * math.sin(ryaw)
+            if math.hypot(cx - origin[0], cy - origin[1]) > reach:
+                continue
+            cr, sr = math.cos(ryaw), math.sin(ryaw)
+            centres.append((cx, cy, SCAN_HEIGHT))
+            rots.append(((cr, -sr, 0.0), (sr, cr, 0.0), (0.0, 0.0, 1.0)))
+        if not centres:
+            return
+        hit, _, normal = ray_boxes(origin, vec, np.array(centres), np.array(rots),
+                                   np.array(SILHOUETTE_HALF))
+        nearer = (hit >= 0) & ((dist < 0) | (hit < dist))
+        dist[nearer] = hit[nearer]
+        self._cos[nearer] = np.abs(np.einsum("ij,ij->i", vec[nearer], normal[nearer]))
 
     def scan(self, x: float, y: float, yaw: float, stamp: float) -> LaserScan:
         """One scan with the base at (x, y, yaw) (``map`` frame) at simulated time
@@ -226,6 +278,12 @@ class GridWorld(RobotWorld):
         scene: A scene folder, its ``scene.xml``, or :class:`SceneFiles`; it needs its
             ground truth (``map.yaml``).
         config: Simulator settings (``dynamics`` and ``wheel_friction`` are not used).
+        starts: A team's start poses, one per robot (None: the robot alone at the scene's
+            start). Robot 0 is this world, the others are grid robots of their own stepped
+            with it (:meth:`step_all`) on one clock; each lidar also sees its teammates'
+            silhouettes (the MuJoCo team's boxes), a move that would bring a robot's
+            bounding circle into a teammate's is refused and counted as a robot-robot
+            contact; robot ``i`` draws from :func:`~mjexplore.sim.simulator.robot_seed`.
 
     Attributes:
         scene: Paths and facts of the loaded scene (ground truth, start pose).
@@ -238,9 +296,24 @@ class GridWorld(RobotWorld):
 
     timestep = PHYSICS_TIMESTEP
 
-    def __init__(self, scene: str | os.PathLike | SceneFiles, config: SimConfig | None = None):
+    def __init__(self, scene: str | os.PathLike | SceneFiles, config: SimConfig | None = None,
+                 starts: list | None = None, *, _index: int = 0) -> None:
         self.config = config or SimConfig(dynamics="grid")
         self.scene = scene if isinstance(scene, SceneFiles) else load_scene_files(scene)
+        if starts is not None:
+            if self.config.scan_travel is not None:
+                raise UserInputError("a team's grid world scans at the lidar's rate: drop "
+                                     "scan_travel.")
+            self.scene = dataclasses.replace(self.scene, start=float_pose(starts[0]))
+        self.index = _index
+        self.name = robot_prefix(_index).rstrip("/")
+        self.robot_contacts = 0
+        self._teammate_contact = False
+        self._last_teammate = -math.inf
+        self._refused_by_teammate = False
+        self.robot_collisions = 0
+        self._pair_last: dict[tuple[int, int], float] = {}
+        self.robots: list[GridWorld] = [self]
         self._clearance = wall_clearance(self.scene.ground_truth)
         self.profile: MotionProfile = motion_profile(self.config.profile)
         self._sample_every = _steps_per(1.0 / self.config.sample_rate_hz, self.timestep,
@@ -260,6 +333,16 @@ class GridWorld(RobotWorld):
         self._model: mujoco.MjModel | None = None
         self._data: mujoco.MjData | None = None
         self.reset()
+        if starts is not None and len(starts) > 1:
+            self.robots += [GridWorld(dataclasses.replace(self.scene, start=float_pose(p)),
+                                      dataclasses.replace(self.config,
+                                                          seed=robot_seed(self.config.seed, i)),
+                                      _index=i)
+                            for i, p in enumerate(starts[1:], start=1)]
+            for r in self.robots:
+                r.robots = self.robots
+                r.lidar.teammates = [o for o in self.robots if o is not r]
+            self.reset_all()  # Again, with every robot in place.
 
     # ------------------------------------------------------------------ state
 
@@ -285,8 +368,8 @@ class GridWorld(RobotWorld):
 
     @property
     def physics_fault(self) -> bool:
-        """True once the pose is not finite."""
-        return not all(math.isfinite(v) for v in self._pose)
+        """True once a robot's pose is not finite."""
+        return not all(math.isfinite(v) for r in self.robots for v in r._pose)
 
     def warnings(self) -> dict[str, int]:
         """No MuJoCo, no warnings: always empty."""
@@ -372,6 +455,105 @@ class GridWorld(RobotWorld):
             return None
         return self._take_scan()
 
+    # ------------------------------------------------------------------ a team
+
+    def __len__(self) -> int:
+        return len(self.robots)
+
+    @property
+    def in_collision(self) -> bool:
+        """Touching a wall or a teammate."""
+        return self._in_contact or self._teammate_contact
+
+    @property
+    def body_centre(self) -> tuple[float, float]:
+        """Centre of the body's bounding circle (radius ``BODY_RADIUS``), ``map`` frame."""
+        x, y, yaw = self._pose
+        return x + BODY_CENTRE_X * math.cos(yaw), y + BODY_CENTRE_X * math.sin(yaw)
+
+    def poses(self) -> np.ndarray:
+        """(n, 3) ground-truth (x, y, yaw) of every robot's ``base_link``."""
+        return np.array([r.pose for r in self.robots])
+
+    def reset_all(self) -> list[LaserScan]:
+        """Puts every robot at rest at its start at time 0; returns each one's first scan
+        (taken with every robot in place)."""
+        for r in self.robots:
+            r._pose = float_pose(r.scene.start)  # Everyone in place before the first scans.
+        for r in self.robots:
+            r.reset()
+            r.robot_contacts = 0
+            r._teammate_contact = False
+            r._last_teammate = -math.inf
+        self.robot_collisions = 0
+        self._pair_last = {}
+        return [r.latest_scan for r in self.robots]
+
+    def step_all(self, duration: float) -> list[list[LaserScan]]:
+        """Advances every robot by ``duration`` seconds on one clock (moves, then samples,
+        then scans, on the same grids of steps); each robot's scans, oldest first."""
+        end = self._steps + max(0, round(duration / self.timestep))
+        sample, scan = self._sample_every, self._scan_every
+        scans: list[list[LaserScan]] = [[] for _ in self.robots]
+        while self._steps < end:
+            stop = min((self._steps // sample + 1) * sample,
+                       (self._steps // scan + 1) * scan, end)
+            for r in self.robots:
+                r._move(stop)
+            if stop % sample == 0:
+                self._contacts()
+                for r in self.robots:
+                    r._sample()
+                    r._cmd_base = r._cmd
+                    r._ramp()
+            if stop % scan == 0:
+                for r, out in zip(self.robots, scans):
+                    out.append(r._take_scan())
+        return scans
+
+    def _moved_into_teammate(self, centre_before: tuple[float, float]) -> bool:
+        """Whether the move just made, from a body centre at ``centre_before``, brought the
+        body into a teammate's (bounding circles overlapping, and nearer than before)."""
+        after = self.body_centre
+        for other in self.robots:
+            if other is self:
+                continue
+            ox, oy = other.body_centre
+            d = math.hypot(after[0] - ox, after[1] - oy)
+            if d < 2 * BODY_RADIUS and d < math.hypot(centre_before[0] - ox,
+                                                      centre_before[1] - oy):
+                return True
+        return False
+
+    def _contacts(self) -> None:
+        """Which robots touch a teammate now (a refused move), and the pairs' collisions."""
+        pairs = set()
+        touching = np.zeros(len(self.robots), bool)
+        for r in self.robots:
+            if not r._refused_by_teammate:
+                continue
+            cx, cy = r.body_centre
+            for o in self.robots:
+                ox, oy = o.body_centre
+                if o is not r and math.hypot(cx - ox, cy - oy) < 2 * BODY_RADIUS + 0.01:
+                    touching[[r.index, o.index]] = True
+                    pairs.add((min(r.index, o.index), max(r.index, o.index)))
+        for r in self.robots:
+            r._note_teammate(bool(touching[r.index]))
+        t = self.time
+        for pair in pairs:
+            if t - self._pair_last.get(pair, -math.inf) > COLLISION_GAP_S:
+                self.robot_collisions += 1
+            self._pair_last[pair] = t
+
+    def _note_teammate(self, touching: bool) -> None:
+        t = self.time
+        if touching:
+            if t - self._last_teammate > COLLISION_GAP_S:
+                self.robot_contacts += 1
+            self._last_teammate = t
+        self._teammate_contact = touching
+
     # ------------------------------------------------------------------ internals
 
     def _take_scan(self) -> LaserScan:
@@ -390,7 +572,19 @@ class GridWorld(RobotWorld):
                 abs(math.remainder(yaw - yaw0, 2 * math.pi)) >= travel.angle)
 
     def _move(self, stop: int) -> None:
-        """Moves the base from step ``self._steps`` to ``stop`` (and sets the step count)."""
+        """Moves the base from step ``self._steps`` to ``stop`` (and sets the step count);
+        in a team, a move into a teammate's body is refused."""
+        if len(self.robots) > 1:
+            before, centre = (self._pose, self._wheels), self.body_centre
+            self._move_alone(stop)
+            self._refused_by_teammate = self._moved_into_teammate(centre)
+            if self._refused_by_teammate:
+                self._pose, self._wheels = before
+                self._twist = (0.0, 0.0)
+            return
+        self._move_alone(stop)
+
+    def _move_alone(self, stop: int) -> None:
         twist = mean_ramp_twist(self._cmd_base, self._cmd, self._steps, stop,
                                 self._sample_every)
         assert self.scene.ground_truth is not None  # See __init__.

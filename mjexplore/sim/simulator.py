@@ -715,11 +715,13 @@ class Simulator(MujocoRobot):
     def _sample_all(self) -> None:
         """Contacts, then every robot's sample (odometry, kinematics, collisions)."""
         if len(self.robots) == 1 and self.crowd is None:
-            # A robot alone: its wall contacts only (this runs at every sample: 20 Hz).
-            d = self.data
-            ncon = d.ncon
-            self._wall_touch[0] = ncon > 0 and bool(self._is_wall_geom[d.contact.geom[:ncon]]
-                                                    .any())
+            # A robot alone: its wall contacts only (this runs at every sample: 20 Hz; the
+            # kinematic world's are its refused moves).
+            if self._clearance is None:
+                d = self.data
+                ncon = d.ncon
+                self._wall_touch[0] = ncon > 0 and bool(
+                    self._is_wall_geom[d.contact.geom[:ncon]].any())
             self._sample()
             return
         touching = self._contacts()

@@ -21,9 +21,11 @@ World = Simulator | GridWorld
 
 
 def make_world(scene: str | os.PathLike | SceneFiles, config: SimConfig | None = None,
-               ) -> World:
+               starts: list | None = None) -> World:
     """The world ``config.dynamics`` asks for, in ``scene`` (a scene folder, its
-    ``scene.xml`` or :class:`SceneFiles`), reset to the scene's start.
+    ``scene.xml`` or :class:`SceneFiles`), reset to the scene's start, or with ``starts``
+    a team's world with one robot at each (its robots in ``robots``, stepped together by
+    ``step_all``).
 
     Raises:
         UserInputError: the scene cannot be loaded, or the grid or kinematic world lacks
@@ -31,5 +33,5 @@ def make_world(scene: str | os.PathLike | SceneFiles, config: SimConfig | None =
     """
     config = config or SimConfig()
     if config.dynamics == "grid":
-        return GridWorld(scene, config)
-    return Simulator(scene, config)
+        return GridWorld(scene, config, starts)
+    return Simulator(scene, config, starts)
