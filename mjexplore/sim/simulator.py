@@ -43,8 +43,9 @@ import numpy as np
 
 from mjexplore.errors import UserInputError
 from mjexplore.robot import TURTLEBOT3_WAFFLE, MotionProfile, motion_profile
+from mjexplore.scenes.people import PERSON, add_people
 from mjexplore.scenes.scene import SceneFiles, load_scene_files
-from mjexplore.scenes.team import PERSON, SILHOUETTE, add_people, robot_prefix, team_spec
+from mjexplore.scenes.team import SILHOUETTE, robot_prefix, team_spec
 from mjexplore.sim.kinematics import KinematicsRecorder
 from mjexplore.sim.lidar import LaserScan, Lidar, LidarConfig
 from mjexplore.sim.motion import (  # noqa: F401 (re-exported)
