@@ -54,7 +54,6 @@ from mjexplore.scenes.team import SILHOUETTE_HALF, SILHOUETTE_POS, robot_prefix
 from mjexplore.sim.kinematics import KinematicsRecorder
 from mjexplore.sim.lidar import LaserScan, LidarConfig, measure_ranges, ray_boxes
 from mjexplore.sim.motion import (
-    BODY_CENTRE_X,
     BODY_RADIUS,
     kinematic_step,
     mean_ramp_twist,
@@ -311,6 +310,7 @@ class GridWorld(RobotWorld):
         self._teammate_contact = False
         self._last_teammate = -math.inf
         self._refused_by_teammate = False
+        self._kinematic_person = False
         self.robot_collisions = 0
         self._pair_last: dict[tuple[int, int], float] = {}
         self.robots: list[GridWorld] = [self]
@@ -460,17 +460,6 @@ class GridWorld(RobotWorld):
     def __len__(self) -> int:
         return len(self.robots)
 
-    @property
-    def in_collision(self) -> bool:
-        """Touching a wall or a teammate."""
-        return self._in_contact or self._teammate_contact
-
-    @property
-    def body_centre(self) -> tuple[float, float]:
-        """Centre of the body's bounding circle (radius ``BODY_RADIUS``), ``map`` frame."""
-        x, y, yaw = self._pose
-        return x + BODY_CENTRE_X * math.cos(yaw), y + BODY_CENTRE_X * math.sin(yaw)
-
     def poses(self) -> np.ndarray:
         """(n, 3) ground-truth (x, y, yaw) of every robot's ``base_link``."""
         return np.array([r.pose for r in self.robots])
@@ -511,20 +500,6 @@ class GridWorld(RobotWorld):
                     out.append(r._take_scan())
         return scans
 
-    def _moved_into_teammate(self, centre_before: tuple[float, float]) -> bool:
-        """Whether the move just made, from a body centre at ``centre_before``, brought the
-        body into a teammate's (bounding circles overlapping, and nearer than before)."""
-        after = self.body_centre
-        for other in self.robots:
-            if other is self:
-                continue
-            ox, oy = other.body_centre
-            d = math.hypot(after[0] - ox, after[1] - oy)
-            if d < 2 * BODY_RADIUS and d < math.hypot(centre_before[0] - ox,
-                                                      centre_before[1] - oy):
-                return True
-        return False
-
     def _contacts(self) -> None:
         """Which robots touch a teammate now (a refused move), and the pairs' collisions."""
         pairs = set()
@@ -545,14 +520,6 @@ class GridWorld(RobotWorld):
             if t - self._pair_last.get(pair, -math.inf) > COLLISION_GAP_S:
                 self.robot_collisions += 1
             self._pair_last[pair] = t
-
-    def _note_teammate(self, touching: bool) -> None:
-        t = self.time
-        if touching:
-            if t - self._last_teammate > COLLISION_GAP_S:
-                self.robot_contacts += 1
-            self._last_teammate = t
-        self._teammate_contact = touching
 
     # ------------------------------------------------------------------ internals
 

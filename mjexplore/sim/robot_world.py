@@ -6,13 +6,20 @@
 
 from __future__ import annotations
 
+import math
+from typing import Any
+
 import numpy as np
 
 from mjexplore.robot import MotionProfile
 from mjexplore.sim.kinematics import KinematicsLog, KinematicsRecorder
 from mjexplore.sim.lidar import LaserScan
-from mjexplore.sim.motion import limit_command
+from mjexplore.sim.motion import BODY_CENTRE_X, BODY_RADIUS, limit_command
 from mjexplore.sim.odometry import WheelOdometry
+
+# Contacts closer in time than this belong to one collision (a robot pushing against a wall
+# or a person bounces on and off it).
+COLLISION_GAP_S = 0.5
 
 
 class RobotWorld:
@@ -36,6 +43,13 @@ class RobotWorld:
     _in_contact: bool
     _start: np.ndarray
     odometry: WheelOdometry
+    # A team's robots (this one among them; a robot alone's is itself), the contacts with
+    # them, and the moves they refused.
+    robots: list
+    robot_contacts: int
+    _teammate_contact: bool
+    _last_teammate: float
+    _kinematic_person: bool
 
     @property
     def odom_pose(self) -> np.ndarray:
@@ -62,8 +76,63 @@ class RobotWorld:
         return None
 
     @property
+    def pose(self) -> np.ndarray:
+        """Ground-truth (x, y, yaw) of ``base_link`` in the ``map`` frame."""
+        raise NotImplementedError
+
+    @property
+    def time(self) -> float:
+        """Simulated time since reset in seconds."""
+        raise NotImplementedError
+
+    @property
     def in_collision(self) -> bool:
-        return self._in_contact
+        """Touching a wall, a teammate or a person."""
+        return self._in_contact or self._teammate_contact
+
+    @property
+    def body_centre(self) -> tuple[float, float]:
+        """Centre of the body's bounding circle (radius ``BODY_RADIUS``), ``map`` frame."""
+        x, y, yaw = self.pose
+        return x + BODY_CENTRE_X * math.cos(yaw), y + BODY_CENTRE_X * math.sin(yaw)
+
+    def _people(self) -> Any:
+        """The world's crowd (:class:`~mjexplore.sim.people.Crowd`), or None."""
+        return None
+
+    def _moved_into_teammate(self, centre_before: tuple[float, float]) -> bool:
+        """Whether the move just made, from a body centre at ``centre_before``, brought the
+        body into a person's or a teammate's (discs overlapping, and nearer than before);
+        ``_kinematic_person`` says which."""
+        after = self.body_centre
+        crowd = self._people()
+        self._kinematic_person = False
+        if crowd is not None and len(crowd):
+            reach = BODY_RADIUS + crowd.config.radius
+            d_after = np.hypot(*(crowd.positions - after).T)
+            d_before = np.hypot(*(crowd.positions - centre_before).T)
+            if ((d_after < reach) & (d_after < d_before)).any():
+                self._kinematic_person = True
+                return True
+        for other in self.robots:
+            if other is self:
+                continue
+            ox, oy = other.body_centre
+            d = math.hypot(after[0] - ox, after[1] - oy)
+            if d < 2 * BODY_RADIUS and d < math.hypot(centre_before[0] - ox,
+                                                      centre_before[1] - oy):
+                return True
+        return False
+
+    def _note_teammate(self, touching: bool) -> None:
+        """Counts a contact with a teammate (those less than ``COLLISION_GAP_S`` apart as
+        one)."""
+        t = self.time
+        if touching:
+            if t - self._last_teammate > COLLISION_GAP_S:
+                self.robot_contacts += 1
+            self._last_teammate = t
+        self._teammate_contact = touching
 
     @property
     def command_applied(self) -> np.ndarray:

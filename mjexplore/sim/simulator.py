@@ -64,7 +64,7 @@ from mjexplore.sim.odometry import (
     wheel_odometry,
 )
 from mjexplore.sim.people import Crowd, PeopleConfig
-from mjexplore.sim.robot_world import RobotWorld
+from mjexplore.sim.robot_world import COLLISION_GAP_S, RobotWorld
 
 BASE_BODY = "base_link"
 SCAN_SITE = "base_scan"
@@ -75,9 +75,6 @@ IMU_SENSORS = ("imu_gyro", "imu_accel")
 # IMU readings where there are none: the kinematic mode has no dynamics to measure.
 NO_IMU = (math.nan,) * 6
 UPRIGHT_COS = math.cos(math.radians(30.0))
-# Contacts with walls closer in time than this belong to one collision (a robot pushing
-# against a wall bounces on and off it).
-COLLISION_GAP_S = 0.5
 DYNAMICS = ("physics", "kinematic", "grid")
 PEOPLE_STREAM = 51  # The people's generator: [seed, PEOPLE_STREAM].
 
@@ -348,16 +345,8 @@ class MujocoRobot(RobotWorld):
         return {mujoco.mjtWarning(i).name: int(w.number)
                 for i, w in enumerate(self.data.warning) if w.number}
 
-    @property
-    def in_collision(self) -> bool:
-        """Touching a wall or a teammate."""
-        return self._in_contact or self._teammate_contact
-
-    @property
-    def body_centre(self) -> tuple[float, float]:
-        """Centre of the body's bounding circle (radius ``BODY_RADIUS``), ``map`` frame."""
-        x, y, yaw = self.pose
-        return x + BODY_CENTRE_X * math.cos(yaw), y + BODY_CENTRE_X * math.sin(yaw)
+    def _people(self) -> Crowd | None:
+        return self._world.crowd
 
     # ------------------------------------------------------------------ the world's calls
 
@@ -426,29 +415,6 @@ class MujocoRobot(RobotWorld):
                 q[i:i + 7], q[self._wheel_qpos] = before
                 d.qvel[j:j + 6] = 0.0
 
-    def _moved_into_teammate(self, centre_before: tuple[float, float]) -> bool:
-        """Whether the move just made, from a body centre at ``centre_before``, brought the
-        body into a teammate's or a person's (discs overlapping, and nearer than before)."""
-        after = self.body_centre
-        crowd = self._world.crowd
-        self._kinematic_person = False
-        if crowd is not None and len(crowd):
-            reach = BODY_RADIUS + crowd.config.radius
-            d_after = np.hypot(*(crowd.positions - after).T)
-            d_before = np.hypot(*(crowd.positions - centre_before).T)
-            if ((d_after < reach) & (d_after < d_before)).any():
-                self._kinematic_person = True
-                return True
-        for other in self._world.robots:
-            if other is self:
-                continue
-            ox, oy = other.body_centre
-            d = math.hypot(after[0] - ox, after[1] - oy)
-            if d < 2 * BODY_RADIUS and d < math.hypot(centre_before[0] - ox,
-                                                      centre_before[1] - oy):
-                return True
-        return False
-
     def _ramp(self) -> None:
         self._cmd = ramp_command(self._cmd_base, self._target, self.profile,
                                  self._sample_every * self.model.opt.timestep)
@@ -497,14 +463,6 @@ class MujocoRobot(RobotWorld):
         if self._clearance is not None:
             return self._kinematic_contact
         return bool(self._world._wall_touch[self.index])
-
-    def _note_teammate(self, touching: bool) -> None:
-        t = self.time
-        if touching:
-            if t - self._last_teammate > COLLISION_GAP_S:
-                self.robot_contacts += 1
-            self._last_teammate = t
-        self._teammate_contact = touching
 
     def _note_people(self, touching: bool, crowd: Crowd) -> None:
         """Counts a contact with a person (those less than ``COLLISION_GAP_S`` apart as
@@ -609,6 +567,8 @@ class Simulator(MujocoRobot):
         MujocoRobot.__init__(self, self, 0, prefixes[0], others[0])
         self.robots = [self] + [MujocoRobot(self, i, prefixes[i], others[i])
                                 for i in range(1, len(prefixes))]
+        for r in self.robots[1:]:
+            r.robots = self.robots
         for r in self.robots[1:]:  # One tile cache of the walls for all lidars.
             r.lidar.static_scene = self.lidar.static_scene
         self.reset()
