@@ -126,3 +126,16 @@ def test_a_robot_driving_at_a_person_is_stopped_and_counts_a_contact():
     gap = np.hypot(*(sim.crowd.positions[0] - sim.body_centre)) - 0.194 - 0.25
     assert gap > -0.02  # Refused before the bodies overlap.
     assert sim.people_collisions >= 1 and sim.in_collision
+
+
+def test_explore_refuses_more_people_than_fit_before_building_the_world(tmp_path, capsys):
+    """Exit 2 with the number that fits, at once (not after compiling a model with a body
+    for each person)."""
+    from mjexplore.cli import main
+
+    out = tmp_path / "run"
+    assert main(["explore", "--scene", "train_loop", "--people", "100000", "--max-time", "5",
+                 "--no-progress", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "do not fit" in err and "give --people" in err
+    assert not out.exists()

@@ -140,10 +140,7 @@ class Crowd:
             ground_truth.resolution
         self._guide = _GuideGrid(ground_truth, self._clearance, config.radius)
         n = config.count
-        fits = self._guide.capacity(config.radius)
-        if n > fits:
-            raise UserInputError(f"{n} people do not fit in this building's free space: it "
-                                 f"holds {fits} walking; give --people {fits} or fewer.")
+        check_capacity(n, self._guide.capacity(config.radius))
         self.positions = self._spawn(n, np.zeros((0, 2)) if keep_clear is None
                                      else np.asarray(keep_clear, float).reshape(-1, 2))
         self.velocities = np.zeros((n, 2))
@@ -323,6 +320,25 @@ class Crowd:
         return d - self.config.radius
 
 
+def check_capacity(count: int, fits: int) -> None:
+    """Refuses ``count`` people where the free space holds ``fits``.
+
+    Raises:
+        UserInputError: too many (the message says how many fit).
+    """
+    if count > fits:
+        raise UserInputError(f"{count} people do not fit in this building's free space: it "
+                             f"holds {fits} walking; give --people {fits} or fewer.")
+
+
+def capacity(config: PeopleConfig, ground_truth: GridMap) -> int:
+    """How many people of ``config``'s size the building's free space holds walking (one
+    ``SPACE_PER_PERSON_M`` square each, on the cells a person fits in)."""
+    clearance = cv2.distanceTransform(ground_truth.free.astype(np.uint8), cv2.DIST_L2,
+                                      cv2.DIST_MASK_PRECISE) * ground_truth.resolution
+    return _GuideGrid(ground_truth, clearance, config.radius).capacity(config.radius)
+
+
 class _GuideGrid:
     """The coarse grid people are guided on: the cells a person's disc fits in (clearance
     at least its radius), 8-connected, and geodesic distance fields over it."""
@@ -422,4 +438,4 @@ class _GuideGrid:
         return d / norm if norm > 1e-9 else np.zeros(2)
 
 
-__all__ = ["Crowd", "PeopleConfig"]
+__all__ = ["Crowd", "PeopleConfig", "capacity", "check_capacity"]

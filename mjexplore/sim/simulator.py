@@ -63,7 +63,8 @@ from mjexplore.sim.odometry import (
     odometry_error_config,
     wheel_odometry,
 )
-from mjexplore.sim.people import Crowd, PeopleConfig
+from mjexplore.sim.people import Crowd, PeopleConfig, check_capacity
+from mjexplore.sim.people import capacity as people_capacity
 from mjexplore.sim.robot_world import COLLISION_GAP_S, RobotWorld
 
 BASE_BODY = "base_link"
@@ -510,6 +511,12 @@ class Simulator(MujocoRobot):
         self.scene = scene if isinstance(scene, SceneFiles) else load_scene_files(scene)
         people = self.config.people
         crowd = people is not None and people.count > 0
+        if crowd:  # Before a model with that many bodies is built.
+            assert people is not None
+            if self.scene.ground_truth is None:
+                raise UserInputError("people walk on the scene's ground-truth map, and this "
+                                     "scene has none.")
+            check_capacity(people.count, people_capacity(people, self.scene.ground_truth))
         if starts is None and not crowd:
             self.model = compile_scene(self.scene)
             prefixes = [""]
