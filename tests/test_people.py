@@ -139,3 +139,19 @@ def test_explore_refuses_more_people_than_fit_before_building_the_world(tmp_path
     err = capsys.readouterr().err
     assert "do not fit" in err and "give --people" in err
     assert not out.exists()
+
+
+def test_a_team_among_people_counts_them_per_robot():
+    from mjexplore.episode import Episode, EpisodeConfig
+    from mjexplore.explorers import make_explorer
+    from mjexplore.scenes.canonical import resolve_scene
+    from mjexplore.sim.simulator import SimConfig
+
+    config = EpisodeConfig(max_time=15.0, sim=SimConfig(dynamics="kinematic",
+                                                        people=PeopleConfig(count=4)))
+    m = Episode(resolve_scene("train_loop"), [make_explorer("nearest") for _ in range(2)], 0,
+                config).run().metrics
+    assert m["robots"] == 2 and m["people"] == 4
+    assert m["people_collisions"] == sum(r["people_collisions"] for r in m["per_robot"])
+    for r in m["per_robot"]:
+        assert r["people_min_distance_m"] is not None and r["time_stopped_s"] >= 0.0

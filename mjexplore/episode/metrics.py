@@ -195,6 +195,9 @@ def team_result(episode: Any) -> TeamEpisodeResult:
         if a.localizer is not None:  # Its estimate against its true pose, per scan.
             positions = np.array(a._positions, np.float64).reshape(-1, 4)
             per_robot[-1].update(pose_errors(positions[:, :2], positions[:, 2:]))
+        crowd = getattr(world, "crowd", None)
+        if crowd is not None:
+            per_robot[-1].update(people_metrics(a.sim, crowd, log))
     metrics: dict[str, Any] = {
         "robots": len(team.agents),
         "iou": round(iou(grid, episode.reference), 5),
@@ -214,6 +217,9 @@ def team_result(episode: Any) -> TeamEpisodeResult:
         "localization": episode.config.localization,
         "per_robot": per_robot,
     }
+    if getattr(world, "crowd", None) is not None:
+        metrics["people"] = len(world.crowd)
+        metrics["people_collisions"] = sum(r["people_collisions"] for r in per_robot)
     if episode.merging is not None:
         metrics.update(episode.merging.metrics(counter))
     explorer = team.agents[0].explorer
