@@ -465,16 +465,16 @@ class MujocoRobot(RobotWorld):
             return self._kinematic_contact
         return bool(self._world._wall_touch[self.index])
 
-    def _note_people(self, touching: bool, crowd: Crowd) -> None:
+    def _note_people(self, touching: bool, gap: float) -> None:
         """Counts a contact with a person (those less than ``COLLISION_GAP_S`` apart as
-        one) and the least distance from the body's bounding circle to a person."""
+        one) and keeps the least ``gap`` (metres) between the body's bounding circle and a
+        person."""
         t = self.time
         if touching:
             if t - self._last_person > COLLISION_GAP_S:
                 self.people_collisions += 1
             self._last_person = t
         self._teammate_contact = self._teammate_contact or touching
-        gap = float(crowd.distances_to(np.array(self.body_centre))[0]) - BODY_RADIUS
         self.people_min_distance = min(self.people_min_distance, gap)
 
 
@@ -696,7 +696,7 @@ class Simulator(MujocoRobot):
         for r in self.robots:
             r._note_teammate(bool(touching[r.index]))
             if self.crowd is not None:
-                r._note_people(self._people_touch[r.index], self.crowd)
+                r._note_people(self._people_touch[r.index], self._people_gap[r.index])
             r._sample()
 
     def _contacts(self) -> np.ndarray:
@@ -706,11 +706,14 @@ class Simulator(MujocoRobot):
         teammate = np.zeros(n, bool)
         self._wall_touch[:] = False
         self._people_touch = np.zeros(n, bool)
+        self._people_gap = np.full(n, math.inf)  # Body circle to the nearest person, metres.
         pairs: set[tuple[int, int]] = set()
         if self.crowd is not None and len(self.crowd):
-            for r in self.robots:  # Bodies within 1 cm, or a kinematic move refused.
-                self._people_touch[r.index] = r._kinematic_person or bool(
-                    self.crowd.distances_to(np.array(r.body_centre))[0] < BODY_RADIUS + 0.01)
+            self._people_gap = self.crowd.distances_to(
+                np.array([r.body_centre for r in self.robots])) - BODY_RADIUS
+            # Bodies within 1 cm, or a kinematic move refused.
+            self._people_touch = (self._people_gap < 0.01) | np.array(
+                [r._kinematic_person for r in self.robots])
         if self._clearance is not None:
             for r in self.robots:
                 if r._kinematic_teammate:
