@@ -117,16 +117,16 @@ def test_a_team_sweep_files_failures_and_refuses_to_resume_with_other_settings(
         tmp_path, monkeypatch, capsys):
     import json
 
-    import mjexplore.eval.team_sweep as team_sweep
+    import mjexplore.eval.sweep as sweep
 
-    real = team_sweep.write_run
+    real = sweep.write_run
 
     def flaky(folder, scene, method, seed, *args, **kwargs):
         if seed == 1 and kwargs.get("robots", 1) > 1:
             raise FloatingPointError("solver diverged")
         return real(folder, scene, method, seed, *args, **kwargs)
 
-    monkeypatch.setattr(team_sweep, "write_run", flaky)
+    monkeypatch.setattr(sweep, "write_run", flaky)
     out = tmp_path / "bench"
     args = ["bench", "--scenes", "train_loop", "--robots", "2", "--explorers", "assign_greedy",
             "--seeds", "2", "--workers", "1", "--max-time", "6", "--no-progress", "--out",

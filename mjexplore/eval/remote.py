@@ -3,7 +3,7 @@
 Each task gets its job and the episode settings, and as data the scene's files and, for a
 learned explorer given by path, its weights (each put once in Ray's object store and
 unpacked once per machine: :mod:`mjexplore.io.bundle`). It runs the episode with the code
-the process pool runs (:func:`mjexplore.eval.sweep.run_job`, or a team sweep's) into a run
+the process pool runs (:func:`mjexplore.eval.sweep.run_job`) into a run
 folder in its own temporary directory and returns that folder's files, which the sweep
 writes as the run folder (:func:`mjexplore.eval.sweep.file_results`). An
 episode depends on its scene, method, seed and settings alone, so the run folders are those
@@ -22,6 +22,7 @@ import ray
 
 from mjexplore.episode.workers import init_episode_worker
 from mjexplore.eval.methods import LEARNED, parse_method
+from mjexplore.explorers.team import TEAM_METHODS
 from mjexplore.io.bundle import Bundle, pack_folder, unpack
 from mjexplore.io.ray_cluster import connect, map_unordered
 from mjexplore.policies.models import (
@@ -54,8 +55,10 @@ class _Policy:
 
 
 def _policy_files(spec_text: str) -> tuple[_Policy, Bundle] | None:
-    """The weights a spec names by path (None: a classic method, or a shipped model, which
-    every machine's checkout holds)."""
+    """The weights a spec names by path (None: a classic or team method, or a shipped
+    model, which every machine's checkout holds)."""
+    if spec_text in TEAM_METHODS:
+        return None
     spec = parse_method(spec_text)
     if spec.method not in LEARNED or spec.policy is None or spec.policy in shipped_models():
         return None
@@ -65,7 +68,7 @@ def _policy_files(spec_text: str) -> tuple[_Policy, Bundle] | None:
 
 class SweepJob(Protocol):
     """What :func:`run_remote` needs of a job: its scene as given (and, if it has one, its
-    ``spec``: the method spec that builds a single robot's explorer)."""
+    ``spec``: the method spec that builds its explorers)."""
 
     scene: str
 

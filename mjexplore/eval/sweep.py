@@ -26,9 +26,11 @@ from typing import Any
 import numpy as np
 
 from mjexplore.episode import EpisodeConfig
+from mjexplore.episode.team import TeamConfig
 from mjexplore.episode.workers import init_episode_worker
 from mjexplore.errors import UserInputError
-from mjexplore.eval.methods import LEARNED, parse_method
+from mjexplore.eval.methods import LEARNED, parse_method, team_explorers
+from mjexplore.eval.placements import team_starts
 from mjexplore.eval.plots import kinematics_figure, ratio_figure
 from mjexplore.eval.run import write_run
 from mjexplore.io.atomic import atomic_directory, refuse_foreign_files, write_text_atomic
@@ -60,19 +62,28 @@ def scene_label(scene: str) -> str:
 @dataclasses.dataclass(frozen=True)
 class Job:
     """One episode of a sweep: ``explorer`` is the run label (its folder), ``spec`` the
-    method spec that builds its explorer (:mod:`mjexplore.eval.methods`; None: the label)."""
+    method spec that builds its explorer (:mod:`mjexplore.eval.methods`; None: the label).
+
+    A team sweep's jobs also name their start ``placement`` (:mod:`mjexplore.eval.
+    placements`; 'single' for the single-robot baseline), which files them under
+    ``runs/SCENE/PLACEMENT/EXPLORER/seedN``, and run ``robots`` robots of the team method
+    ``spec`` (``unknown_starts``: the robots merge their maps, as ``TeamConfig`` says)."""
 
     scene: str
     explorer: str
     seed: int
     spec: str | None = None
+    placement: str | None = None
+    robots: int = 1
+    unknown_starts: bool = False
 
     @property
     def label(self) -> str:
         return scene_label(self.scene)
 
     def folder(self, out: Path) -> Path:
-        return out / "runs" / self.label / self.explorer / f"seed{self.seed}"
+        where = [self.placement] if self.placement else []
+        return out.joinpath("runs", self.label, *where, self.explorer, f"seed{self.seed}")
 
 
 def finished_metrics(folder: Path) -> dict[str, Any] | None:
@@ -132,8 +143,16 @@ def run_job(job: Job, folder: Path, config: EpisodeConfig, mcap: bool | str,
     own (a Ray worker's copies of its files); ``command`` (the sweep's) goes in its
     ``config.json``."""
     try:
-        metrics = write_run(folder, scene or resolve_scene(job.scene), job.explorer, job.seed,
-                            config, mcap, spec=spec or job.spec, command=command)
+        scene = scene or resolve_scene(job.scene)
+        spec = spec or job.spec
+        label, starts, team = job.explorer, None, None
+        if job.robots > 1:
+            label = team_explorers(spec or job.explorer, job.robots)[1]
+            starts = team_starts(scene, job.placement, job.robots, poses=False)
+            team = TeamConfig(unknown_starts=job.unknown_starts)
+        metrics = write_run(folder, scene, label, job.seed, config, mcap, spec=spec,
+                            command=command, robots=job.robots, starts=starts,
+                            team_config=team)
     except Exception as exc:  # noqa: BLE001 - one broken episode must not end the sweep
         return episode_failure(job, exc)
     metrics["scene"] = job.label

@@ -15,96 +15,46 @@ robot-robot collisions.
 from __future__ import annotations
 
 import csv
-import dataclasses
 import functools
 import io
-import logging
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from mjexplore.episode import EpisodeConfig
-from mjexplore.episode.team import TeamConfig
 from mjexplore.errors import UserInputError
-from mjexplore.eval.methods import team_explorers
 from mjexplore.eval.placements import DRAWN, check_placements, team_starts
-from mjexplore.eval.run import write_run
 from mjexplore.eval.sweep import (
     SWEEP_OUTPUTS,
+    Job,
     check_settings,
+    episode_failure,
     failed_note,
     finished_metrics,
     format_mean_std,
     markdown_table,
     record_start,
+    run_job,
     run_jobs,
-    scene_label,
 )
 from mjexplore.io.atomic import refuse_foreign_files, write_text_atomic
 from mjexplore.io.provenance import git_revision
 from mjexplore.scenes.canonical import resolve_scene
-from mjexplore.scenes.scene import SceneFiles
 from mjexplore.scenes.team import check_starts, draw_starts
 
-log = logging.getLogger(__name__)
-
-
-@dataclasses.dataclass(frozen=True)
-class TeamJob:
-    """One episode of a team sweep (``robots`` 1: the single-robot baseline)."""
-
-    scene: str
-    placement: str
-    method: str
-    seed: int
-    robots: int
-    unknown_starts: bool = False
-
-    @property
-    def label(self) -> str:
-        """The method as the summary names it (``+unknown``: with unknown start poses)."""
-        return self.method + ("+unknown" if self.unknown_starts else "")
-
-    def folder(self, out: Path) -> Path:
-        where = "single" if self.robots == 1 else self.placement
-        return out / "runs" / scene_label(self.scene) / where / self.label / f"seed{self.seed}"
-
-
-def team_failure(job: TeamJob, exc: BaseException) -> dict[str, Any]:
-    """The record of a team sweep's episode that raised ``exc`` (logged here)."""
-    log.error("episode %s failed", job, exc_info=exc)
-    return {"scene": scene_label(job.scene), "explorer": job.label, "seed": job.seed,
-            "end_reason": "error", "error": f"{type(exc).__name__}: {exc}"}
-
-
-def run_team_job(job: TeamJob, folder: Path, config: EpisodeConfig,
-                 scene: SceneFiles | None = None, spec: str | None = None) -> dict[str, Any]:
-    """Runs ``job``'s episode into the run folder ``folder``; its metrics, or its failure
-    record if it raised. ``scene`` replaces the job's own (a Ray worker's copy of its
-    files); ``spec`` is unused (team methods are named by ``job.method``)."""
-    try:
-        scene = scene or resolve_scene(job.scene)
-        if job.robots == 1:
-            return write_run(folder, scene, job.method, job.seed, config, mcap=False)
-        starts = team_starts(scene, job.placement, job.robots, poses=False)
-        label = team_explorers(job.method, job.robots)[1]
-        return write_run(folder, scene, label, job.seed, config, mcap=False, spec=job.method,
-                         robots=job.robots, starts=starts,
-                         team_config=TeamConfig(unknown_starts=job.unknown_starts))
-    except Exception as exc:  # noqa: BLE001 - one broken episode must not end the sweep
-        return team_failure(job, exc)
+SINGLE = "single"  # The placement the single-robot baseline's runs are filed under.
 
 
 def team_jobs(scenes: list[str], methods: list[str], robots: int, placements: list[str],
               seeds: list[int], single: str | None = "nearest",
-              unknown_starts: bool = False) -> list[TeamJob]:
-    """The jobs of a team sweep, the single-robot baseline's first."""
+              unknown_starts: bool = False) -> list[Job]:
+    """The jobs of a team sweep, the single-robot baseline's first (placement 'single')."""
     jobs = []
     if single:
-        jobs += [TeamJob(s, DRAWN, single, k, 1) for s in scenes for k in seeds]
-    jobs += [TeamJob(s, p, m, k, robots, unknown_starts) for s in scenes for p in placements
-             for m in methods for k in seeds]
+        jobs += [Job(s, single, k, single, SINGLE) for s in scenes for k in seeds]
+    jobs += [Job(s, m + ("+unknown" if unknown_starts else ""), k, m, p, robots, unknown_starts)
+             for s in scenes for p in placements for m in methods for k in seeds]
     return jobs
 
 
@@ -146,8 +96,9 @@ def run_team_sweep(scenes: list[str], methods: list[str], robots: int, placement
                        "scenes": scenes, "methods": methods, "robots": robots,
                        "placements": placements, "single": single,
                        "unknown_starts": unknown_starts, "seeds": seeds})
-    results = run_jobs(jobs, out, functools.partial(run_team_job, config=config),
-                       team_failure, workers, ray_address, progress)
+    results = run_jobs(jobs, out, functools.partial(run_job, config=config, mcap=False,
+                                                     command=command),
+                       episode_failure, workers, ray_address, progress)
     write_team_summary(out, jobs)
     return results
 
@@ -226,7 +177,7 @@ TABLE_NOTE = ("Mean +- std over runs; (k/n) where only k of n runs reached the l
               "and the largest error of an estimated start pose (translation, rotation).")
 
 
-def write_team_summary(out: Path, jobs: list[TeamJob]) -> None:
+def write_team_summary(out: Path, jobs: list[Job]) -> None:
     """``results.md`` and ``results.csv`` of the finished runs among ``jobs``."""
     single: dict[tuple[str, int], dict[str, Any]] = {}
     groups: dict[tuple[str, str, str, int], list[tuple[int, dict[str, Any]]]] = {}
@@ -235,9 +186,9 @@ def write_team_summary(out: Path, jobs: list[TeamJob]) -> None:
         if metrics is None:
             continue
         if job.robots == 1:
-            single[(scene_label(job.scene), job.seed)] = metrics
+            single[(job.label, job.seed)] = metrics
         else:
-            key = (scene_label(job.scene), job.placement, job.label, job.robots)
+            key = (job.label, str(job.placement), job.explorer, job.robots)
             groups.setdefault(key, []).append((job.seed, metrics))
     header, rows = team_table(single, groups)
     buf = io.StringIO()
@@ -247,5 +198,5 @@ def write_team_summary(out: Path, jobs: list[TeamJob]) -> None:
                       TABLE_NOTE + "\n" + failed_note(out, jobs))
 
 
-__all__ = ["DRAWN", "TABLE_NOTE", "TeamJob", "run_team_sweep", "single_ratios", "team_jobs",
+__all__ = ["DRAWN", "SINGLE", "TABLE_NOTE", "run_team_sweep", "single_ratios", "team_jobs",
            "team_table", "write_team_summary"]
