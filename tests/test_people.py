@@ -155,3 +155,56 @@ def test_a_team_among_people_counts_them_per_robot():
     assert m["people_collisions"] == sum(r["people_collisions"] for r in m["per_robot"])
     for r in m["per_robot"]:
         assert r["people_min_distance_m"] is not None and r["time_stopped_s"] >= 0.0
+
+
+def _episode_with_a_person_ahead(distance: float):
+    """A robot alone in the office (kinematic world) with one person standing ``distance``
+    metres ahead of it, after two control periods."""
+    from mjexplore.episode import Episode, EpisodeConfig
+    from mjexplore.explorers import make_explorer
+    from mjexplore.sim.simulator import SimConfig
+
+    config = EpisodeConfig(max_time=20.0, sim=SimConfig(dynamics="kinematic",
+                                                        people=PeopleConfig(count=1)))
+    ep = Episode(resolve_scene("office"), make_explorer("nearest"), 0, config)
+    crowd = ep.world.crowd
+    x, y, yaw = ep.world.pose
+    crowd.positions[:] = [x + distance * np.cos(yaw), y + distance * np.sin(yaw)]
+    crowd.goals[:] = crowd.positions
+    crowd.preferred[:] = 0.0
+    for _ in range(2):
+        ep.step()
+    return ep, crowd.positions[0].copy()
+
+
+def test_a_person_the_robot_sees_is_no_wall_in_its_map_but_an_obstacle_in_its_costmap():
+    ep, person = _episode_with_a_person_ahead(1.5)
+    grid = ep.mapper.grid
+    assert list(ep.bodies.seen[0]) == [0] and ep.bodies.people_returns > 0
+    r, c = grid.world_to_cell(person[None])[0]
+    assert not grid.occupied[r - 6:r + 7, c - 6:c + 7].any()  # No wall within 0.3 m.
+    costmap = ep.agents[0]._costmap
+    assert r * grid.shape[1] + c in set(costmap.body_cells.tolist())
+    assert costmap.cost[r * grid.shape[1] + c] < 0  # Not traversable.
+
+
+def test_a_walking_crowd_leaves_no_phantom_walls_in_the_map():
+    """Every occupied cell of the robot's map lies on or beside a ground-truth wall."""
+    from mjexplore.episode import Episode, EpisodeConfig
+    from mjexplore.explorers import make_explorer
+    from mjexplore.sim.simulator import SimConfig
+
+    config = EpisodeConfig(max_time=60.0, sim=SimConfig(dynamics="kinematic",
+                                                        people=PeopleConfig(count=10)))
+    ep = Episode(resolve_scene("office"), make_explorer("nearest"), 1, config)
+    ep.run()
+    assert ep.bodies.people_returns > 0  # People were seen.
+    gt, grid = ep.scene.ground_truth, ep.mapper.grid
+    walls = gt.occupied
+    near = np.zeros_like(walls)
+    rows, cols = walls.shape
+    for dr in range(-2, 3):  # Within two cells (0.1 m) of a wall.
+        for dc in range(-2, 3):
+            near[max(dr, 0):rows + min(dr, 0), max(dc, 0):cols + min(dc, 0)] |= \
+                walls[max(-dr, 0):rows + min(-dr, 0), max(-dc, 0):cols + min(-dc, 0)]
+    assert grid.occupied[~near].sum() == 0

@@ -12,8 +12,8 @@ from mjexplore.episode.team import TeamConfig
 from mjexplore.errors import UserInputError
 from mjexplore.mapping.occupancy import OccupancyMapper
 from mjexplore.maps import FREE, OCCUPIED, GridMap
+from mjexplore.navigation.bodies import BodyCostmap
 from mjexplore.navigation.planner import Costmap
-from mjexplore.navigation.teammates import TeamCostmap
 from mjexplore.scenes.generate import generate_scene
 from mjexplore.scenes.importer import scene_from_grid
 from mjexplore.scenes.scene import load_scene_files, write_scene
@@ -72,19 +72,19 @@ def test_team_costmap_blocks_teammates_and_restores():
     grid = GridMap(data, RES)
     d2 = np.full(grid.shape, 1e6)
     plain = Costmap(grid, d2)
-    team = TeamCostmap(grid, d2, teammate_radius=0.5)
+    team = BodyCostmap(grid, d2, teammate_radius=0.5)
     np.testing.assert_array_equal(team.cost, plain.cost)
-    team.set_teammates(np.array([[2.5, 1.5]]))
+    team.set_bodies(np.array([[2.5, 1.5]]))
     blocked = team.cost.reshape(grid.shape) < 0
     r, c = grid.world_to_cell(np.array([2.5, 1.5]))
     assert blocked[r, c] and blocked[r, c + 9] and not blocked[r, c + 11]
     v = team.version
-    team.set_teammates(np.array([[4.0, 1.5]]))  # Moved: the old cells are free again.
+    team.set_bodies(np.array([[4.0, 1.5]]))  # Moved: the old cells are free again.
     assert team.version > v
     assert team.cost.reshape(grid.shape)[r, c] == plain.cost.reshape(grid.shape)[r, c]
     team.update(None)  # A map update keeps the teammates in.
-    assert (team.cost[team.teammate_cells] < 0).all()
-    team.set_teammates(np.zeros((0, 2)))
+    assert (team.cost[team.body_cells] < 0).all()
+    team.set_bodies(np.zeros((0, 2)))
     np.testing.assert_array_equal(team.cost, plain.cost)
 
 
@@ -98,18 +98,18 @@ def test_blocked_by_teammates_tells_a_closed_door_from_a_crowded_one():
 
     gvd = DynamicGVD(grid.shape)
     gvd.update(grid.occupied, grid.known)
-    team = TeamCostmap(grid, gvd.distance2, teammate_radius=0.5)
+    team = BodyCostmap(grid, gvd.distance2, teammate_radius=0.5)
     start, goal = np.array([1.0, 1.5]), np.array([4.0, 1.5])
     assert team.plan(start, goal, 0.3) is None
-    team.set_teammates(np.array([[2.0, 1.5]]))
-    assert not team.blocked_by_teammates(start, goal, 0.3)  # Closed without them too.
+    team.set_bodies(np.array([[2.0, 1.5]]))
+    assert not team.blocked_by_bodies(start, goal, 0.3)  # Closed without them too.
     data[20:40, 48:52] = FREE  # A 1 m door: open, but the teammate stands in it.
     gvd.update(grid.occupied, grid.known)
     team.update(None)
-    team.set_teammates(np.array([[2.5, 1.5]]))
+    team.set_bodies(np.array([[2.5, 1.5]]))
     cost = team.cost.copy()
     assert team.plan(start, goal, 0.3) is None
-    assert team.blocked_by_teammates(start, goal, 0.3)
+    assert team.blocked_by_bodies(start, goal, 0.3)
     np.testing.assert_array_equal(team.cost, cost)  # Teammates back in.
 
 
@@ -193,7 +193,7 @@ def test_teammates_are_not_mapped_as_walls(dumbbell):
     episode = Episode(dumbbell, [NearestFrontier(), NearestFrontier()], 0, _config(),
                           starts=starts)
     raw = episode.world.robots[0].latest_scan
-    masked = episode.team.mask(0, raw, episode._body_centres())
+    masked = episode.bodies.mask(0, raw, episode._body_centres())
     # The beams whose return came from robot 1's silhouette (the lidar's last cast).
     lidar = episode.world.robots[0].lidar
     teammate = lidar._geomid == lidar._silhouettes[0]

@@ -5,9 +5,10 @@ world, alone or in a team; the map, the end rules and the metrics are the episod
 agent asks its explorer for goals, adopts them, drives to them and gives them up (no path,
 no progress, lingering, standing at a frontier that stays open); when its explorer has
 nothing left it falls back to the nearest reachable frontier, offering given-up goals
-again. What only a teammate does is here too, inert for a robot alone: waiting while
-only teammates keep a goal out of reach, standing idle with nothing to explore, stopping
-for good after lingering, and driving aside for another robot (:mod:`mjexplore.episode.team`).
+again. What only a robot among moving bodies or a teammate does is here too, inert for a
+robot alone: waiting while only teammates or people keep a goal out of reach
+(:mod:`mjexplore.episode.bodies`), standing idle with nothing to explore, stopping for good
+after lingering, and driving aside for another robot (:mod:`mjexplore.episode.team`).
 """
 
 from __future__ import annotations
@@ -25,9 +26,9 @@ from mjexplore.mapping.localization import FusedLocalizer, LocalizerConfig
 from mjexplore.mapping.occupancy import OccupancyMapper
 from mjexplore.mapping.scan_matching import ScanMatchingLocalizer, deskew_scan
 from mjexplore.navigation.blacklist import GoalBlacklist
+from mjexplore.navigation.bodies import BodyCostmap
 from mjexplore.navigation.navigator import Navigator, NavStatus
 from mjexplore.navigation.planner import Costmap
-from mjexplore.navigation.teammates import TeamCostmap
 from mjexplore.sim.motion import BODY_RADIUS
 from mjexplore.sim.odometry import compose_pose
 from mjexplore.topology.frontiers import frontier_mask
@@ -80,7 +81,7 @@ class RobotAgent:
         self.idle_until: float | None = None  # Next retry, while it finds nothing to do.
         self.idle_since = 0.0
         self.idle_time = 0.0
-        self.waiting_since: float | None = None  # Set while teammates block its goal.
+        self.waiting_since: float | None = None  # Set while bodies block its goal.
         self._retry_at = 0.0
         self.waits = 0
         self.wait_time = 0.0
@@ -91,29 +92,36 @@ class RobotAgent:
     def use_map(self, mapper: OccupancyMapper, tracker: TopologyTracker,
                 counter: KnownCounter) -> None:
         """Plans on ``mapper``'s map (with ``tracker``'s GVD and frontiers) from now on: a
-        costmap of its own over it, with the teammates' bodies in it in a team."""
+        costmap of its own over it, with the moving bodies it knows in it (teammates,
+        people)."""
         self.mapper = mapper
         self.tracker = tracker
         self.counter = counter
         cfg = self.config
-        team = self.episode.team
+        team, crowd = self.episode.team, self.episode.crowd
         knows_truth = getattr(self.explorer, "plans_on_ground_truth", False)
-        if team is None:
+        # A robot alone plans on the map; among moving bodies on the map with them in it. An
+        # explorer that knows the ground truth also navigates on it (alone or among people:
+        # without them in it; in a team: with the teammates in it).
+        if team is None and (crowd is None or knows_truth):
             self._costmap: Costmap = Costmap(mapper.grid, tracker.gvd.distance2, cfg.planner)
-            if knows_truth:  # An explorer that knows the ground truth also navigates on it.
+            if knows_truth:
                 gt = self.scene.ground_truth
                 assert gt is not None  # The episode checked the scene.
                 self._static_costmap = cast(Any, self.explorer).ground_truth_costmap(
                     ExplorationState(gt, self.sim.pose, 0.0, [], self._costmap,
                                      np.zeros((0, 2)), ground_truth=gt))
             return
-        radius = BODY_RADIUS + cfg.planner.lethal_radius + team.config.teammate_margin
+        margin = cfg.planner.lethal_radius + self.episode.team_config.teammate_margin
+        radii = {"teammate_radius": BODY_RADIUS + margin,
+                 "person_radius": margin + (0.0 if crowd is None else crowd.config.radius)}
         if knows_truth:  # The team oracle: the ground truth, with the teammates in it.
-            gt = self.scene.ground_truth
-            assert gt is not None  # The episode checked the scene.
-            self._costmap = TeamCostmap(gt, team.ground_truth_distance2(), cfg.planner, radius)
+            assert team is not None and self.scene.ground_truth is not None
+            self._costmap = BodyCostmap(self.scene.ground_truth, team.ground_truth_distance2(),
+                                        cfg.planner, **radii)
         else:
-            self._costmap = TeamCostmap(mapper.grid, tracker.gvd.distance2, cfg.planner, radius)
+            self._costmap = BodyCostmap(mapper.grid, tracker.gvd.distance2, cfg.planner,
+                                        **radii)
 
     def _start_deciding(self) -> None:
         """The decision and navigation state of a fresh episode: no goal, no blacklist, no
@@ -148,7 +156,7 @@ class RobotAgent:
 
     @property
     def waiting(self) -> bool:
-        """Whether teammates keep the robot's goal out of reach (it waits for them)."""
+        """Whether teammates or people keep the robot's goal out of reach (it waits)."""
         return self.waiting_since is not None
 
     @property
@@ -272,22 +280,23 @@ class RobotAgent:
         return True
 
     def give_up(self, reason: str) -> None:
-        """Blacklists the current goal for ``reason`` and asks for a new one; in a team, a
-        goal that only the teammates keep out of reach is waited for (``wait_timeout``)
-        before it is given up."""
+        """Blacklists the current goal for ``reason`` and asks for a new one; a goal that
+        only moving bodies (teammates, people) keep out of reach is waited for
+        (``wait_timeout``) before it is given up."""
         assert self.goal is not None  # Given up only once adopted.
-        team = self.episode.team
-        if team is not None and reason == "no_path" and self._yield_goal is None and \
-                cast(TeamCostmap, self._costmap).blocked_by_teammates(
+        costmap = self._costmap
+        if isinstance(costmap, BodyCostmap) and reason == "no_path" and \
+                self._yield_goal is None and costmap.blocked_by_bodies(
                     self.pose[:2], self.goal, self.config.navigator.goal_tolerance):
             t = self.sim.time
+            tc = self.episode.team_config
             if self.waiting_since is None:
                 self.waiting_since = t
                 self.waits += 1
-            if t - self.waiting_since < team.config.wait_timeout:
+            if t - self.waiting_since < tc.wait_timeout:
                 self.navigator.status = NavStatus.NO_PATH
                 self._decision_due = True
-                self._retry_at = t + team.config.retry_period
+                self._retry_at = t + tc.retry_period
                 return
         self.end_wait(self.sim.time)
         self.blacklist.add(self.goal, reason, self.mapper.grid)
@@ -295,7 +304,7 @@ class RobotAgent:
         self._decision_due = True
 
     def end_wait(self, t: float) -> None:
-        """Stops waiting for teammates (if it was), counting the time waited."""
+        """Stops waiting for moving bodies (if it was), counting the time waited."""
         if self.waiting_since is not None:
             self.wait_time += t - self.waiting_since
             self.waiting_since = None
@@ -412,6 +421,16 @@ class RobotAgent:
         self.retired = reason
         self.navigator.status = NavStatus.IDLE
         self.goal = None
+
+    def frontiers_behind_bodies(self) -> bool:
+        """Whether a frontier that no path reaches now would be reached without the moving
+        bodies in the costmap: a way that opens when they move on."""
+        costmap = self._costmap
+        if not isinstance(costmap, BodyCostmap) or not len(costmap.body_cells):
+            return False
+        frontiers = self.decision_state().frontiers
+        return bool(frontiers) and costmap.reachable_without_bodies(
+            self.pose[:2], np.array([f.goal for f in frontiers]))
 
     def idle(self, t: float, resumed: bool, retry: float) -> None:
         """Stands the robot idle (nothing to explore) until ``t + retry``."""

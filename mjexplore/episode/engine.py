@@ -39,6 +39,7 @@ from typing import Any, cast
 import numpy as np
 
 from mjexplore.episode.agent import RobotAgent
+from mjexplore.episode.bodies import MovingBodies
 from mjexplore.episode.explorer import ExplorationState, Explorer
 from mjexplore.episode.merging import MapMerging
 from mjexplore.episode.metrics import (
@@ -223,8 +224,8 @@ class Episode:
         gt = scene.ground_truth
         n = len(explorers)
         first = self._jittered_start(scene, gt, np.random.default_rng(seed))
+        tc = self.team_config = team_config or TeamConfig()
         if n > 1:
-            tc = team_config or TeamConfig()
             if tc.unknown_starts and cfg.localization != "ground_truth":
                 raise UserInputError("unknown starts are merged on ground-truth poses: use "
                                      "--localization ground_truth with --unknown-starts.")
@@ -253,6 +254,7 @@ class Episode:
             self.world = make_world(scene, sim_cfg, starts)
             robots = list(self.world.robots)
         self.sim = self.world
+        self.crowd = getattr(self.world, "crowd", None)
         self.mapper = OccupancyMapper.like(gt, MapperConfig(resolution=gt.resolution))
         # Without ground-truth localisation the robots map where they believe they are, and
         # a second mapper maps the same scans where they were taken: what was really seen.
@@ -273,6 +275,8 @@ class Episode:
                        for i, (robot, e) in enumerate(zip(robots, explorers))]
         if self.team is not None:
             self.team.agents = self.agents
+        self.bodies = None if self.team is None and self.crowd is None else \
+            MovingBodies(self.agents, self.crowd, tc.mask_teammates)
         self.end_reason: str | None = None
         for i, robot in enumerate(robots):
             self._integrate(i, robot.latest_scan)
@@ -369,10 +373,10 @@ class Episode:
     def _body_centres(self) -> np.ndarray:
         return np.array([r.body_centre for r in self.world.robots])
 
-    def set_teammates(self) -> None:
-        """Puts each team robot's teammates into its costmap where they stand now."""
-        if self.team is not None:
-            self.team.set_teammates(self._body_centres())
+    def set_bodies(self) -> None:
+        """Puts the moving bodies each robot knows into its costmap where they stand now."""
+        if self.bodies is not None:
+            self.bodies.set_costmaps(self._body_centres())
 
     def observe(self, mapper: OccupancyMapper, tracker: TopologyTracker,
                 changed: np.ndarray) -> None:
@@ -393,11 +397,12 @@ class Episode:
         agent = self.agents[index]
         team, merging = self.team, self.merging
         # What was seen: every beam from where it was really cast (the LDS-01's are spread
-        # over its rotation), less the returns from teammates.
+        # over its rotation), less the returns from teammates and people.
         true_scan = agent.deskewed(scan, slice(5, 8))
         logged = scan
+        if self.bodies is not None:
+            true_scan = logged = self.bodies.mask(index, true_scan, self._body_centres())
         if team is not None:
-            true_scan = logged = team.mask(index, true_scan, self._body_centres())
             own_changed = team.cover(index, true_scan)
         ratio = 0.0
         if merging is not None and not merging.merged[index]:
@@ -410,7 +415,7 @@ class Episode:
             if agent.localizer is not None:
                 seen = self._seen.integrate(true_scan)
                 logged, sensor_pose = agent.localize(scan)
-                if team is not None:  # The teammates' returns are left out as seen.
+                if self.bodies is not None:  # The bodies' returns are left out as seen.
                     logged = dataclasses.replace(logged, ranges=np.where(
                         np.isnan(true_scan.ranges), np.nan, logged.ranges))
                 changed = self.mapper.integrate(logged, sensor_pose)
@@ -483,7 +488,8 @@ class Episode:
             if self._decision_scan(agent):
                 return
             if not agent.decide():
-                agent.idle(t, resumed, self.team.config.idle_retry if self.team else math.inf)
+                among = self.team is not None or self.crowd is not None
+                agent.idle(t, resumed, self.team_config.idle_retry if among else math.inf)
                 return
         if resumed:
             agent.idle_time += t - agent.idle_since
@@ -494,18 +500,23 @@ class Episode:
         team's asked once more now) or has retired."""
         if any(a.active for a in self.agents) or all(a.retired for a in self.agents):
             return False
-        if self.team is not None:
+        if self.team is not None or self.crowd is not None:
             for a in self.agents:
                 if a.retired is None:
                     a.idle_until = self.time  # Due now: ask again.
                     self._decide(a)
+        if self.crowd is not None and any(  # People in the way will move on: wait for them.
+                a.retired is None and a.idle_until is not None and
+                self.time - a.idle_since < self.team_config.wait_timeout and
+                a.frontiers_behind_bodies() for a in self.agents):
+            return False
         return not any(a.active for a in self.agents)
 
     def step(self) -> bool:
         """One control period for every robot; False once the episode has ended."""
         if self._check_end() or self._retire_lingerers():
             return False
-        self.set_teammates()
+        self.set_bodies()
         for a in self.agents:
             if a.retired is None:
                 self._decide(a)

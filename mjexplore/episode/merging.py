@@ -200,7 +200,7 @@ class MapMerging:
         agent.use_map(mapper, episode.tracker, episode.counter)
         episode.observe(mapper, episode.tracker, cells)
         ratio = episode.counter.update(mapper.state, cells, mapper.grid.shape[1])
-        episode.set_teammates()
+        episode.set_bodies()
         # Its plans were on its own map: it decides anew on the team's.
         agent.goal = None
         agent.navigator.status = NavStatus.IDLE

@@ -213,7 +213,7 @@ def team_result(episode: Any) -> TeamEpisodeResult:
         "decisions": sum(len(a.goals) for a in team.agents),
         "waits": sum(a.waits for a in team.agents),
         "yields": sum(a.yields for a in team.agents),
-        "masked_returns": team.masked_returns,
+        "masked_returns": episode.bodies.masked_returns,
         "localization": episode.config.localization,
         "per_robot": per_robot,
     }

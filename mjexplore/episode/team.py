@@ -1,22 +1,18 @@
-"""What only a team needs: teammates in the costmaps and the scans, waiting, yielding, idling.
+"""What only a team needs: coverage per robot, yielding, idling.
 
 An :class:`~mjexplore.episode.engine.Episode` with N > 1 robots runs this part beside its
 robots (:class:`~mjexplore.episode.agent.RobotAgent`); one robot never does. The robots
-share one occupancy map, one GVD and one set of frontiers; each plans on a costmap of its
-own in which its teammates' bodies are obstacles (:class:`~mjexplore.navigation.teammates.
-TeamCostmap`, set anew every control period). Goal coordination is the explorers'
+share one occupancy map, one GVD and one set of frontiers; teammates are moving bodies to
+each other (:mod:`mjexplore.episode.bodies`: left out of the scans, obstacles in each
+robot's costmap, waited for). Goal coordination is the explorers'
 (:mod:`mjexplore.explorers.team`): they read the team at each decision in
 ``state.extras['team']`` (a :class:`TeamView`).
 
-Teammates in the way. A robot whose goal no path reaches while one would without the
-teammates *waits*: it stands, asks its explorer again every ``retry_period`` seconds (it
-may choose another goal), and gives the goal up (as unreachable, to be offered again later)
-only after ``wait_timeout`` seconds. When two robots block each other (each waiting on
-the other, or touching), the one with the higher index yields: it drives to the reachable
-place, ``yield_distance`` metres or so away, farthest from the other robot, then explores
-on; a robot that stands still for good (idle, with nothing to explore, or retired) yields to
-any robot it blocks. Returns of the lidar that come from teammates (their true poses) are
-not mapped, so robots do not leave trails of phantom walls in the shared map.
+Teammates in the way. When two robots block each other (each waiting on the other, or
+touching), the one with the higher index yields: it drives to the reachable place,
+``yield_distance`` metres or so away, farthest from the other robot, then explores on; a
+robot that stands still for good (idle, with nothing to explore, or retired) yields to any
+robot it blocks.
 
 The end of exploration holds for the team: a robot that finds no reachable frontier stands
 idle and asks again every ``idle_retry`` seconds, and the episode ends (``no_frontiers``)
@@ -39,9 +35,8 @@ from mjexplore.mapping.map_merging import MapMergeConfig
 from mjexplore.mapping.occupancy import MapperConfig, OccupancyMapper
 from mjexplore.mapping.scan_matching import ScanMatcherConfig
 from mjexplore.maps import GridMap
-from mjexplore.navigation.teammates import TeamCostmap
+from mjexplore.navigation.bodies import BodyCostmap
 from mjexplore.sim.lidar import LaserScan
-from mjexplore.sim.motion import BODY_RADIUS
 from mjexplore.topology.gvd import DynamicGVD
 
 
@@ -52,8 +47,8 @@ class TeamConfig:
     Attributes:
         teammate_margin: Clearance kept from a teammate's body beyond the footprints: cells
             within its bounding circle + the planner's lethal radius + this are untraversable.
-        wait_timeout: A robot waits this long for teammates to clear its way before it
-            gives the goal up.
+        wait_timeout: A robot waits this long for teammates or people to clear its way
+            before it gives the goal up.
         retry_period: A waiting robot asks its explorer again this often.
         idle_retry: A robot with no reachable frontier asks again this often.
         yield_distance: How far a yielding robot moves out of the way (path length).
@@ -117,7 +112,7 @@ class TeamView:
     index: int
     poses: np.ndarray
     goals: list[np.ndarray | None]
-    costmaps: list[TeamCostmap]
+    costmaps: list[BodyCostmap]
     active: np.ndarray
 
     @property
@@ -147,7 +142,6 @@ class Team:
         self.own_curves: list[list[tuple[float, float]]] = [[] for _ in range(n)]
         self.agents: list[RobotAgent] = []  # Set by the episode once built.
         self.members = [True] * n  # Who shares the team's map (unknown starts: merged).
-        self.masked_returns = 0
         self._gt_distance2: np.ndarray | None = None
 
     def ground_truth_distance2(self) -> np.ndarray:
@@ -170,35 +164,6 @@ class Team:
                         [None if a.goal is None else a.goal.copy() for a in members],
                         [a._costmap for a in members],  # type: ignore[misc]
                         np.array([a.active for a in members]))
-
-    def set_teammates(self, centres: np.ndarray) -> None:
-        """Puts each robot's teammates (their body centres, (n, 2)) into its costmap."""
-        for a in self.agents:
-            costmap = a._costmap
-            assert isinstance(costmap, TeamCostmap)  # Every team robot plans on one.
-            costmap.set_teammates(np.delete(centres, a.index, axis=0))
-
-    def mask(self, index: int, scan: LaserScan, centres: np.ndarray) -> LaserScan:
-        """The scan with the returns from teammates (within their bounding circles plus
-        0.1 m of ``centres``, their true body centres now) made invalid (NaN)."""
-        others = np.delete(centres, index, axis=0)
-        if not len(others) or not self.config.mask_teammates:
-            return scan
-        x, y, yaw = scan.pose
-        ranges = scan.ranges
-        finite = np.isfinite(ranges)
-        a = scan.angles + yaw
-        ex = x + np.where(finite, ranges, 0.0) * np.cos(a)
-        ey = y + np.where(finite, ranges, 0.0) * np.sin(a)
-        hit = np.zeros(len(ranges), bool)
-        for ox, oy in others:
-            hit |= finite & (np.hypot(ex - ox, ey - oy) < BODY_RADIUS + 0.1)
-        if not hit.any():
-            return scan
-        self.masked_returns += int(hit.sum())
-        masked = ranges.copy()
-        masked[hit] = np.nan
-        return dataclasses.replace(scan, ranges=masked)
 
     def cover(self, index: int, scan: LaserScan) -> np.ndarray:
         """Maps ``scan`` into robot ``index``'s own coverage map; returns its changed cells
