@@ -19,6 +19,9 @@ multi-robot setups prefix their ``tf`` frames), beside the shared /tf, /map and 
     /goal        foxglove.PoseInFrame: each exploration goal in ``map``
     /kinematics  JSON (mjexplore.Kinematics): linear and angular velocity of base_link and
                  their accelerations (backward differences)
+    /people      foxglove.SceneUpdate: one upright cylinder entity per pedestrian (``person_I``)
+                 in ``map``, every ``people_period`` (10 Hz) of simulated time; only in a world
+                 with people (a run without them has no such channel)
 Log time and message timestamps are simulated time in nanoseconds since the episode start.
 """
 
@@ -42,6 +45,7 @@ from foxglove.channels import (
 )
 from foxglove.messages import (
     Color,
+    CylinderPrimitive,
     FrameTransform,
     FrameTransforms,
     Grid,
@@ -84,6 +88,11 @@ NODE_SIZE = 0.25  # Sphere diameter, metres.
 EDGE_WIDTH = 0.04  # Line width, metres.
 TER_HEIGHT = 0.2  # Height of the drawn TER above the floor, metres.
 _NODE_COLOURS = {flag: Color(r=r, g=g, b=b, a=a) for flag, (r, g, b, a) in NODE_RGBA.items()}
+PEOPLE_TOPIC = "/people"  # Written only when the world has people (not in TOPICS).
+PEOPLE_PERIOD = 0.1  # Simulated seconds between /people messages (10 Hz).
+PERSON_RGBA = (0.85, 0.55, 0.35, 1.0)  # A pedestrian, as its MuJoCo body is coloured.
+PERSON_ID = "person_{}"  # A pedestrian's entity (marker) id, as its MuJoCo body is named.
+_PERSON_COLOUR = Color(r=PERSON_RGBA[0], g=PERSON_RGBA[1], b=PERSON_RGBA[2], a=PERSON_RGBA[3])
 
 
 def robot_namespace(agent) -> str:
@@ -148,14 +157,19 @@ class EpisodeLogger:
     At each scan: :meth:`write_scan` (scan and frames), :meth:`write_map` every
     ``map_period`` seconds of simulated time (and the final map on :meth:`close` if newer),
     :meth:`write_kinematics` with the samples since the last scan. At each decision:
-    :meth:`write_goal` and :meth:`write_ter`.
+    :meth:`write_goal` and :meth:`write_ter`. In a world with people (its ``crowd``), at the
+    first scan or control period at or after each multiple of ``people_period`` seconds of
+    simulated time: :meth:`write_people`, stamped with the world's time (the crowd's).
 
     Args:
         map_period: Seconds of simulated time between maps.
+        people_period: Seconds of simulated time between the people's poses.
     """
 
-    def __init__(self, map_period: float = 1.0) -> None:
+    def __init__(self, map_period: float = 1.0, people_period: float = PEOPLE_PERIOD) -> None:
         self.map_period = map_period
+        self.people_period = people_period
+        self._next_people = 0.0
         self._next_map = 0.0
         self._map_logged = -math.inf  # Time of the last map written...
         # ...and (time, live map) at the last scan.
@@ -182,6 +196,7 @@ class EpisodeLogger:
             self.write_kinematics(np.column_stack(
                 [t[1:], v[1:], w[1:], np.diff(v) / dt, np.diff(w) / dt]), robot)
         self._last_kin[robot] = len(rows)
+        self._log_people(agent.episode.world)
 
     def on_decision(self, agent, state) -> None:
         t = agent.sim.time
@@ -194,7 +209,21 @@ class EpisodeLogger:
         self.write_ter(t, ter)
 
     def on_step(self, episode) -> None:
-        del episode
+        self._log_people(episode.world)
+
+    def _log_people(self, world) -> None:
+        """The people's poses now, if the world has people and they are due."""
+        crowd = getattr(world, "crowd", None)  # The grid world has none.
+        if crowd is None:
+            return
+        t = float(world.time)
+        if t < self._next_people - 1e-9:
+            return
+        # The next multiple of the period: the rate stays 1 / people_period over a long run.
+        self._next_people = (math.floor(t / self.people_period + 1e-6) + 1) * self.people_period
+        cfg = crowd.config
+        self.write_people(t, np.asarray(crowd.positions, float), float(cfg.radius),
+                          float(cfg.height))
 
     def close(self) -> None:
         """Writes the final map (if newer than the last one written) and finishes."""
@@ -224,6 +253,12 @@ class EpisodeLogger:
     def write_kinematics(self, rows: np.ndarray, robot: str = "") -> None:
         """Robot ``robot``'s samples (t s, v m/s, omega rad/s, dv/dt m/s^2, domega/dt
         rad/s^2), one a row."""
+        raise NotImplementedError
+
+    def write_people(self, t: float, positions: np.ndarray, radius: float,
+                     height: float) -> None:
+        """The people at ``t``: (n, 2) disc centres in ``map``, each an upright cylinder of
+        ``radius`` and ``height`` metres standing on the floor."""
         raise NotImplementedError
 
     def finish(self) -> None:
@@ -299,6 +334,8 @@ class FoxgloveEpisodeLog(EpisodeLogger):
         self.map = GridChannel("/map", context=ctx)
         self.ter = SceneUpdateChannel("/ter", context=ctx)
         self._robots: dict[str, _RobotChannels] = {"": _RobotChannels("", ctx)}
+        # Made on the first people's message: a run without people has no such channel.
+        self.people: SceneUpdateChannel | None = None
 
     def robot(self, name: str) -> _RobotChannels:
         """The channels of the robot namespaced ``name`` (made on its first message)."""
@@ -375,6 +412,21 @@ class FoxgloveEpisodeLog(EpisodeLogger):
         self.ter.log(SceneUpdate(entities=[SceneEntity(
             timestamp=_stamp(t), frame_id="map", id="ter", spheres=spheres, lines=lines)]),
             log_time=sim_ns(t))
+
+    def write_people(self, t: float, positions: np.ndarray, radius: float,
+                     height: float) -> None:
+        if self.people is None:
+            self.people = SceneUpdateChannel(PEOPLE_TOPIC, context=self.context)
+        if not self.people.has_sinks():
+            return
+        stamp = _stamp(t)
+        size = Vector3(x=2 * radius, y=2 * radius, z=height)
+        self.people.log(SceneUpdate(entities=[SceneEntity(
+            timestamp=stamp, frame_id="map", id=PERSON_ID.format(i),
+            cylinders=[CylinderPrimitive(pose=_pose(x, y, 0.0, height / 2), size=size,
+                                         bottom_scale=1.0, top_scale=1.0,
+                                         color=_PERSON_COLOUR)])
+            for i, (x, y) in enumerate(positions.tolist())]), log_time=sim_ns(t))
 
     def finish(self) -> None:
         """Finishes the MCAP file and moves it into place."""

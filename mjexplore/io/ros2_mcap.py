@@ -15,6 +15,10 @@ Topics (REP-105 frames ``map``, ``odom``, ``base_link``, ``base_scan``):
     /kinematics/velocity      geometry_msgs/msg/TwistStamped in ``base_link`` (every sample)
     /kinematics/acceleration  geometry_msgs/msg/AccelStamped in ``base_link`` (backward
                               differences)
+    /people                   visualization_msgs/msg/MarkerArray: one cylinder marker per
+                              pedestrian (ns ``people``, id I) in ``map``, every
+                              ``people_period`` (10 Hz); only in a world with people (a run
+                              without them has no such channel)
 Header stamps and log times are simulated time since the episode start. The messages are
 those of :mod:`mjexplore.io.mcap_log` (same frames, same map times), in ROS 2 types; the
 message definitions are ROS 2 Humble's and later's.
@@ -26,6 +30,7 @@ import os
 import re
 import struct
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from mcap.well_known import MessageEncoding, Profile, SchemaEncoding
@@ -42,6 +47,8 @@ from mjexplore.io.mcap_log import (
     EDGE_WIDTH,
     NODE_RGBA,
     NODE_SIZE,
+    PEOPLE_TOPIC,
+    PERSON_RGBA,
     SCAN_OFFSET,
     TER_HEIGHT,
     EpisodeLogger,
@@ -107,8 +114,9 @@ TOPICS = {
     "/kinematics/velocity": "geometry_msgs/msg/TwistStamped",
     "/kinematics/acceleration": "geometry_msgs/msg/AccelStamped",
 }
+PEOPLE_TYPE = "visualization_msgs/msg/MarkerArray"  # /people's, registered on its first.
 # visualization_msgs/Marker types and actions.
-SPHERE_LIST, LINE_LIST, ADD, DELETE = 7, 5, 0, 2
+SPHERE_LIST, LINE_LIST, CYLINDER, ADD, DELETE = 7, 5, 3, 0, 2
 _SEPARATOR = "=" * 80
 
 
@@ -185,20 +193,25 @@ class Ros2EpisodeLog(EpisodeLogger):
         self._file = open(self._tmp, "wb")
         self.writer = Writer(self._file)
         self.writer.start(profile=Profile.ROS2, library=f"mjexplore {mjexplore.__version__}")
-        self._channels = {}
-        schemas = {}
+        # Topic -> (channel id, encoder); datatype -> (schema id, encoder).
+        self._channels: dict[str, tuple[int, Any]] = {}
+        self._schemas: dict[str, tuple[int, Any]] = {}
         for topic, datatype in TOPICS.items():
-            if datatype not in schemas:
-                text = schema_text(datatype)
-                schemas[datatype] = (
-                    self.writer.register_schema(datatype, SchemaEncoding.ROS2, text.encode()),
-                    serialize_dynamic(datatype, text)[datatype])
-            schema_id, encode = schemas[datatype]
-            self._channels[topic] = (self.writer.register_channel(
-                topic, MessageEncoding.CDR, schema_id), encode)
+            self._register(topic, datatype)
         sx, sy, sz = SCAN_OFFSET
         self._write("/tf_static", 0.0, {"transforms": [
             _transform(0.0, "base_link", "base_scan", sx, sy, 0.0, sz)]})
+
+    def _register(self, topic: str, datatype: str) -> None:
+        """Registers ``topic`` (and ``datatype``'s schema, the first time)."""
+        if datatype not in self._schemas:
+            text = schema_text(datatype)
+            self._schemas[datatype] = (
+                self.writer.register_schema(datatype, SchemaEncoding.ROS2, text.encode()),
+                serialize_dynamic(datatype, text)[datatype])
+        schema_id, encode = self._schemas[datatype]
+        self._channels[topic] = (self.writer.register_channel(
+            topic, MessageEncoding.CDR, schema_id), encode)
 
     def _write(self, topic: str, t: float, message: dict, data: bytes | None = None) -> None:
         """Writes ``message`` at simulated time ``t``; ``data``: the bytes of its last field
@@ -263,6 +276,18 @@ class Ros2EpisodeLog(EpisodeLogger):
             {"header": header, "ns": "ter", "id": 1, "type": LINE_LIST,
              "action": ADD if edges else DELETE, "pose": _pose(0, 0, 0),
              "scale": _xyz(EDGE_WIDTH, 0, 0), "color": _rgba(EDGE_RGBA), "points": edges}]})
+
+    def write_people(self, t: float, positions: np.ndarray, radius: float,
+                     height: float) -> None:
+        if PEOPLE_TOPIC not in self._channels:  # A run without people has no such channel.
+            self._register(PEOPLE_TOPIC, PEOPLE_TYPE)
+        header = _header(t, "map")
+        scale = _xyz(2 * radius, 2 * radius, height)
+        self._write(PEOPLE_TOPIC, t, {"markers": [
+            {"header": header, "ns": "people", "id": i, "type": CYLINDER, "action": ADD,
+             "pose": _pose(x, y, 0.0, height / 2), "scale": scale,
+             "color": _rgba(PERSON_RGBA)}
+            for i, (x, y) in enumerate(positions.tolist())]})
 
     def finish(self) -> None:
         """Finishes the MCAP file and moves it into place."""

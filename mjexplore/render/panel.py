@@ -24,6 +24,8 @@ GOAL = (230, 30, 30)
 EDGE = (240, 150, 30)
 ROBOT = (20, 200, 20)
 OTHER_NODE = (200, 40, 40)
+PERSON = (217, 140, 89)  # A pedestrian's disc: the colour of its body in the 3D view.
+PERSON_OUTLINE = (110, 60, 25)
 # A team's other robots (robot 1, 2, ...): body, trajectory and path in one hue each.
 TEAMMATE_COLOURS = ((230, 120, 20), (160, 60, 200), (20, 170, 190), (200, 60, 130),
                     (140, 110, 60), (90, 90, 230), (180, 180, 30))
@@ -63,6 +65,10 @@ class PanelContent:
         text: Lines written at the top left.
         teammates: A team's other robots, each in a colour of its own
             (``TEAMMATE_COLOURS``); the fields above are robot 0's.
+        people: (n, 2) pedestrians' true positions (filled discs of ``people_radius``
+            metres in ``PERSON``, over the map and the paths, under the goals and the
+            robots), or None.
+        people_radius: A pedestrian's radius, metres.
     """
 
     grid: GridMap
@@ -78,6 +84,8 @@ class PanelContent:
     pose: np.ndarray | None = None
     text: tuple[str, ...] = ()
     teammates: tuple[RobotOverlay, ...] = ()
+    people: np.ndarray | None = None
+    people_radius: float = 0.25
 
 
 class PanelLayout:
@@ -123,6 +131,17 @@ def _robot_marker(img, layout: PanelLayout, pose, size: float, colour) -> None:
     cv2.fillPoly(img, [layout.to_pixels(tri)], colour, cv2.LINE_AA)
 
 
+def _people(img, layout: PanelLayout, xy, radius: float) -> None:
+    """Filled discs of ``radius`` metres (at least 2 pixels) at ``xy`` (k, 2), outlined
+    where the discs are large enough to hold an outline."""
+    r = max(2, int(round(radius / layout.grid.resolution * layout.scale)))
+    for p in layout.to_pixels(xy):
+        centre = (int(p[0]), int(p[1]))
+        cv2.circle(img, centre, r, PERSON, -1, cv2.LINE_AA)
+        if r >= 4:
+            cv2.circle(img, centre, r, PERSON_OUTLINE, 1, cv2.LINE_AA)
+
+
 def render_panel(content: PanelContent, width: int, height: int) -> np.ndarray:
     """The panel image (height, width, 3) RGB uint8."""
     img = np.empty((height, width, 3), np.uint8)
@@ -158,6 +177,8 @@ def render_panel(content: PanelContent, width: int, height: int) -> np.ndarray:
             colour = ROBOT if f == 0 else (EDGE if f == 1 else OTHER_NODE)
             cv2.circle(img, tuple(map(int, p)), radius, colour, -1, cv2.LINE_AA)
     _polyline(img, layout, content.path, PATH, thick)
+    if content.people is not None and len(content.people):
+        _people(img, layout, content.people, content.people_radius)
     if content.goal is not None:
         g = tuple(map(int, layout.to_pixels(content.goal)[0]))
         cv2.drawMarker(img, g, GOAL, cv2.MARKER_STAR, max(10, 6 * thick), 2)

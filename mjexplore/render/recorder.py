@@ -73,7 +73,8 @@ def encode_png_rgb(img: np.ndarray) -> bytes:
 def episode_panel(episode, width: int, height: int, ter=None, frontiers=None,
                   gains=None, title: str = "") -> np.ndarray:
     """The 2D panel of an episode's current state: the map, robot 0's goal, path and
-    trajectory, and a team's other robots in colours of their own."""
+    trajectory, a team's other robots in colours of their own, and the people (if the
+    world has any) where they are."""
     lead, *others = episode.agents
     ratio = episode.curve[-1][1] if episode.curve else 0.0
     text = tuple(t for t in (title, f"t = {episode.time:7.1f} s (simulated)",
@@ -82,6 +83,7 @@ def episode_panel(episode, width: int, height: int, ter=None, frontiers=None,
     def planned(agent) -> np.ndarray | None:
         return agent.navigator.path if agent.navigator.status.value == "active" else None
 
+    crowd = getattr(episode.world, "crowd", None)  # The grid world has none.
     content = PanelContent(
         grid=episode.mapper.grid,
         gvd_segments=gvd_segments(episode.tracker.graph(episode.mapper.grid),
@@ -93,7 +95,10 @@ def episode_panel(episode, width: int, height: int, ter=None, frontiers=None,
         frontier_gains=gains, goal=lead.goal, path=planned(lead),
         trajectory=lead.sim.kinematics_rows[:, 5:7], pose=lead.sim.pose, text=text,
         teammates=tuple(RobotOverlay(a.sim.pose, a.sim.kinematics_rows[:, 5:7], a.goal,
-                                     planned(a)) for a in others))
+                                     planned(a)) for a in others),
+        people=None if crowd is None else np.array(crowd.positions, float),
+        people_radius=PanelContent.people_radius if crowd is None else
+        float(crowd.config.radius))
     return render_panel(content, width, height)
 
 
