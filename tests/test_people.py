@@ -189,16 +189,15 @@ def test_a_person_the_robot_sees_is_no_wall_in_its_map_but_an_obstacle_in_its_co
 
 
 def test_a_walking_crowd_leaves_no_phantom_walls_in_the_map():
-    """Every occupied cell of the robot's map lies on or beside a ground-truth wall."""
+    """Every occupied cell of the robot's map lies on or beside a ground-truth wall, all
+    the way through (mapping the people's returns leaves ~25 phantom wall cells here)."""
     from mjexplore.episode import Episode, EpisodeConfig
     from mjexplore.explorers import make_explorer
     from mjexplore.sim.simulator import SimConfig
 
     config = EpisodeConfig(max_time=60.0, sim=SimConfig(dynamics="kinematic",
-                                                        people=PeopleConfig(count=10)))
+                                                        people=PeopleConfig(count=20)))
     ep = Episode(resolve_scene("office"), make_explorer("nearest"), 1, config)
-    ep.run()
-    assert ep.bodies.people_returns > 0  # People were seen.
     gt, grid = ep.scene.ground_truth, ep.mapper.grid
     walls = gt.occupied
     near = np.zeros_like(walls)
@@ -207,4 +206,35 @@ def test_a_walking_crowd_leaves_no_phantom_walls_in_the_map():
         for dc in range(-2, 3):
             near[max(dr, 0):rows + min(dr, 0), max(dc, 0):cols + min(dc, 0)] |= \
                 walls[max(-dr, 0):rows + min(-dr, 0), max(-dc, 0):cols + min(-dc, 0)]
-    assert grid.occupied[~near].sum() == 0
+    phantom = 0
+    while ep.step():
+        phantom = max(phantom, int(grid.occupied[~near].sum()))
+    assert ep.bodies.people_returns > 0  # People were seen.
+    assert phantom == 0
+
+
+def test_a_person_in_a_doorway_is_waited_for_not_taken_for_a_wall():
+    """In a costmap, a person standing in the only door blocks the way; the way is known
+    to open without the person (the robot waits, the frontier behind is not given up)."""
+    from mjexplore.maps import FREE, OCCUPIED, GridMap
+    from mjexplore.navigation.bodies import BodyCostmap
+    from mjexplore.topology.gvd import DynamicGVD
+
+    data = np.full((60, 100), FREE, np.int8)
+    data[0, :] = data[-1, :] = data[:, 0] = data[:, -1] = OCCUPIED
+    data[:, 48:52] = OCCUPIED
+    data[20:40, 48:52] = FREE  # A 1 m door at x = 2.5 m.
+    grid = GridMap(data, 0.05)
+    gvd = DynamicGVD(grid.shape)
+    gvd.update(grid.occupied, grid.known)
+    costmap = BodyCostmap(grid, gvd.distance2, person_radius=0.55)
+    start, goal = np.array([1.0, 1.5]), np.array([4.0, 1.5])
+    assert costmap.plan(start, goal, 0.3) is not None
+    costmap.set_bodies(np.zeros((0, 2)), np.array([[2.5, 1.5]]))
+    cost = costmap.cost.copy()
+    assert costmap.plan(start, goal, 0.3) is None
+    assert costmap.blocked_by_bodies(start, goal, 0.3)
+    assert costmap.reachable_without_bodies(start, goal[None])
+    np.testing.assert_array_equal(costmap.cost, cost)  # The person is back in.
+    costmap.set_bodies(np.zeros((0, 2)), np.array([[4.0, 2.5]]))  # Walked through.
+    assert costmap.plan(start, goal, 0.3) is not None

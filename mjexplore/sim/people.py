@@ -71,8 +71,9 @@ class PeopleConfig:
         fluctuation: Standard deviation of the random force each step (m/s^2), the
             model's fluctuations: they break the standstills of a symmetric crowd.
         goal_tolerance: A goal this close counts as reached.
-        give_way_s: A person blocked this long (walking slower than 0.1 m/s) gives its
-            goal up for another, as people held up in a crowd turn elsewhere.
+        give_way_s: A person held up this long (making less than 0.1 m/s of headway
+            towards its goal) gives the goal up for another, as people held up in a crowd
+            turn elsewhere.
         min_goal_distance: Least straight distance from a person to its next goal.
         keep_clear: Least distance of a person's start from the points given (the robots'
             starts).
@@ -237,7 +238,7 @@ class Crowd:
         self.positions, self.velocities = moved, v
         self.time += cfg.dt
         reached = np.linalg.norm(self.goals - moved, axis=1) <= cfg.goal_tolerance
-        slow = np.linalg.norm(v, axis=1) < 0.1
+        slow = (v * heading).sum(axis=1) < 0.1  # No headway towards the goal.
         self._stood = np.where(slow & ~reached, self._stood + cfg.dt, 0.0)
         for i in np.flatnonzero(reached):
             self.goals_reached += 1
