@@ -29,6 +29,7 @@ from mjexplore.navigation.blacklist import GoalBlacklist
 from mjexplore.navigation.bodies import BodyCostmap
 from mjexplore.navigation.navigator import Navigator, NavStatus
 from mjexplore.navigation.planner import Costmap
+from mjexplore.navigation.safety import safe_command
 from mjexplore.sim.motion import BODY_RADIUS
 from mjexplore.sim.odometry import compose_pose
 from mjexplore.topology.frontiers import frontier_mask
@@ -507,8 +508,22 @@ class RobotAgent:
             p = sim.profile
             v, w = ((-0.5 * p.max_linear_speed, 0.0), (v, w), (0.0, p.max_angular_speed),
                     (0.0, -p.max_angular_speed))[(self._stuck - 1) // 20 % 4]
+        elif self.episode.crowd is not None:
+            v, w = self.clear_of_people(v, w)
         sim.command(v, w)
         return pose
+
+    def clear_of_people(self, v: float, w: float) -> tuple[float, float]:
+        """(v, w) slowed or stopped so as not to touch the people the last scan saw
+        (:func:`~mjexplore.navigation.safety.safe_command`; in the robot's own frame, as the
+        scan gives them: from its true pose, whatever its localiser believes)."""
+        bodies = self.episode.bodies
+        seen = bodies.seen[self.index] if bodies is not None else ()
+        if not len(seen):
+            return v, w
+        crowd = self.episode.crowd
+        return safe_command(self.sim.pose, v, w, crowd.positions[seen],
+                            crowd.velocities[seen], crowd.config.radius)
 
     def record_visit(self, pose: np.ndarray) -> None:
         """Adds ``pose``'s position to ``visited`` once it is 0.25 m from the last one."""

@@ -52,6 +52,9 @@ GUIDE_MARGIN_M = 0.1  # Clearance beyond a person's radius of the cells routes p
 SPACE_PER_PERSON_M = 1.1
 
 
+# Least gap a person's step leaves to a robot's body, metres.
+ROBOT_GAP = 0.03
+
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class PeopleConfig:
     """Pedestrian settings (metres, seconds, metres per second).
@@ -235,6 +238,9 @@ class Crowd:
             still = self._clearance_at(moved) < 0.5 * cfg.radius
             moved[still] = p[still]
             v[still] = 0.0
+        if len(robots):
+            moved, v = self._clear_of_robots(p, moved, v, robots,
+                                             cfg.radius + robot_radius + ROBOT_GAP)
         self.positions, self.velocities = moved, v
         self.time += cfg.dt
         reached = np.linalg.norm(self.goals - moved, axis=1) <= cfg.goal_tolerance
@@ -247,6 +253,25 @@ class Crowd:
             self.goals_abandoned += 1
             self._stood[i] = 0.0
             self._new_goal(int(i))
+
+    def _clear_of_robots(self, p: np.ndarray, moved: np.ndarray, v: np.ndarray,
+                         robots: np.ndarray, contact: float) -> tuple[np.ndarray, np.ndarray]:
+        """The step with the motion to within ``contact`` of a robot's body centre taken
+        away: a person does not walk into a robot (its step slides past the body, or is
+        refused), as into a wall."""
+        for centre in robots:
+            away = p - centre
+            dist = np.linalg.norm(away, axis=1)
+            into = np.linalg.norm(moved - centre, axis=1) < np.minimum(contact, dist)
+            if not into.any():
+                continue
+            normal = away[into] / np.maximum(dist[into], 1e-9)[:, None]
+            toward = np.minimum((v[into] * normal).sum(axis=1), 0.0)
+            v[into] -= toward[:, None] * normal
+            moved[into] = p[into] + self.config.dt * v[into]
+            still = np.linalg.norm(moved - centre, axis=1) < np.minimum(contact, dist)
+            moved[still], v[still] = p[still], 0.0
+        return moved, v
 
     def _desired_directions(self) -> np.ndarray:
         """(n, 2) unit vectors down each person's distance field (straight at the goal when
