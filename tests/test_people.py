@@ -57,8 +57,8 @@ def test_people_step_around_a_standing_robot(office):
     robot = np.array([[13.0, 17.8]])
     crowd = Crowd(PeopleConfig(count=6), office, np.random.default_rng(1))
     # Every goal right past the robot: each walks by it.
-    crowd.goals[:] = robot[0] + (0.0, 2.0)
-    crowd._fields = [crowd._guide.distance_field(g) for g in crowd.goals]
+    for i in range(len(crowd)):
+        crowd.send(i, robot[0] + (0.0, 2.0))
     crowd.positions[:] = robot[0] - (0.0, 2.0) + np.linspace(-1.0, 1.0, 6)[:, None] * (1, 0)
     nearest = []
     for _ in range(80):

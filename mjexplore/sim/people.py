@@ -19,12 +19,14 @@ panic", Nature 407, 2000) without its contact (body and friction) forces, per un
 
 The desired direction follows the shortest path to the goal around the walls: a geodesic
 distance field from the goal (Dijkstra on a 0.2 m grid of the cells a person fits in), whose
-steepest descent the person follows; a field is made once per goal. A person within
-``goal_tolerance`` of its goal draws the next one, and so does a person blocked for
-``give_way_s`` (a crowd in a corridor can hold itself up, as crowds do). Velocities are
-capped at 1.3 times the preferred speed, and the state advances by semi-implicit Euler steps
-of ``dt``. The crowd lives on the ground truth alone; no world carries it yet (its bodies
-for the lidar and the contacts are issue 51's next step).
+steepest descent the person follows; a field, and the way down it from every cell, are made
+once per goal. A person within ``goal_tolerance`` of its goal draws the next one, and so does
+a person held up (no headway) for ``give_way_s`` (a crowd in a corridor can hold itself up,
+as crowds do). Velocities are capped at 1.3 times the preferred speed, and the state
+advances by semi-implicit Euler steps of ``dt``; a step into a wall slides along it, a step
+into a robot's body past it (people do not walk into robots). The crowd lives on the ground
+truth; the physics and kinematic worlds carry it as bodies the lidar sees and the robot can
+touch (:class:`~mjexplore.sim.simulator.Simulator`).
 
 Everything random comes from the generator given (start places, goals, speeds), so a seed
 replays the same crowd. People start on cells they fit in, apart from each other and at
@@ -152,7 +154,10 @@ class Crowd:
         self.goals = np.zeros((n, 2))
         self.goals_abandoned = 0
         self._stood = np.zeros(n)  # Seconds each has stood blocked.
-        self._fields: list[np.ndarray] = [np.zeros(0)] * n
+        # Per person and guidance cell, the point its way leads to next: the centre of the
+        # neighbouring cell nearest its goal (NaN: none is nearer, head for the goal).
+        self._aims = np.full((n, *self._guide.shape, 2), np.nan)
+        self._guided = np.zeros(n, bool)  # Whether it has a way (else it stands).
         for i in range(n):
             self._new_goal(i)
 
@@ -188,10 +193,16 @@ class Crowd:
         pool = far if len(far) else cells
         if len(pool) == 0:  # Walled in alone: it stands.
             self.goals[i] = self.positions[i]
-            self._fields[i] = np.zeros(0)
+            self._guided[i] = False
             return
-        self.goals[i] = pool[int(self.rng.integers(len(pool)))]
-        self._fields[i] = guide.distance_field(self.goals[i])
+        self.send(i, pool[int(self.rng.integers(len(pool)))])
+
+    def send(self, i: int, goal: np.ndarray) -> None:
+        """Sends person ``i`` to ``goal`` (a walkable point, ``map`` frame, metres) along
+        the guidance grid's geodesic."""
+        self.goals[i] = goal
+        self._aims[i] = self._guide.next_points(self._guide.distance_field(self.goals[i]))
+        self._guided[i] = True
 
     # ------------------------------------------------------------------ dynamics
 
@@ -276,10 +287,13 @@ class Crowd:
     def _desired_directions(self) -> np.ndarray:
         """(n, 2) unit vectors down each person's distance field (straight at the goal when
         it is in sight on the guidance grid's neighbourhood)."""
-        out = np.zeros((len(self.positions), 2))
-        for i, (field, pos) in enumerate(zip(self._fields, self.positions)):
-            if field.size:
-                out[i] = self._guide.descent(field, pos, self.goals[i])
+        rows, cols = self._guide.cells_of(self.positions)
+        aim = self._aims[np.arange(len(self.positions)), rows, cols]
+        aim = np.where(np.isnan(aim), self.goals, aim)
+        d = aim - self.positions
+        norm = np.hypot(d[:, 0], d[:, 1])
+        out = np.where((norm > 1e-9)[:, None], d / np.maximum(norm, 1e-9)[:, None], 0.0)
+        out[~self._guided] = 0.0
         return out
 
     def _repulsion(self, p: np.ndarray, others: np.ndarray, contact: float,
@@ -315,10 +329,12 @@ class Crowd:
             self.config.keep_right * ahead[:, None] * side
 
     def _clearance_at(self, xy: np.ndarray) -> np.ndarray:
-        rc = self._map.world_to_cell(xy)
-        rows = np.clip(rc[:, 0], 0, self._map.shape[0] - 1)
-        cols = np.clip(rc[:, 1], 0, self._map.shape[1] - 1)
-        return self._clearance[rows, cols]
+        """Wall clearance (metres) at the points (n, 2), those off the map at its edge."""
+        grid = self._map
+        cols = np.floor((xy[:, 0] - grid.origin[0]) / grid.resolution).astype(np.int64)
+        rows = np.floor((xy[:, 1] - grid.origin[1]) / grid.resolution).astype(np.int64)
+        return self._clearance[np.minimum(np.maximum(rows, 0), grid.shape[0] - 1),
+                               np.minimum(np.maximum(cols, 0), grid.shape[1] - 1)]
 
     def _away_from_walls(self, p: np.ndarray) -> np.ndarray:
         """(n, 2) unit vectors away from the nearest wall (the clearance's gradient)."""
@@ -415,8 +431,8 @@ class _GuideGrid:
         return self.points(self._cells)
 
     def cell_of(self, xy: np.ndarray) -> tuple[int, int]:
-        c = np.floor((np.asarray(xy, float) - self.origin) / self.cell_m).astype(int)
-        return (int(np.clip(c[1], 0, self.shape[0] - 1)), int(np.clip(c[0], 0, self.shape[1] - 1)))
+        rows, cols = self.cells_of(np.asarray(xy, float).reshape(1, 2))
+        return int(rows[0]), int(cols[0])
 
     def reachable_points(self, xy: np.ndarray) -> np.ndarray:
         """The walkable cells (centres) connected to the one at ``xy`` (or nearest it)."""
@@ -447,21 +463,29 @@ class _GuideGrid:
         field[self._cells[:, 0], self._cells[:, 1]] = dist
         return field
 
-    def descent(self, field: np.ndarray, pos: np.ndarray, goal: np.ndarray) -> np.ndarray:
-        """The unit direction from ``pos`` down ``field``: towards the neighbouring cell of
-        least distance, or straight at ``goal`` where none is less than its own cell's."""
-        r, c = self.cell_of(pos)
-        best, target = field[r, c], None
-        for dr in (-1, 0, 1):
-            for dc in (-1, 0, 1):
-                rr, cc = r + dr, c + dc
-                if (dr or dc) and 0 <= rr < self.shape[0] and 0 <= cc < self.shape[1] and \
-                        field[rr, cc] < best:
-                    best, target = field[rr, cc], (rr, cc)
-        aim = goal if target is None else self.points(np.array([target]))[0]
-        d = aim - pos
-        norm = float(np.hypot(*d))
-        return d / norm if norm > 1e-9 else np.zeros(2)
+    def next_points(self, field: np.ndarray) -> np.ndarray:
+        """(rows, cols, 2) per cell the centre of the neighbouring cell of least ``field``
+        below the cell's own (the first such in row-major order of the neighbourhood), NaN
+        where none is below it: the way down the field."""
+        rows, cols = self.shape
+        padded = np.full((rows + 2, cols + 2), np.inf)
+        padded[1:-1, 1:-1] = field
+        offsets = [(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if dr or dc]
+        around = np.stack([padded[1 + dr:1 + dr + rows, 1 + dc:1 + dc + cols]
+                           for dr, dc in offsets])
+        best = np.argmin(around, axis=0)
+        lower = np.take_along_axis(around, best[None], 0)[0] < field
+        r, c = np.nonzero(lower)
+        step = np.asarray(offsets)[best[r, c]]
+        out = np.full((rows, cols, 2), np.nan)
+        out[r, c] = self.points(np.column_stack([r + step[:, 0], c + step[:, 1]]))
+        return out
 
+    def cells_of(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The (rows, cols) of the guidance cells of the points (n, 2), clipped to the
+        grid."""
+        c = np.floor((np.asarray(xy, float) - self.origin) / self.cell_m).astype(int)
+        return (np.minimum(np.maximum(c[:, 1], 0), self.shape[0] - 1),
+                np.minimum(np.maximum(c[:, 0], 0), self.shape[1] - 1))
 
 __all__ = ["Crowd", "PeopleConfig", "capacity", "check_capacity"]
