@@ -19,6 +19,7 @@ from mjexplore.eval.report_sections import (
     ladder,
     localisation,
     paired_with_nearest,
+    people,
     ratio_figures,
     relative_to_nearest,
     results,
@@ -66,6 +67,31 @@ class Experiment:
         out = re.findall(r"--out (\S+)", self.sweep)[-1]
         return (f"{self.command}; mjexplore collect {out} --experiment {self.name} "
                 "--merge")
+
+
+# The people benchmark's methods: every classic explorer, the pocket rule, the recommended
+# learned one.
+PEOPLE_METHODS = ("nearest", "explore_lite", "frontier_tsp", "rrt", "potential",
+                  "distance_advantage", "pocket_nearest", "gvn_v3")
+
+
+def _people_sweep(count: int) -> str:
+    """The bench command of the people benchmark's crowd of ``count`` (0: nobody)."""
+    crowd = f" --people {count}" if count else ""
+    return (f"mjexplore bench --scenes office,maze --explorers {{explorers}} --seeds 5{crowd} "
+            f"--workers 2 --out runs/people{count}")
+
+
+def _people_experiment(count: int) -> Experiment:
+    return Experiment(
+        f"people_{count}", f"Among {count} people",
+        f"The people benchmark's runs among {count} pedestrians (full physics; the office "
+        "and the maze; social-force walkers, mocap bodies the lidar sees and the robot can "
+        "touch; docs/guide/people.md), in Table 1's columns.",
+        PEOPLE_METHODS,
+        _people_sweep(count) + f"; mjexplore collect runs/people{count} --experiment "
+        f"people_{count}",
+        parts=(results,))
 
 
 # The team experiments (bench --robots sweeps; their own section, eval/team_report.py).
@@ -274,4 +300,20 @@ EXPERIMENTS = (
                "--explorers {explorers} --seeds 1 --lidar-range 8 --workers 2 "
                "--out runs/ariadne",
                parts=(ariadne,)),
+    Experiment("people", "People in the building: exploring among pedestrians",
+               "Every classic explorer, pocket_nearest and the recommended learned one (gvn_v3) "
+               "on the office and the maze with 0, 5, 10 and 20 people walking between "
+               "random goals (full physics, 5 seeds; the people of a seed are the same for "
+               "every method). Returns from people are left out of the map and the people "
+               "a scan sees are obstacles in the robot's costmap; a robot whose way only "
+               "people block waits, and a velocity check slows or stops it before it comes "
+               "within 0.1 m of one (docs/guide/people.md). Each crowd size is a sweep of "
+               "its own; the sections after this one give each in Table 1's columns.",
+               PEOPLE_METHODS,
+               "; ".join([_people_sweep(0)] + [_people_sweep(n) for n in (5, 10, 20)] +
+                         ["mjexplore collect runs/people0 --experiment people"] +
+                         [f"mjexplore collect runs/people{n} --experiment people_{n}"
+                          for n in (5, 10, 20)]),
+               parts=(people,)),
+    *(_people_experiment(n) for n in (5, 10, 20)),
 )

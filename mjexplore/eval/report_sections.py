@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from mjexplore.episode import MILESTONES
+from mjexplore.eval.people_report import people_lines
 from mjexplore.eval.plots import METHOD_LABELS, kinematics_figure, ratio_figure
 from mjexplore.eval.stats import compare_paired
 from mjexplore.eval.summaries import KINEMATIC_FIELDS, KINEMATICS_DT, ratio_curve
@@ -152,6 +153,11 @@ def relative_to_nearest(s: Section, places: str = "scenes") -> list[str]:
 def paired_with_nearest(s: Section) -> list[str]:
     """Every method paired per seed against nearest-frontier."""
     return _paired_lines(s.groups)
+
+
+def people(s: Section) -> list[str]:
+    """The people benchmark over its crowd sizes (:mod:`mjexplore.eval.people_report`)."""
+    return people_lines(s.summaries)
 
 
 def teams(s: Section) -> list[str]:
