@@ -47,3 +47,16 @@ def test_the_checks_name_what_failed():
 
 def test_no_people_summaries_no_section():
     assert people_lines({}) == []
+
+
+def test_a_sweep_table_among_people_counts_contacts_and_the_least_gap():
+    from mjexplore.eval.sweep import summary_table
+
+    alone = {"end_reason": "explored", "exploration_time_s": 100.0}
+    among = [alone | {"people": 10, "people_collisions": c, "people_min_distance_m": g,
+                      "time_stopped_s": 2.0} for c, g in ((1, 0.05), (2, 0.02))]
+    header, rows = summary_table({("office", "nearest"): among})
+    row = dict(zip(header, rows[0]))
+    assert row["people contacts"] == 3 and row["least gap (m)"] == "0.020"
+    header, rows = summary_table({("office", "nearest"): [alone]})
+    assert "people contacts" not in header and len(rows[0]) == len(header)

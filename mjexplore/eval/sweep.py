@@ -375,13 +375,24 @@ def failed_note(out: Path, jobs: list[Any]) -> str:
 def summary_table(groups: dict[tuple[str, str], list[dict[str, Any]]]
                   ) -> tuple[list[str], list[list[Any]]]:
     """Table-1 header and rows (scene, method, runs, explored, then mean +- std of each of
-    ``METRICS``) from each (scene, method)'s episode metrics, in the order given."""
+    ``METRICS``) from each (scene, method)'s episode metrics, in the order given; runs
+    among people add their contacts (summed), least gap (the least) and time stood still."""
+    among_people = any(m.get("people") for ms in groups.values() for m in ms)
     header = ["scene", "method", "runs", "explored"] + [label for _, label in METRICS]
+    if among_people:
+        header += ["people contacts", "least gap (m)", "stood still (s)"]
     rows = []
     for (scene, method), ms in groups.items():
         explored = sum(m["end_reason"] == "explored" for m in ms)
-        rows.append([scene, method, len(ms), explored] +
-                    [format_mean_std([m.get(key) for m in ms]) for key, _ in METRICS])
+        row = [scene, method, len(ms), explored] + \
+            [format_mean_std([m.get(key) for m in ms]) for key, _ in METRICS]
+        if among_people:
+            gaps = [m["people_min_distance_m"] for m in ms
+                    if m.get("people_min_distance_m") is not None]
+            row += [sum(int(m.get("people_collisions", 0)) for m in ms),
+                    f"{min(gaps):.3f}" if gaps else "-",
+                    format_mean_std([m.get("time_stopped_s") for m in ms])]
+        rows.append(row)
     return header, rows
 
 
