@@ -201,3 +201,31 @@ def test_the_3d_view_shows_the_people():
     hidden = view.render(world.data, np.array([x, y, 0.0]))
     changed = (shown != hidden).any(axis=-1)
     assert changed[40:80, 55:105].mean() > 0.1  # A person where the camera looks.
+
+
+def test_a_replay_reads_the_people_and_stands_them_in_its_model(tmp_path, monkeypatch):
+    """render's recording holds the people as logged; the replay's model gets their
+    bodies, and each frame's people are where the MCAP had them."""
+    from mjexplore.cli import main
+    from mjexplore.render import replay
+
+    run = tmp_path / "run"
+    assert main(["explore", "--scene", SCENE, "--people", "3", "--max-time", "3",
+                 "--no-progress", "--out", str(run)]) == 0
+    rec = replay.RecordedEpisode(run / "episode.mcap")
+    assert len(rec.people) == 31 and all(len(p[1]) == 3 for p in rec.people)
+    assert rec.people[0][2] == pytest.approx(0.25) and rec.people[0][3] == pytest.approx(1.7)
+    drawn = []
+    real = replay.render_panel
+
+    def spy(content, *args, **kwargs):
+        drawn.append(content.people)
+        return real(content, *args, **kwargs)
+
+    monkeypatch.setattr(replay, "render_panel", spy)
+    replay.render_run(run, tmp_path / "replay.mp4")
+    np.testing.assert_array_equal(drawn[-1], rec.people[-1][1])
+    no_people = tmp_path / "alone"
+    assert main(["explore", "--scene", SCENE, "--max-time", "3", "--no-progress",
+                 "--out", str(no_people)]) == 0
+    assert replay.RecordedEpisode(no_people / "episode.mcap").people == []

@@ -1,9 +1,10 @@
 """Re-rendering a recorded run (``mjexplore render RUN_DIR``) from its ``episode.mcap``.
 
 The MCAP holds the ground-truth pose at every scan, the map every second, the TER and goal
-at every decision; frames are rebuilt from the latest of each at the frame's simulated
-time (the GVD and frontiers are recomputed from the map; the planned path is not logged,
-so replays do not show it).
+at every decision and, in a world with people, the people at 10 Hz; frames are rebuilt from
+the latest of each at the frame's simulated time (the GVD and frontiers are recomputed from
+the map; the planned path is not logged, so replays do not show it). The people are drawn
+in the map panel and stand in the 3D view as the bodies they were.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from mjexplore.maps import GridMap
 from mjexplore.render.panel import PanelContent, gvd_segments, render_panel
 from mjexplore.render.recorder import VideoConfig
 from mjexplore.render.scene_view import SceneView
+from mjexplore.scenes.people import PERSON, add_people
 from mjexplore.topology.frontiers import estimated_information_gain, find_frontiers
 from mjexplore.topology.pipeline import TopologyTracker
 
@@ -66,6 +68,8 @@ class RecordedEpisode:
         self.maps: list[tuple[float, GridMap]] = []
         self.ters: list[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = []
         self.goals: list[tuple[float, np.ndarray]] = []
+        # (t, (n, 2) centres, radius, height) of the people, in a world with people.
+        self.people: list[tuple[float, np.ndarray, float, float]] = []
         try:
             with open(path, "rb") as f:
                 reader = make_reader(f)
@@ -75,7 +79,7 @@ class RecordedEpisode:
                         "reads Foxglove ones: re-run the episode without --mcap-profile ros2.")
                 classes = _decoders(reader.get_summary())
                 for schema, channel, message in reader.iter_messages(
-                        topics=["/pose", "/map", "/ter", "/goal"]):
+                        topics=["/pose", "/map", "/ter", "/goal", "/people"]):
                     assert schema is not None  # Foxglove writes each channel's schema.
                     msg = classes[schema.id].FromString(message.data)
                     self._add(channel.topic, message.log_time * 1e-9, msg)
@@ -114,6 +118,12 @@ class RecordedEpisode:
             self.ters.append((t, pos.reshape(-1, 2), edges, flags))
         elif topic == "/goal":
             self.goals.append((t, np.array([msg.pose.position.x, msg.pose.position.y])))
+        elif topic == "/people":
+            cylinders = [e.cylinders[0] for e in msg.entities if e.cylinders]
+            xy = np.array([[c.pose.position.x, c.pose.position.y] for c in cylinders])
+            size = cylinders[0].size if cylinders else None
+            self.people.append((t, xy.reshape(-1, 2), size.x / 2 if size else 0.0,
+                                size.z if size else 0.0))
 
     @staticmethod
     def latest(items: list, t: float):
@@ -144,13 +154,19 @@ def render_run(run_dir: str | os.PathLike, out: str | os.PathLike | None = None,
     except (OSError, ValueError, KeyError):
         raise UserInputError(f"{str(run_dir)!r} is not a run folder of 'mjexplore explore' "
                              "(config.json with the scene is missing).") from None
+    rec = RecordedEpisode(run_dir / "episode.mcap")
     try:
-        model = mujoco.MjModel.from_xml_path(xml)
+        spec = mujoco.MjSpec.from_file(xml)
+        if rec.people:  # The people's bodies, placed at each frame as recorded.
+            _, xy, radius, height = rec.people[0]
+            add_people(spec, len(xy), radius, height)
+        model = spec.compile()
     except ValueError as exc:
         raise UserInputError(f"the run's scene {xml!r} cannot be loaded ({exc}); it was moved or "
                              "deleted.") from None
-    rec = RecordedEpisode(run_dir / "episode.mcap")
     data = mujoco.MjData(model)
+    mocap = np.array([model.body(PERSON.format(i)).mocapid[0]
+                      for i in range(len(rec.people[0][1]) if rec.people else 0)], int)
     base = model.body("base_link").id
     qadr = model.jnt_qposadr[model.body_jntadr[base]]
     z0 = float(model.body_pos[base][2])
@@ -169,6 +185,9 @@ def render_run(run_dir: str | os.PathLike, out: str | os.PathLike | None = None,
             k = max(int(np.searchsorted(poses[:, 0], t + 1e-9)) - 1, 0)
             _, x, y, yaw = poses[k]
             data.qpos[qadr:qadr + 7] = (x, y, z0, math.cos(yaw / 2), 0, 0, math.sin(yaw / 2))
+            people = rec.latest(rec.people, t)
+            if people is not None and len(mocap):
+                data.mocap_pos[mocap, :2] = people[1]
             mujoco.mj_forward(model, data)
             left = view.render(data, np.array([x, y, yaw]), poses[:k + 1, 1:3])
             _, grid = rec.latest(rec.maps, t) or rec.maps[0]
@@ -189,6 +208,8 @@ def render_run(run_dir: str | os.PathLike, out: str | os.PathLike | None = None,
                 frontier_gains=estimated_information_gain(grid, frontiers),
                 goal=None if goal is None else goal[1], trajectory=poses[:k + 1, 1:3],
                 pose=np.array([x, y, yaw]),
+                people=None if people is None else people[1],
+                people_radius=0.25 if people is None else people[2],
                 text=(title, f"t = {t:7.1f} s (simulated)"))
             right = render_panel(content, config.width, config.height)
             writer.append(np.concatenate([left, right], axis=1))
