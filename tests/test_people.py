@@ -104,8 +104,8 @@ def test_people_walk_in_the_mujoco_world_seen_by_the_lidar(office):
     front = np.abs(scan.angles) < 0.05
     assert (c.lidar._geomid == -2).any()
     assert np.all(scan.ranges[front] < 1.2 - 0.25 + 0.1)
-    with pytest.raises(UserInputError, match="physics and kinematic"):
-        SimConfig(dynamics="grid", people=PeopleConfig(count=3))
+    # The grid world carries people too (tests/test_people_grid.py).
+    assert SimConfig(dynamics="grid", people=PeopleConfig(count=3)).people.count == 3
 
 
 def test_a_robot_driving_at_a_person_is_stopped_and_counts_a_contact():

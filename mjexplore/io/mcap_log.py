@@ -213,7 +213,7 @@ class EpisodeLogger:
 
     def _log_people(self, world) -> None:
         """The people's poses now, if the world has people and they are due."""
-        crowd = getattr(world, "crowd", None)  # The grid world has none.
+        crowd = getattr(world, "crowd", None)
         if crowd is None:
             return
         t = float(world.time)

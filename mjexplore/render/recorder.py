@@ -83,7 +83,7 @@ def episode_panel(episode, width: int, height: int, ter=None, frontiers=None,
     def planned(agent) -> np.ndarray | None:
         return agent.navigator.path if agent.navigator.status.value == "active" else None
 
-    crowd = getattr(episode.world, "crowd", None)  # The grid world has none.
+    crowd = getattr(episode.world, "crowd", None)
     content = PanelContent(
         grid=episode.mapper.grid,
         gvd_segments=gvd_segments(episode.tracker.graph(episode.mapper.grid),

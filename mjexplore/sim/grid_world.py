@@ -19,7 +19,12 @@ kinematic mode's behaviour, on the scene's ground-truth grid instead of its MJCF
 * odometry: :class:`~mjexplore.sim.odometry.WheelOdometry` on wheel angles that follow the
   moves, as in the kinematic mode: with exact odometry (``odometry_error='none'``) it
   equals the integrated pose (``odom_pose`` is the pose relative to ``odom_origin``);
-* kinematics log: the same samples and columns; the IMU's are NaN (no dynamics).
+* kinematics log: the same samples and columns; the IMU's are NaN (no dynamics);
+* people (``SimConfig.people``): the physics and kinematic worlds' crowd
+  (:class:`~mjexplore.sim.people.Crowd`, the same random stream of the seed), walked every
+  sample period with the robots' bodies where they are, its discs cast by every robot's
+  lidar (:func:`~mjexplore.sim.lidar.ray_discs`, as the MuJoCo lidar casts them), a move
+  into a person refused and counted as the kinematic world counts it.
 
 So the grid and kinematic worlds drive the same trajectory for the same commands, and
 their scans differ only by float rounding (a beam through a wall's corner may differ
@@ -52,7 +57,7 @@ from mjexplore.robot import TURTLEBOT3_WAFFLE, MotionProfile, motion_profile
 from mjexplore.scenes.scene import PHYSICS_TIMESTEP, SceneFiles, load_scene_files
 from mjexplore.scenes.team import SILHOUETTE_HALF, SILHOUETTE_POS, robot_prefix
 from mjexplore.sim.kinematics import KinematicsRecorder
-from mjexplore.sim.lidar import LaserScan, LidarConfig, measure_ranges, ray_boxes
+from mjexplore.sim.lidar import LaserScan, LidarConfig, measure_ranges, ray_boxes, ray_discs
 from mjexplore.sim.motion import (
     BODY_RADIUS,
     kinematic_step,
@@ -60,7 +65,14 @@ from mjexplore.sim.motion import (
     ramp_command,
     wall_clearance,
 )
-from mjexplore.sim.robot_world import RobotWorld
+from mjexplore.sim.people import Crowd
+from mjexplore.sim.robot_world import (
+    RobotWorld,
+    new_crowd,
+    people_contacts,
+    people_to_walk,
+    walk_crowd,
+)
 from mjexplore.sim.simulator import (
     BASE_BODY,
     COLLISION_GAP_S,
@@ -177,6 +189,9 @@ class GridLidar:
             collections.deque())
         # A team's other robots (their ``_pose``), whose silhouettes stop the beams too.
         self.teammates: list = []
+        # People walking in the building (a Crowd: ``positions`` (n, 2), ``config.radius``),
+        # cast as upright cylinders taller than the scan plane; None: no one.
+        self.people: Crowd | None = None
 
     def clear_history(self) -> None:
         """Forgets the poses observed so far (at a reset)."""
@@ -215,21 +230,30 @@ class GridLidar:
         cast_rays(self._cells, sx, sy, yaw + self._angles,
                   (self.config.range_max + CAST_MARGIN) / gt.resolution, gt.resolution,
                   self._dist, self._cos)
-        if self.teammates:
-            self._cast_teammates(x, y, yaw)
+        people = self.people is not None and len(self.people.positions) > 0
+        if self.teammates or people:
+            origin, vec = self._beams(x, y, yaw)
+            if self.teammates:
+                self._cast_teammates(origin, vec)
+            if people:
+                self._cast_people(origin, vec)
         return self._dist
 
-    def _cast_teammates(self, x, y, yaw) -> None:
-        """The teammates' silhouettes (the MuJoCo team's boxes, cast by
-        :func:`~mjexplore.sim.lidar.ray_boxes`) where nearer than the walls."""
-        dist = self._dist
-        # Beams from the scan's origin (under motion skew: the origin of its last beam).
+    def _beams(self, x, y, yaw) -> tuple[np.ndarray, np.ndarray]:
+        """The scan's origin ((3,), ``map`` frame; under motion skew the origin of its last
+        beam) and its beams' unit directions (n, 3), for the bodies cast on the walls."""
         bx, by, byaw = (float(np.ravel(v)[-1]) for v in (x, y, yaw))
         ox, oy = self._offset
         c, s = math.cos(byaw), math.sin(byaw)
         origin = np.array([bx + c * ox - s * oy, by + s * ox + c * oy, SCAN_HEIGHT])
         heading = np.asarray(yaw) + self._angles
         vec = np.column_stack([np.cos(heading), np.sin(heading), np.zeros(len(heading))])
+        return origin, vec
+
+    def _cast_teammates(self, origin: np.ndarray, vec: np.ndarray) -> None:
+        """The teammates' silhouettes (the MuJoCo team's boxes, cast by
+        :func:`~mjexplore.sim.lidar.ray_boxes`) where nearer than the walls."""
+        dist = self._dist
         centres, rots = [], []
         reach = self.config.range_max + 0.3
         for r in self.teammates:
@@ -248,6 +272,22 @@ class GridLidar:
         nearer = (hit >= 0) & ((dist < 0) | (hit < dist))
         dist[nearer] = hit[nearer]
         self._cos[nearer] = np.abs(np.einsum("ij,ij->i", vec[nearer], normal[nearer]))
+
+    def _cast_people(self, origin: np.ndarray, vec: np.ndarray) -> None:
+        """The people's discs (cast by :func:`~mjexplore.sim.lidar.ray_discs`, as the
+        MuJoCo lidar casts them) where nearer than the walls."""
+        assert self.people is not None  # Cast only among people.
+        centres = self.people.positions
+        r = self.people.config.radius
+        reach = self.config.range_max + CAST_MARGIN + r
+        near = np.hypot(centres[:, 0] - origin[0], centres[:, 1] - origin[1]) <= reach
+        if not near.any():
+            return
+        hit, normal = ray_discs(origin, vec, centres[near], r)
+        dist = self._dist
+        nearer = np.isfinite(hit) & ((dist < 0) | (hit < dist))
+        dist[nearer] = hit[nearer]
+        self._cos[nearer] = np.abs(np.einsum("ij,ij->i", vec[nearer, :2], normal[nearer]))
 
     def scan(self, x: float, y: float, yaw: float, stamp: float) -> LaserScan:
         """One scan with the base at (x, y, yaw) (``map`` frame) at simulated time
@@ -285,6 +325,7 @@ class GridWorld(RobotWorld):
             contact; robot ``i`` draws from :func:`~mjexplore.sim.simulator.robot_seed`.
 
     Attributes:
+        crowd: The people walking in the building (a team's robots share one), or None.
         scene: Paths and facts of the loaded scene (ground truth, start pose).
         profile: The motion profile in force.
         lidar: The lidar (:class:`GridLidar`).
@@ -315,6 +356,10 @@ class GridWorld(RobotWorld):
         self._pair_last: dict[tuple[int, int], float] = {}
         self.robots: list[GridWorld] = [self]
         self._clearance = wall_clearance(self.scene.ground_truth)
+        # The people robot 0 walks (the world's; checked before anything is built).
+        self._walkers = None if _index else people_to_walk(self.config.people,
+                                                           self.scene.ground_truth)
+        self._crowd: Crowd | None = None
         self.profile: MotionProfile = motion_profile(self.config.profile)
         self._sample_every = _steps_per(1.0 / self.config.sample_rate_hz, self.timestep,
                                         "sample")
@@ -360,6 +405,14 @@ class GridWorld(RobotWorld):
     def velocity(self) -> np.ndarray:
         """Ground-truth (forward speed m/s, yaw rate rad/s) of ``base_link``."""
         return np.array(self._twist)
+
+    @property
+    def crowd(self) -> Crowd | None:
+        """The people walking in the building (robot 0's, shared by a team), or None."""
+        return self.robots[0]._crowd
+
+    def _people(self) -> Crowd | None:
+        return self.crowd
 
     @property
     def is_upright(self) -> bool:
@@ -418,9 +471,21 @@ class GridWorld(RobotWorld):
         self.collisions = 0
         self._in_contact = self._blocked = False
         self._last_contact = -math.inf
+        self._reset_people()
+        if self._walkers is not None:  # Robot 0 among people: a new crowd, clear of all.
+            assert self.scene.ground_truth is not None  # See __init__.
+            self._crowd = new_crowd(self._walkers, self.scene.ground_truth, self.config.seed,
+                                    [self._pose, *(r._pose for r in self.robots[1:])])
+            for r in self.robots:
+                r.lidar.people = self._crowd
         self.odometry.reset(self._wheels, 0.0, true_yaw=self._pose[2])
         self._kinematics.clear()
         self.lidar.clear_history()
+        crowd = self.crowd
+        if crowd is not None:
+            self._teammate_contact = False  # Noted afresh at time 0.
+            touch, gap = people_contacts(crowd, [self])
+            self._note_people(bool(touch[0]), float(gap[0]))
         self._sample()
         return self._take_scan()
 
@@ -439,6 +504,9 @@ class GridWorld(RobotWorld):
                        end)
             self._move(stop)
             if stop % sample == 0:
+                if self.crowd is not None:
+                    self._walk_people()
+                    self._contacts()
                 self._sample()
                 self._cmd_base = self._cmd
                 self._ramp()
@@ -490,6 +558,8 @@ class GridWorld(RobotWorld):
             for r in self.robots:
                 r._move(stop)
             if stop % sample == 0:
+                if self.crowd is not None:
+                    self._walk_people()
                 self._contacts()
                 for r in self.robots:
                     r._sample()
@@ -500,8 +570,14 @@ class GridWorld(RobotWorld):
                     out.append(r._take_scan())
         return scans
 
+    def _walk_people(self) -> None:
+        """The crowd's walk over a sample period, with the robots where they are now."""
+        assert self.crowd is not None  # Walked only among people.
+        walk_crowd(self.crowd, self._sample_every * self.timestep, self.robots)
+
     def _contacts(self) -> None:
-        """Which robots touch a teammate now (a refused move), and the pairs' collisions."""
+        """Which robots touch a teammate now (a refused move), and the pairs' collisions;
+        among people, each robot's contacts with them and its gap to the nearest."""
         pairs = set()
         touching = np.zeros(len(self.robots), bool)
         for r in self.robots:
@@ -520,6 +596,11 @@ class GridWorld(RobotWorld):
             if t - self._pair_last.get(pair, -math.inf) > COLLISION_GAP_S:
                 self.robot_collisions += 1
             self._pair_last[pair] = t
+        crowd = self.crowd
+        if crowd is not None:
+            people, gaps = people_contacts(crowd, self.robots)
+            for r in self.robots:
+                r._note_people(bool(people[r.index]), float(gaps[r.index]))
 
     # ------------------------------------------------------------------ internals
 
@@ -540,12 +621,14 @@ class GridWorld(RobotWorld):
 
     def _move(self, stop: int) -> None:
         """Moves the base from step ``self._steps`` to ``stop`` (and sets the step count);
-        in a team, a move into a teammate's body is refused."""
-        if len(self.robots) > 1:
+        in a team or among people, a move into a teammate's or a person's body is
+        refused."""
+        if len(self.robots) > 1 or self.crowd is not None:
             before, centre = (self._pose, self._wheels), self.body_centre
             self._move_alone(stop)
-            self._refused_by_teammate = self._moved_into_teammate(centre)
-            if self._refused_by_teammate:
+            refused = self._moved_into_teammate(centre)
+            self._refused_by_teammate = refused and not self._kinematic_person
+            if refused:
                 self._pose, self._wheels = before
                 self._twist = (0.0, 0.0)
             return

@@ -286,6 +286,43 @@ def ray_boxes(origin: np.ndarray, vec: np.ndarray, centres: np.ndarray, rot: np.
     return best, which, normal
 
 
+def ray_discs(origin: np.ndarray, vec: np.ndarray, centres: np.ndarray, radius: float,
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Rays against upright cylinders taller than the rays reach (people's discs): where
+    each ray first enters a disc of ``radius`` about a centre, in the horizontal plane.
+
+    Args:
+        origin: (2,) or (3,) the rays' origin (its x, y are used), metres.
+        vec: (n, 2) or (n, 3) unit ray directions (their x, y are used; the distance is
+            along the whole vector).
+        centres: (k, 2) disc centres.
+        radius: The discs' radius, metres.
+
+    Returns:
+        (n,) distance to the nearest disc entered (inf for none; a ray from inside a disc
+        does not see it), and (n, 2) the unit horizontal normal of the disc at the hit
+        (zero where there is none).
+    """
+    rel = np.asarray(centres, float).reshape(-1, 2) - np.asarray(origin[:2], float)
+    vec = vec[:, :2]
+    r = radius
+    horizontal = np.linalg.norm(vec, axis=1)
+    b = vec @ rel.T  # (rays, discs): projection of each centre on each ray.
+    c = (rel ** 2).sum(axis=1)[None, :] - r * r
+    a = np.maximum(horizontal ** 2, 1e-12)[:, None]
+    disc = b * b - a * c
+    t = np.where(disc >= 0, (b - np.sqrt(np.maximum(disc, 0.0))) / a, np.inf)
+    t = np.where(t > 0, t, np.inf).min(axis=1)
+    normals = np.zeros((len(vec), 2))
+    hit = np.isfinite(t)
+    if hit.any():
+        point = vec[hit] * t[hit, None]
+        out = point[:, None, :] - rel[None, :, :]
+        k = np.argmin(np.abs(np.hypot(out[..., 0], out[..., 1]) - r), axis=1)
+        normals[hit] = out[np.arange(len(k)), k] / r
+    return t, normals
+
+
 class Lidar:
     """Casts scans for the lidar mounted at a site of a MuJoCo model.
 
@@ -387,7 +424,8 @@ class Lidar:
 
     def _cast_people(self, origin: np.ndarray, i0: int, i1: int) -> None:
         """The people's discs (``people.positions``, radius ``people.config.radius``) met
-        by beams ``i0:i1`` from ``origin``, where nearer than the walls."""
+        by beams ``i0:i1`` from ``origin`` (:func:`ray_discs`), where nearer than the
+        walls."""
         centres = self.people.positions
         r = self.people.config.radius
         reach = self.config.range_max + 0.1 + r
@@ -395,26 +433,15 @@ class Lidar:
         near = np.hypot(rel[:, 0], rel[:, 1]) <= reach
         if not near.any():
             return
-        rel = rel[near]
-        vec = self._vec[i0:i1, :2]
-        horizontal = np.linalg.norm(vec, axis=1)
-        b = vec @ rel.T  # (beams, people): projection of each centre on each beam.
-        c = (rel ** 2).sum(axis=1)[None, :] - r * r
-        a = np.maximum(horizontal ** 2, 1e-12)[:, None]
-        disc = b * b - a * c
-        t = np.where(disc >= 0, (b - np.sqrt(np.maximum(disc, 0.0))) / a, np.inf)
-        t = np.where(t > 0, t, np.inf).min(axis=1)
+        t, normals = ray_discs(origin, self._vec[i0:i1], centres[near], r)
         walls = self._dist[i0:i1]
         nearer = np.isfinite(t) & ((walls < 0) | (t < walls))
         if nearer.any():
             walls[nearer] = t[nearer]
             self._geomid[i0:i1][nearer] = -2  # A person (no geom of the ray scene).
             if self._normal is not None:
-                hit = vec[nearer] * t[nearer, None]
-                out = hit[:, None, :] - rel[None, :, :]
-                k = np.argmin(np.abs(np.hypot(out[..., 0], out[..., 1]) - r), axis=1)
-                n2 = out[np.arange(len(k)), k] / r
-                self._normal[i0:i1][nearer] = np.column_stack([n2, np.zeros(len(k))])
+                self._normal[i0:i1][nearer] = np.column_stack(
+                    [normals[nearer], np.zeros(int(nearer.sum()))])
 
     def cast(self, data: mujoco.MjData) -> np.ndarray:
         """Raw distances (float64, -1 for no hit) from the site at the current state, all

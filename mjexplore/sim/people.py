@@ -26,7 +26,8 @@ as crowds do). Velocities are capped at 1.3 times the preferred speed, and the s
 advances by semi-implicit Euler steps of ``dt``; a step into a wall slides along it, a step
 into a robot's body past it (people do not walk into robots). The crowd lives on the ground
 truth; the physics and kinematic worlds carry it as bodies the lidar sees and the robot can
-touch (:class:`~mjexplore.sim.simulator.Simulator`).
+touch (:class:`~mjexplore.sim.simulator.Simulator`), the grid world as discs its lidar casts
+(:class:`~mjexplore.sim.grid_world.GridWorld`).
 
 Everything random comes from the generator given (start places, goals, speeds), so a seed
 replays the same crowd. People start on cells they fit in, apart from each other and at

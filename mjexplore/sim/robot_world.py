@@ -1,25 +1,76 @@
 """What every world a robot runs in shares: commands, and the state read back the same way.
 
 :class:`~mjexplore.sim.simulator.Simulator` (MuJoCo) and
-:class:`~mjexplore.sim.grid_world.GridWorld` subclass :class:`RobotWorld`.
+:class:`~mjexplore.sim.grid_world.GridWorld` subclass :class:`RobotWorld`; both carry people
+(:mod:`mjexplore.sim.people`) with the functions below: checked before a world is built
+(:func:`people_to_walk`), drawn at a reset (:func:`new_crowd`), walked every sample period
+(:func:`walk_crowd`) and touched (:func:`people_contacts`).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
+from mjexplore.errors import UserInputError
+from mjexplore.maps import GridMap
 from mjexplore.robot import MotionProfile
 from mjexplore.sim.kinematics import KinematicsLog, KinematicsRecorder
 from mjexplore.sim.lidar import LaserScan
 from mjexplore.sim.motion import BODY_CENTRE_X, BODY_RADIUS, limit_command
 from mjexplore.sim.odometry import WheelOdometry
+from mjexplore.sim.people import Crowd, PeopleConfig, check_capacity
+from mjexplore.sim.people import capacity as people_capacity
 
 # Contacts closer in time than this belong to one collision (a robot pushing against a wall
 # or a person bounces on and off it).
 COLLISION_GAP_S = 0.5
+PEOPLE_STREAM = 51  # The people's generator: [seed, PEOPLE_STREAM].
+
+
+def people_to_walk(people: PeopleConfig | None, ground_truth: GridMap | None,
+                   ) -> PeopleConfig | None:
+    """The people a world carries (None: nobody), checked before anything is built: they
+    walk on the ground truth, and the free space must hold them.
+
+    Raises:
+        UserInputError: no ground truth, or more people than its free space holds.
+    """
+    if people is None or people.count <= 0:
+        return None
+    if ground_truth is None:
+        raise UserInputError("people walk on the scene's ground-truth map, and this scene "
+                             "has none.")
+    check_capacity(people.count, people_capacity(people, ground_truth))
+    return people
+
+
+def new_crowd(people: PeopleConfig, ground_truth: GridMap, seed: int, poses: list,
+              ) -> Crowd:
+    """A world's crowd at a reset: drawn from the seed's own stream (a run without people
+    draws nothing of it), starting clear of the robots' ``poses`` ((x, y, ...) each)."""
+    return Crowd(people, ground_truth, np.random.default_rng([seed, PEOPLE_STREAM]),
+                 keep_clear=np.array([q[:2] for q in poses]))
+
+
+def walk_crowd(crowd: Crowd, duration: float, robots: Sequence[RobotWorld]) -> None:
+    """Advances the crowd by ``duration`` seconds with the robots' bodies where they are."""
+    crowd.step(duration, np.array([r.body_centre for r in robots]), BODY_RADIUS)
+
+
+def people_contacts(crowd: Crowd, robots: Sequence[RobotWorld],
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Per robot, whether it touches a person now (bodies within 1 cm, or a kinematic move
+    refused) and the gap (metres) between its body's bounding circle and the nearest
+    person."""
+    n = len(robots)
+    if not len(crowd):
+        return np.zeros(n, bool), np.full(n, math.inf)
+    gap = crowd.distances_to(np.array([r.body_centre for r in robots])) - BODY_RADIUS
+    return (gap < 0.01) | np.array([r._kinematic_person for r in robots]), gap
 
 
 class RobotWorld:
@@ -50,6 +101,10 @@ class RobotWorld:
     _teammate_contact: bool
     _last_teammate: float
     _kinematic_person: bool
+    # Among people: the contacts with them, the least gap to one, and when one was touched.
+    people_collisions: int
+    people_min_distance: float
+    _last_person: float
 
     @property
     def odom_pose(self) -> np.ndarray:
@@ -133,6 +188,25 @@ class RobotWorld:
                 self.robot_contacts += 1
             self._last_teammate = t
         self._teammate_contact = touching
+
+    def _reset_people(self) -> None:
+        """No contact with a person yet, and no gap measured."""
+        self._kinematic_person = False
+        self.people_collisions = 0
+        self.people_min_distance = math.inf
+        self._last_person = -math.inf
+
+    def _note_people(self, touching: bool, gap: float) -> None:
+        """Counts a contact with a person (those less than ``COLLISION_GAP_S`` apart as
+        one) and keeps the least ``gap`` (metres) between the body's bounding circle and a
+        person."""
+        t = self.time
+        if touching:
+            if t - self._last_person > COLLISION_GAP_S:
+                self.people_collisions += 1
+            self._last_person = t
+        self._teammate_contact = self._teammate_contact or touching
+        self.people_min_distance = min(self.people_min_distance, gap)
 
     @property
     def command_applied(self) -> np.ndarray:

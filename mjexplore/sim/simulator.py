@@ -63,9 +63,16 @@ from mjexplore.sim.odometry import (
     odometry_error_config,
     wheel_odometry,
 )
-from mjexplore.sim.people import Crowd, PeopleConfig, check_capacity
-from mjexplore.sim.people import capacity as people_capacity
-from mjexplore.sim.robot_world import COLLISION_GAP_S, RobotWorld
+from mjexplore.sim.people import Crowd, PeopleConfig
+from mjexplore.sim.robot_world import (  # noqa: F401 (PEOPLE_STREAM re-exported)
+    COLLISION_GAP_S,
+    PEOPLE_STREAM,
+    RobotWorld,
+    new_crowd,
+    people_contacts,
+    people_to_walk,
+    walk_crowd,
+)
 
 BASE_BODY = "base_link"
 SCAN_SITE = "base_scan"
@@ -77,7 +84,6 @@ IMU_SENSORS = ("imu_gyro", "imu_accel")
 NO_IMU = (math.nan,) * 6
 UPRIGHT_COS = math.cos(math.radians(30.0))
 DYNAMICS = ("physics", "kinematic", "grid")
-PEOPLE_STREAM = 51  # The people's generator: [seed, PEOPLE_STREAM].
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -133,7 +139,8 @@ class SimConfig:
         scan_travel: Grid world only (a training setting): scans by travel
             (:class:`ScanTravel`); None scans at the lidar's rate.
         people: Pedestrians walking in the building (:class:`~mjexplore.sim.people.
-            PeopleConfig`; the physics and kinematic worlds); None: nobody.
+            PeopleConfig`; in every world: MuJoCo bodies in the physics and kinematic
+            worlds, discs on the grid world's ground truth); None: nobody.
     """
 
     profile: str = "sim"
@@ -148,9 +155,6 @@ class SimConfig:
     people: PeopleConfig | None = None
 
     def __post_init__(self) -> None:
-        if self.people is not None and self.people.count and self.dynamics == "grid":
-            raise UserInputError("people walk in the physics and kinematic worlds so far: use "
-                                 "dynamics physics or kinematic with --people.")
         odometry_error_config(self.odometry_error)  # Refuses an unknown preset now.
         if self.odometry_heading not in HEADINGS:
             raise UserInputError(f"odometry_heading {self.odometry_heading!r} is unknown: use "
@@ -371,10 +375,7 @@ class MujocoRobot(RobotWorld):
         self._last_teammate = -math.inf
         self._kinematic_contact = False
         self._kinematic_teammate = False
-        self._kinematic_person = False
-        self.people_collisions = 0
-        self.people_min_distance = math.inf
-        self._last_person = -math.inf
+        self._reset_people()
         self.odometry.reset(self.data.qpos[self._wheel_qpos], 0.0, true_yaw=self._start[2])
         self._kinematics.clear()
         self.lidar.clear_history()
@@ -465,18 +466,6 @@ class MujocoRobot(RobotWorld):
             return self._kinematic_contact
         return bool(self._world._wall_touch[self.index])
 
-    def _note_people(self, touching: bool, gap: float) -> None:
-        """Counts a contact with a person (those less than ``COLLISION_GAP_S`` apart as
-        one) and keeps the least ``gap`` (metres) between the body's bounding circle and a
-        person."""
-        t = self.time
-        if touching:
-            if t - self._last_person > COLLISION_GAP_S:
-                self.people_collisions += 1
-            self._last_person = t
-        self._teammate_contact = self._teammate_contact or touching
-        self.people_min_distance = min(self.people_min_distance, gap)
-
 
 class Simulator(MujocoRobot):
     """A scene's MuJoCo world with its robots driven by (v, omega) commands; the world is
@@ -509,14 +498,9 @@ class Simulator(MujocoRobot):
             raise UserInputError("dynamics 'grid' runs without MuJoCo: build the world with "
                                  "mjexplore.sim.world.make_world(scene, config).")
         self.scene = scene if isinstance(scene, SceneFiles) else load_scene_files(scene)
-        people = self.config.people
-        crowd = people is not None and people.count > 0
-        if crowd:  # Before a model with that many bodies is built.
-            assert people is not None
-            if self.scene.ground_truth is None:
-                raise UserInputError("people walk on the scene's ground-truth map, and this "
-                                     "scene has none.")
-            check_capacity(people.count, people_capacity(people, self.scene.ground_truth))
+        # Checked before a model with that many bodies is built.
+        people = people_to_walk(self.config.people, self.scene.ground_truth)
+        crowd = people is not None
         if starts is None and not crowd:
             self.model = compile_scene(self.scene)
             prefixes = [""]
@@ -610,9 +594,8 @@ class Simulator(MujocoRobot):
         if len(self._person_mocap):
             assert self.config.people is not None and self.scene.ground_truth is not None
             # Their own stream of the seed: a run without people draws nothing of it.
-            self.crowd = Crowd(self.config.people, self.scene.ground_truth,
-                               np.random.default_rng([self.config.seed, PEOPLE_STREAM]),
-                               keep_clear=np.array([q[:2] for q in poses]))
+            self.crowd = new_crowd(self.config.people, self.scene.ground_truth,
+                                   self.config.seed, poses)
             self._place_people()
             for r in self.robots:
                 r.lidar.people = self.crowd
@@ -657,9 +640,7 @@ class Simulator(MujocoRobot):
             self._world_steps = stop
             if stop % self._sample_every == 0:
                 if self.crowd is not None:
-                    self.crowd.step(self._sample_every * m.opt.timestep,
-                                    np.array([r.body_centre for r in self.robots]),
-                                    BODY_RADIUS)
+                    walk_crowd(self.crowd, self._sample_every * m.opt.timestep, self.robots)
                     self._place_people()
                 self._sample_all()
                 for r in self.robots:
@@ -708,12 +689,8 @@ class Simulator(MujocoRobot):
         self._people_touch = np.zeros(n, bool)
         self._people_gap = np.full(n, math.inf)  # Body circle to the nearest person, metres.
         pairs: set[tuple[int, int]] = set()
-        if self.crowd is not None and len(self.crowd):
-            self._people_gap = self.crowd.distances_to(
-                np.array([r.body_centre for r in self.robots])) - BODY_RADIUS
-            # Bodies within 1 cm, or a kinematic move refused.
-            self._people_touch = (self._people_gap < 0.01) | np.array(
-                [r._kinematic_person for r in self.robots])
+        if self.crowd is not None:
+            self._people_touch, self._people_gap = people_contacts(self.crowd, self.robots)
         if self._clearance is not None:
             for r in self.robots:
                 if r._kinematic_teammate:
