@@ -251,7 +251,10 @@ def _episode_config(args: argparse.Namespace):
     from mjexplore.sim.people import PeopleConfig
 
     lidar = _lidar_config(args, ideal_noise=0.01)
-    people = PeopleConfig(count=args.people) if args.people else None
+    if args.people and args.people_density:
+        raise UserInputError("give --people N or --people-density D, not both.")
+    people = PeopleConfig(count=args.people) if args.people else \
+        PeopleConfig(density=args.people_density) if args.people_density else None
     return EpisodeConfig(max_time=args.max_time, target_ratio=args.target_ratio,
                          localization=args.localization,
                          sim=SimConfig(profile=args.profile, lidar=lidar,
@@ -808,6 +811,10 @@ def _add_episode_args(p: argparse.ArgumentParser) -> None:
                    help="N pedestrians walking between random goals (the social force "
                         "model, sim/people.py), seen by the lidar and touched by the robot "
                         "(default: nobody)")
+    p.add_argument("--people-density", type=_positive, default=None, metavar="D",
+                   help="instead of --people: D pedestrians per 100 m^2 of the floor a "
+                        "person can walk, the count set per scene (e.g. 2: an office "
+                        "corridor at a quiet hour)")
     _add_lidar_model_arg(p)
 
 

@@ -238,3 +238,21 @@ def test_a_person_in_a_doorway_is_waited_for_not_taken_for_a_wall():
     np.testing.assert_array_equal(costmap.cost, cost)  # The person is back in.
     costmap.set_bodies(np.zeros((0, 2)), np.array([[4.0, 2.5]]))  # Walked through.
     assert costmap.plan(start, goal, 0.3) is not None
+
+
+def test_a_density_sets_the_count_per_scene(office, capsys):
+    from mjexplore.cli import main
+    from mjexplore.sim.people import for_scene
+
+    maze = resolve_scene("maze").ground_truth
+    dense = PeopleConfig(density=2.0)
+    counts = [for_scene(dense, gt).count for gt in (office, maze)]
+    assert counts[0] > counts[1] > 0  # More floor, more people.
+    assert for_scene(PeopleConfig(density=4.0), office).count == pytest.approx(
+        2 * counts[0], abs=1)
+    assert for_scene(PeopleConfig(count=3), office).count == 3
+    with pytest.raises(UserInputError, match="not both"):
+        PeopleConfig(count=3, density=1.0)
+    assert main(["explore", "--scene", "office", "--people", "3", "--people-density", "1",
+                 "--out", "unused"]) == 2
+    assert "not both" in capsys.readouterr().err

@@ -84,6 +84,9 @@ class PeopleConfig:
         keep_clear: Least distance of a person's start from the points given (the robots'
             starts).
         dt: Integration step, seconds.
+        density: People per 100 m^2 of the floor a person can walk (its guidance cells);
+            when > 0 it sets the count for each scene (:func:`for_scene`), rounded, in place
+            of ``count``.
     """
 
     count: int = 0
@@ -102,10 +105,14 @@ class PeopleConfig:
     min_goal_distance: float = 3.0
     keep_clear: float = 1.0
     dt: float = 0.05
+    density: float = 0.0
 
     def __post_init__(self) -> None:
         if self.count < 0:
             raise UserInputError(f"--people {self.count}: give 0 or more people.")
+        if self.density < 0 or (self.density > 0 and self.count > 0):
+            raise UserInputError(f"people density {self.density:g}: give 0 or more people per "
+                                 "100 m^2, and a count or a density, not both.")
         if not (0 < self.radius and 0 < self.speed[0] <= self.speed[1] and self.dt > 0
                 and self.relaxation_s > 0 and 0 <= self.field_of_view <= 1):
             raise ValueError("radius, speeds, dt and relaxation_s must be > 0 (speed[0] <= "
@@ -374,6 +381,19 @@ def check_capacity(count: int, fits: int) -> None:
                              f"holds {fits} walking; give --people {fits} or fewer.")
 
 
+def for_scene(config: PeopleConfig, ground_truth: GridMap) -> PeopleConfig:
+    """``config`` with its count for this building: a density's share of the floor a person
+    can walk (rounded), or the count as given."""
+    if config.density <= 0:
+        return config
+    clearance = cv2.distanceTransform(ground_truth.free.astype(np.uint8), cv2.DIST_L2,
+                                      cv2.DIST_MASK_PRECISE) * ground_truth.resolution
+    guide = _GuideGrid(ground_truth, clearance, config.radius)
+    area = guide.walkable.sum() * guide.cell_m ** 2
+    return dataclasses.replace(config, count=int(round(config.density * area / 100.0)),
+                               density=0.0)
+
+
 def capacity(config: PeopleConfig, ground_truth: GridMap) -> int:
     """How many people of ``config``'s size the building's free space holds walking (one
     ``SPACE_PER_PERSON_M`` square each, on the cells a person fits in)."""
@@ -489,4 +509,4 @@ class _GuideGrid:
         return (np.minimum(np.maximum(c[:, 1], 0), self.shape[0] - 1),
                 np.minimum(np.maximum(c[:, 0], 0), self.shape[1] - 1))
 
-__all__ = ["Crowd", "PeopleConfig", "capacity", "check_capacity"]
+__all__ = ["Crowd", "PeopleConfig", "capacity", "check_capacity", "for_scene"]

@@ -22,7 +22,7 @@ from mjexplore.sim.kinematics import KinematicsLog, KinematicsRecorder
 from mjexplore.sim.lidar import LaserScan
 from mjexplore.sim.motion import BODY_CENTRE_X, BODY_RADIUS, limit_command
 from mjexplore.sim.odometry import WheelOdometry
-from mjexplore.sim.people import Crowd, PeopleConfig, check_capacity
+from mjexplore.sim.people import Crowd, PeopleConfig, check_capacity, for_scene
 from mjexplore.sim.people import capacity as people_capacity
 
 # Contacts closer in time than this belong to one collision (a robot pushing against a wall
@@ -33,17 +33,22 @@ PEOPLE_STREAM = 51  # The people's generator: [seed, PEOPLE_STREAM].
 
 def people_to_walk(people: PeopleConfig | None, ground_truth: GridMap | None,
                    ) -> PeopleConfig | None:
-    """The people a world carries (None: nobody), checked before anything is built: they
-    walk on the ground truth, and the free space must hold them.
+    """The people a world carries (None: nobody), their count fixed for this building (a
+    density's share of its floor: :func:`~mjexplore.sim.people.for_scene`) and checked
+    before anything is built: they walk on the ground truth, and the free space must hold
+    them.
 
     Raises:
         UserInputError: no ground truth, or more people than its free space holds.
     """
-    if people is None or people.count <= 0:
+    if people is None or (people.count <= 0 and people.density <= 0):
         return None
     if ground_truth is None:
         raise UserInputError("people walk on the scene's ground-truth map, and this scene "
                              "has none.")
+    people = for_scene(people, ground_truth)
+    if people.count <= 0:
+        return None
     check_capacity(people.count, people_capacity(people, ground_truth))
     return people
 

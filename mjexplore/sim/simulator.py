@@ -499,7 +499,7 @@ class Simulator(MujocoRobot):
                                  "mjexplore.sim.world.make_world(scene, config).")
         self.scene = scene if isinstance(scene, SceneFiles) else load_scene_files(scene)
         # Checked before a model with that many bodies is built.
-        people = people_to_walk(self.config.people, self.scene.ground_truth)
+        people = self._walkers = people_to_walk(self.config.people, self.scene.ground_truth)
         crowd = people is not None
         if starts is None and not crowd:
             self.model = compile_scene(self.scene)
@@ -592,9 +592,9 @@ class Simulator(MujocoRobot):
         for r, p in zip(self.robots, poses):
             r._place(p)
         if len(self._person_mocap):
-            assert self.config.people is not None and self.scene.ground_truth is not None
+            assert self._walkers is not None and self.scene.ground_truth is not None
             # Their own stream of the seed: a run without people draws nothing of it.
-            self.crowd = new_crowd(self.config.people, self.scene.ground_truth,
+            self.crowd = new_crowd(self._walkers, self.scene.ground_truth,
                                    self.config.seed, poses)
             self._place_people()
             for r in self.robots:
