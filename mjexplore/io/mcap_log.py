@@ -90,7 +90,7 @@ TER_HEIGHT = 0.2  # Height of the drawn TER above the floor, metres.
 _NODE_COLOURS = {flag: Color(r=r, g=g, b=b, a=a) for flag, (r, g, b, a) in NODE_RGBA.items()}
 PEOPLE_TOPIC = "/people"  # Written only when the world has people (not in TOPICS).
 PEOPLE_PERIOD = 0.1  # Simulated seconds between /people messages (10 Hz).
-PERSON_RGBA = (0.85, 0.55, 0.35, 1.0)  # A pedestrian, as its MuJoCo body is coloured.
+PERSON_RGBA = (0.78, 0.16, 0.63, 1.0)  # A pedestrian, as its MuJoCo body is coloured.
 PERSON_ID = "person_{}"  # A pedestrian's entity (marker) id, as its MuJoCo body is named.
 _PERSON_COLOUR = Color(r=PERSON_RGBA[0], g=PERSON_RGBA[1], b=PERSON_RGBA[2], a=PERSON_RGBA[3])
 

@@ -24,8 +24,8 @@ GOAL = (230, 30, 30)
 EDGE = (240, 150, 30)
 ROBOT = (20, 200, 20)
 OTHER_NODE = (200, 40, 40)
-PERSON = (217, 140, 89)  # A pedestrian's disc: the colour of its body in the 3D view.
-PERSON_OUTLINE = (110, 60, 25)
+PERSON = (199, 41, 161)  # A pedestrian's disc: the colour of its body in the 3D view.
+PERSON_OUTLINE = (80, 0, 60)
 # A team's other robots (robot 1, 2, ...): body, trajectory and path in one hue each.
 TEAMMATE_COLOURS = ((230, 120, 20), (160, 60, 200), (20, 170, 190), (200, 60, 130),
                     (140, 110, 60), (90, 90, 230), (180, 180, 30))
@@ -132,14 +132,13 @@ def _robot_marker(img, layout: PanelLayout, pose, size: float, colour) -> None:
 
 
 def _people(img, layout: PanelLayout, xy, radius: float) -> None:
-    """Filled discs of ``radius`` metres (at least 2 pixels) at ``xy`` (k, 2), outlined
-    where the discs are large enough to hold an outline."""
-    r = max(2, int(round(radius / layout.grid.resolution * layout.scale)))
+    """Filled, outlined discs of ``radius`` metres (at least 4 pixels, so that a person
+    stands out at any zoom) at ``xy`` (k, 2)."""
+    r = max(4, int(round(radius / layout.grid.resolution * layout.scale)))
     for p in layout.to_pixels(xy):
         centre = (int(p[0]), int(p[1]))
         cv2.circle(img, centre, r, PERSON, -1, cv2.LINE_AA)
-        if r >= 4:
-            cv2.circle(img, centre, r, PERSON_OUTLINE, 1, cv2.LINE_AA)
+        cv2.circle(img, centre, r, PERSON_OUTLINE, 1, cv2.LINE_AA)
 
 
 def render_panel(content: PanelContent, width: int, height: int) -> np.ndarray:

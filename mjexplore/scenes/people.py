@@ -17,7 +17,7 @@ def add_people(spec: mujoco.MjSpec, count: int, radius: float, height: float) ->
         body = spec.worldbody.add_body(name=PERSON.format(i), mocap=True, pos=[0, 0, 0])
         body.add_geom(name=PERSON.format(i), type=mujoco.mjtGeom.mjGEOM_CYLINDER,
                       size=[radius, height / 2, 0], pos=[0, 0, height / 2],
-                      group=PERSON_GROUP, rgba=[0.85, 0.55, 0.35, 1.0])
+                      group=PERSON_GROUP, rgba=[0.78, 0.16, 0.63, 1.0])
 
 
 __all__ = ["PERSON", "PERSON_GROUP", "add_people"]
