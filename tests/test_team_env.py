@@ -130,3 +130,21 @@ def test_spaces_are_fixed_objects(robots):
     for agent in env.possible_agents:
         assert env.observation_space(agent) is env.observation_space(agent)
         assert env.action_space(agent).n == env.k
+
+
+def test_a_team_policy_is_evaluated_on_team_episodes(tmp_path):
+    """Held-out evaluation of a team run (env.robots 2) runs team episodes, as it trains."""
+    from mjexplore.learning.evaluation import evaluate_policy_episodes
+    from mjexplore.learning.train_config import load_train_config
+
+    class FirstValid:  # SB3's predict, the first valid node.
+        def predict(self, obs, deterministic=True, action_masks=None):
+            return int(np.flatnonzero(action_masks)[0]), None
+
+    cfg = tmp_path / "team.yaml"
+    cfg.write_text(TEAM_RECIPE.replace("eval: {every: 0}", "eval: {every: 0, scenes: [train_loop], "
+                                       "episode: {max_time: 60.0, sim: {dynamics: kinematic}}}"))
+    config = load_train_config(cfg)
+    (result,) = evaluate_policy_episodes(FirstValid(), config)
+    assert result["scene"] == "train_loop" and result["robots"] == 2
+    assert len(result["per_robot"]) == 2

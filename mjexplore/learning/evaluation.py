@@ -14,7 +14,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from mjexplore.envs.exploration import ExplorationEnv
+from mjexplore.envs.exploration import EnvConfig, ExplorationEnv
+from mjexplore.envs.team_gvn import TeamDecisionEnv
 from mjexplore.episode.workers import init_episode_worker
 from mjexplore.errors import UserInputError
 from mjexplore.learning.policy_network import fresh_policy
@@ -24,9 +25,13 @@ from mjexplore.policies.weights import read_policy_weights
 
 def heldout_env(config: TrainConfig, scene: str) -> ExplorationEnv:
     """The training env on one held-out scene (of ``config.eval.scene_list()``) with the
-    evaluation's episode settings; reset it with ``seed=config.eval.seed``."""
-    return ExplorationEnv(dataclasses.replace(config.env, scenes=(scene,), procedural=None,
-                                              episode=config.eval.episode))
+    evaluation's episode settings, one robot; reset it with ``seed=config.eval.seed``."""
+    return ExplorationEnv(_heldout_config(config, scene))
+
+
+def _heldout_config(config: TrainConfig, scene: str) -> EnvConfig:
+    return dataclasses.replace(config.env, scenes=(scene,), procedural=None,
+                               episode=config.eval.episode)
 
 
 def evaluate_policy_episodes(policy, config: TrainConfig, scenes: tuple[str, ...] | None = None,
@@ -56,12 +61,16 @@ def evaluate_policy_episodes(policy, config: TrainConfig, scenes: tuple[str, ...
 
 
 def heldout_episode(policy, config: TrainConfig, scene: str,
-                    env: ExplorationEnv | None = None) -> dict[str, Any]:
+                    env: ExplorationEnv | TeamDecisionEnv | None = None) -> dict[str, Any]:
     """One episode of ``policy`` (SB3's ``predict``, deterministic, with the action mask) on
     a held-out ``scene`` with the evaluation's settings, in this process: the scene and the
     episode's metrics (simulated time). ``env``: ``heldout_env(config, scene)`` made already
-    (default: made here), for a policy that reads more of the episode than its observation."""
-    env = heldout_env(config, scene) if env is None else env
+    (default: made here; a team's :class:`~mjexplore.envs.team_gvn.TeamDecisionEnv` when
+    the run trains a team), for a policy that reads more of the episode than its
+    observation."""
+    if env is None:  # A team policy is selected on team episodes.
+        env = TeamDecisionEnv(_heldout_config(config, scene)) if config.env.robots > 1 \
+            else heldout_env(config, scene)
     obs, _ = env.reset(seed=config.eval.seed)
     while True:
         action, _ = policy.predict(obs, deterministic=True, action_masks=env.action_masks())
