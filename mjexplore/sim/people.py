@@ -330,8 +330,8 @@ class Crowd:
         right = np.column_stack([heading[:, 1], -heading[:, 0]])
         # Along a wall on one's right, one gives way on the left.
         room = 2 * self.config.radius
-        walled = (self._clearance_at(p + room * right) < room) & \
-            (self._clearance_at(p - room * right) >= room)
+        sides = self._clearance_at(np.concatenate([p + room * right, p - room * right]))
+        walled = (sides[:len(p)] < room) & (sides[len(p):] >= room)
         side = np.where(walled[:, None], -right, right)
         return (push[..., None] * n_ij).sum(axis=1) + \
             self.config.keep_right * ahead[:, None] * side
@@ -344,20 +344,27 @@ class Crowd:
         return self._clearance[np.minimum(np.maximum(rows, 0), grid.shape[0] - 1),
                                np.minimum(np.maximum(cols, 0), grid.shape[1] - 1)]
 
-    def _away_from_walls(self, p: np.ndarray) -> np.ndarray:
-        """(n, 2) unit vectors away from the nearest wall (the clearance's gradient)."""
+    def _away_from_walls(self, p: np.ndarray, at: np.ndarray | None = None) -> np.ndarray:
+        """(n, 2) unit vectors away from the nearest wall (the clearance's gradient);
+        ``at``: the clearance at p +- h along x, then y (4n,), if looked up already."""
         h = self._map.resolution
-        gx = self._clearance_at(p + (h, 0)) - self._clearance_at(p - (h, 0))
-        gy = self._clearance_at(p + (0, h)) - self._clearance_at(p - (0, h))
-        g = np.column_stack([gx, gy])
+        n = len(p)
+        if at is None:
+            at = self._clearance_at(np.concatenate([p + (h, 0), p - (h, 0), p + (0, h),
+                                                    p - (0, h)]))
+        g = np.column_stack([at[:n] - at[n:2 * n], at[2 * n:3 * n] - at[3 * n:]])
         norm = np.linalg.norm(g, axis=1, keepdims=True)
         return np.where(norm > 1e-9, g / np.maximum(norm, 1e-9), 0.0)
 
     def _walls(self, p: np.ndarray) -> np.ndarray:
         """(n, 2) the nearest wall's repulsion."""
         a, b = self.config.wall
-        d = self._clearance_at(p)
-        return (a * np.exp((self.config.radius - d) / b))[:, None] * self._away_from_walls(p)
+        h = self._map.resolution
+        at = self._clearance_at(np.concatenate([p, p + (h, 0), p - (h, 0), p + (0, h),
+                                                p - (0, h)]))
+        d = at[:len(p)]
+        return (a * np.exp((self.config.radius - d) / b))[:, None] * \
+            self._away_from_walls(p, at[len(p):])
 
     # ------------------------------------------------------------------ readings
 
