@@ -143,3 +143,26 @@ def test_predicted_plan_on_the_truth_explores_with_few_give_ups():
     m = Episode(scene, explorer, 0, GRID).run().metrics
     assert m["end_reason"] == "explored"
     assert m["given_up"]["seen_open"] <= m["decisions"] // 3
+
+
+def test_pocket_predicted_reads_the_pockets_from_the_predicted_map():
+    """Its building is the robot's map with the unknown cells predicted free (p >= 0.5) or
+    walls; the known cells stay as mapped; it explores a scene with that rule."""
+    from mjexplore.explorers.predicted_tour import PredictedPocketNearest
+    from mjexplore.maps import GridMap
+
+    explorer = PredictedPocketNearest(source="inpainting")
+    data = np.full((40, 40), UNKNOWN, np.int8)
+    data[:, :20] = FREE
+    data[10, :20] = OCCUPIED
+    grid = GridMap(data, 0.05)
+    explorer.predictor = lambda channels: np.where(  # Free above the row of 0.2 m cells 5.
+        np.arange(channels.shape[-2])[:, None] < 5, 0.9, 0.1).repeat(
+        channels.shape[-1], axis=1).astype(np.float32)
+    state = ExplorationState(grid, np.zeros(3), 0.0, [], None, np.zeros((0, 2)))
+    built = explorer.building(state).data
+    np.testing.assert_array_equal(built[:, :20], data[:, :20])  # Known cells as mapped.
+    assert (built[:20, 20:] == FREE).all() and (built[20:, 20:] == OCCUPIED).all()
+    m = Episode(resolve_scene("train_loop"), make_explorer("pocket_predicted_inpainting"), 0,
+                GRID).run().metrics
+    assert m["end_reason"] == "explored"

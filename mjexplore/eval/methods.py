@@ -51,6 +51,10 @@ METHODS: dict[str, str] = {
                       "followed on the robot's map",
     "predicted_plan_inpainting": "predicted_plan with inpainting as the prediction (ablation)",
     "predicted_plan_truth": "predicted_plan with the true map as the prediction (privileged)",
+    "pocket_predicted": "pocket_nearest's rule with the pockets read from the learned map "
+                        "prediction (no pocket classifier)",
+    "pocket_predicted_inpainting": "pocket_predicted with inpainting as the prediction "
+                                   "(ablation)",
     "gvn": "the learned GVN policy on the TER (--policy picks the model; default gvn_v3)",
     "cnn": "the 'Naive Exp' CNN on the map image (--policy picks the model; default cnn_paper)",
 }

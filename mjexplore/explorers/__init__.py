@@ -39,6 +39,9 @@ CLASSIC: dict[str, tuple] = {
                                   {"source": "inpainting"}),
     "predicted_plan_truth": ("mjexplore.explorers.predicted_tour", "PredictedPlan",
                              {"source": "truth"}),
+    "pocket_predicted": ("mjexplore.explorers.predicted_tour", "PredictedPocketNearest"),
+    "pocket_predicted_inpainting": ("mjexplore.explorers.predicted_tour",
+                                    "PredictedPocketNearest", {"source": "inpainting"}),
 }
 
 

@@ -35,6 +35,7 @@ import os
 import numpy as np
 
 from mjexplore.episode.explorer import ExplorationState
+from mjexplore.maps import GridMap
 from mjexplore.topology.frontiers import Frontier
 from mjexplore.topology.pipeline import TopologyConfig, TopologyTracker
 from mjexplore.topology.pockets import (
@@ -205,7 +206,12 @@ class TruePocketNearest(PocketNearest):
         out = np.zeros(len(padded.node_mask), np.float32)
         nodes, which = node_frontiers(padded, state.grid, frontiers)
         if len(nodes):
-            assert state.ground_truth is not None  # Privileged: run with the ground truth.
-            area = pocket_areas(state.grid, state.ground_truth, [frontiers[i] for i in which])
+            area = pocket_areas(state.grid, self.building(state),
+                                [frontiers[i] for i in which])
             out[nodes] = area < self.small_area_m2
         return out
+
+    def building(self, state: ExplorationState) -> GridMap:
+        """The map the pockets are read from: the ground truth."""
+        assert state.ground_truth is not None  # Privileged: run with the ground truth.
+        return state.ground_truth

@@ -25,6 +25,7 @@ The prediction's ``source``:
 from __future__ import annotations
 
 import os
+from typing import Any
 
 import numpy as np
 
@@ -32,14 +33,26 @@ from mjexplore.episode.explorer import ExplorationState
 from mjexplore.errors import UserInputError
 from mjexplore.explorers.map_planner import PlanningMapOracle
 from mjexplore.explorers.oracle import LOOKAHEAD_MARGIN
-from mjexplore.explorers.pocket_nearest import PocketNearest
-from mjexplore.maps import FREE, OCCUPIED, UNKNOWN
+from mjexplore.explorers.pocket_nearest import PocketNearest, TruePocketNearest
+from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
 
 SOURCES = ("learned", "inpainting", "truth")
 MAP_PREDICTOR = "models/map_predictor/predictor.safetensors"
 # The planning cells: the predictor's (0.2 m). On the office's 0.05 m cells a decision's
 # views, cover and paths took 6.7 s (median); on 0.2 m cells, a small fraction of that.
 PLAN_RESOLUTION = 0.2
+
+
+def free_probability(grid: GridMap, predictor: Any = None) -> np.ndarray:
+    """(rows, cols) float32 predicted free probability of every cell of ``grid``: the
+    learned ``predictor``'s (:func:`~mjexplore.mapping.prediction.map_predictor`) or, with
+    None, OpenCV's inpainting; the coarse prediction spread over its blocks."""
+    from mjexplore.mapping.prediction import block_size, coarse_channels, inpainted
+
+    channels = coarse_channels(grid)
+    coarse = predictor(channels) if predictor is not None else inpainted(channels)
+    k = block_size(grid)
+    return np.repeat(np.repeat(coarse, k, 0), k, 1)[:grid.shape[0], :grid.shape[1]]
 
 
 class PredictedMapPlanner(PlanningMapOracle):
@@ -75,15 +88,9 @@ class PredictedMapPlanner(PlanningMapOracle):
             self.predictor = map_predictor(predictor)
 
     def free_probability(self, state: ExplorationState) -> np.ndarray:
-        """(rows, cols) float32 predicted free probability of every cell of the map (the
-        coarse prediction spread over its blocks)."""
-        from mjexplore.mapping.prediction import block_size, coarse_channels, inpainted
-
-        grid = state.grid
-        channels = coarse_channels(grid)
-        coarse = self.predictor(channels) if self.predictor is not None else inpainted(channels)
-        k = block_size(grid)
-        return np.repeat(np.repeat(coarse, k, 0), k, 1)[:grid.shape[0], :grid.shape[1]]
+        """(rows, cols) float32 predicted free probability of every cell of the map
+        (:func:`free_probability`)."""
+        return free_probability(state.grid, self.predictor)
 
     def planning_data(self, state: ExplorationState) -> np.ndarray:
         data = state.grid.data.copy()
@@ -230,6 +237,48 @@ class PredictedPlan(PredictedMapPlanner):
             return None
         self.steered += 1
         return goals[int(np.argmin(cost))].copy()
+
+
+class PredictedPocketNearest(TruePocketNearest):
+    """``pocket_nearest``'s rule with each frontier's pocket read from the predicted map
+    instead of the pocket classifier: a frontier node counts ``pocket_m`` metres farther
+    when the free space behind it on the robot's map with its unknown cells predicted
+    (free at probability ``free_above`` or more, a wall otherwise) is below
+    ``small_area_m2`` (:func:`~mjexplore.topology.pockets.pocket_areas`, as
+    ``pocket_truth`` reads the truth).
+
+    Args:
+        source: ``learned`` (the map predictor) or ``inpainting``.
+        predictor: The learned predictor's weights file.
+        free_above: Least predicted free probability of a cell counted as free.
+        **kwargs: :class:`~mjexplore.explorers.pocket_nearest.TruePocketNearest`'s settings.
+
+    Raises:
+        UserInputError: an unknown source, or a learned predictor that cannot be loaded.
+    """
+
+    def __init__(self, source: str = "learned", predictor: str | os.PathLike = MAP_PREDICTOR,
+                 free_above: float = 0.5, **kwargs) -> None:
+        if source not in ("learned", "inpainting"):
+            raise UserInputError(f"prediction source {source!r} is unknown here: use learned "
+                                 "or inpainting (pocket_truth reads the truth).")
+        super().__init__(**kwargs)
+        self.free_above = float(free_above)
+        self.name = "pocket_predicted" if source == "learned" else \
+            f"pocket_predicted_{source}"
+        self.predictor = None
+        if source == "learned":
+            from mjexplore.mapping.prediction import map_predictor
+
+            self.predictor = map_predictor(predictor)
+
+    def building(self, state: ExplorationState) -> GridMap:
+        grid = state.grid
+        data = grid.data.copy()
+        unknown = data < 0
+        free = free_probability(grid, self.predictor) >= self.free_above
+        data[unknown] = np.where(free[unknown], FREE, OCCUPIED)
+        return GridMap(data, grid.resolution, grid.origin)
 
 
 def _disk(grid, xy: np.ndarray, radius: float) -> np.ndarray:
