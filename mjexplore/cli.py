@@ -814,7 +814,7 @@ def _add_episode_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--people-density", type=_positive, default=None, metavar="D",
                    help="instead of --people: D pedestrians per 100 m^2 of the floor a "
                         "person can walk, the count set per scene (e.g. 2: an office "
-                        "corridor at a quiet hour)")
+                        "corridor at a quiet hour) (default: none)")
     _add_lidar_model_arg(p)
 
 
@@ -1235,7 +1235,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "enough to commit. Experiments the report knows: table1, gvn_v2, gvn_v3, "
                     "ablation, ablation_v2, ablation_v3, lobby_real, realistic, realistic_truth, "
                     "realistic_odometry, realistic_imu, explore_bench, ladder, ariadne, teams, "
-                    "teams_explore_bench. The last two summarise team sweeps (bench --robots).")
+                    "teams_explore_bench, people, people_5, people_10, people_20. teams and "
+                    "teams_explore_bench summarise team sweeps (bench --robots); people_N the "
+                    "people benchmark's sweep among N people (bench --people N).")
     co.add_argument("sweep", type=Path, help="the sweep's --out folder")
     co.add_argument("--experiment", required=True, help="summary name (e.g. table1)")
     co.add_argument("--data", type=Path, default=Path("docs/results/data"),
