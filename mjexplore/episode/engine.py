@@ -488,7 +488,7 @@ class Episode:
             if self._decision_scan(agent):
                 return
             if not agent.decide():
-                among = self.team is not None or self.crowd is not None
+                among = self.bodies is not None
                 agent.idle(t, resumed, self.team_config.idle_retry if among else math.inf)
                 return
         if resumed:
@@ -500,7 +500,7 @@ class Episode:
         team's asked once more now) or has retired."""
         if any(a.active for a in self.agents) or all(a.retired for a in self.agents):
             return False
-        if self.team is not None or self.crowd is not None:
+        if self.bodies is not None:
             for a in self.agents:
                 if a.retired is None:
                     a.idle_until = self.time  # Due now: ask again.
