@@ -302,14 +302,14 @@ EXPERIMENTS = (
                "--out runs/ariadne",
                parts=(ariadne,)),
     Experiment("people", "People in the building: exploring among pedestrians",
-               "Every classic explorer, pocket_nearest and the recommended learned one (gvn_v3) "
-               "on the office and the maze with 0, 5, 10 and 20 people walking between "
-               "random goals (full physics, 5 seeds, an hour's cap; the people of a seed are the same for "
-               "every method). Returns from people are left out of the map and the people "
-               "a scan sees are obstacles in the robot's costmap; a robot whose way only "
-               "people block waits, and a velocity check slows or stops it before it comes "
-               "within 0.1 m of one (docs/guide/people.md). Each crowd size is a sweep of "
-               "its own; the sections after this one give each in Table 1's columns.",
+               "Every classic explorer, pocket_nearest and the recommended learned one (gvn_v3) on"
+               " the office and the maze with 0, 5, 10 and 20 people walking between random goals "
+               "(full physics, 5 seeds, an hour's cap; the people of a seed are the same for every"
+               " method). Returns from people are left out of the map and the people a scan sees "
+               "are obstacles in the robot's costmap; a robot whose way only people block waits, "
+               "and a velocity check slows or stops it before it comes within 0.1 m of one "
+               "(docs/guide/people.md). Each crowd size is a sweep of its own; the sections after "
+               "this one give each in Table 1's columns.",
                PEOPLE_METHODS,
                "; ".join([_people_sweep(0)] + [_people_sweep(n) for n in (5, 10, 20)] +
                          ["mjexplore collect runs/people0 --experiment people"] +
