@@ -166,3 +166,62 @@ def test_pocket_predicted_reads_the_pockets_from_the_predicted_map():
     m = Episode(resolve_scene("train_loop"), make_explorer("pocket_predicted_inpainting"), 0,
                 GRID).run().metrics
     assert m["end_reason"] == "explored"
+
+
+def test_predicted_drive_drives_on_the_prediction_until_the_map_says_otherwise():
+    """Its driving costmap is the robot's map with the predicted cells filled in (a
+    predicted corridor is traversable before it is seen); a cell the robot maps as a wall
+    afterwards blocks at once, and a mapped cell overrides the prediction."""
+    from mjexplore.explorers.predicted_tour import PredictedDrive
+    from mjexplore.maps import GridMap
+    from mjexplore.topology.gvd import DynamicGVD
+
+    data = np.full((40, 80), UNKNOWN, np.int8)
+    data[:, :40] = FREE
+    data[[0, -1], :40] = OCCUPIED
+    truth = data.copy()
+    truth[:, 40:] = FREE
+    truth[[0, -1], :] = OCCUPIED
+    grid = GridMap(data, 0.05)
+    gvd = DynamicGVD(grid.shape)
+    gvd.update(grid.occupied)
+
+    class _Tracker:
+        pass
+
+    tracker = _Tracker()
+    tracker.gvd = gvd
+    explorer = PredictedDrive(source="truth")
+    explorer.reset(np.random.default_rng(0))
+    costmap = explorer.driving_costmap(grid)
+    assert not costmap.traversable.any()  # Nothing until the first decision.
+    state = ExplorationState(grid, np.array([0.5, 1.0, 0.0]), 0.0, [], costmap,
+                             np.zeros((0, 2)), ground_truth=GridMap(truth, 0.05),
+                             extras={"tracker": tracker})
+    explorer.planning_data(state)
+    assert costmap.traversable[20, 60]  # Unknown on the map, free in the prediction.
+    version = costmap.version
+    data[10:30, 60] = OCCUPIED  # Mapped now: a wall across the predicted corridor.
+    gvd.update(grid.occupied)
+    cells = np.flatnonzero((np.arange(data.size) % 80 >= 50) & (np.arange(data.size) % 80 < 70))
+    explorer.map_changed(grid, cells, gvd.distance2)
+    assert costmap.version > version
+    assert not costmap.traversable[20, 60] and not costmap.traversable[20, 58]
+    assert (explorer._drive_map.data.reshape(-1)[cells] == np.where(
+        data.reshape(-1)[cells] >= 0, data.reshape(-1)[cells],
+        truth.reshape(-1)[cells])).all()
+
+
+def test_predicted_drive_on_the_truth_explores_and_refuses_company():
+    """On the truth within 5 m it explores a scene; with people (or teammates) in the world
+    it is refused with a clear error, as its costmap holds no moving bodies."""
+    from mjexplore.sim.people import PeopleConfig
+
+    m = Episode(resolve_scene("train_loop"), make_explorer("predicted_drive_truth"), 0,
+                GRID).run().metrics
+    assert m["end_reason"] == "explored"
+    crowd = EpisodeConfig(max_time=60.0, sim=SimConfig(dynamics="grid",
+                                                      people=PeopleConfig(count=2)))
+    with pytest.raises(UserInputError, match="without --robots or --people"):
+        Episode(resolve_scene("train_loop"), make_explorer("predicted_drive_truth"), 0,
+                crowd).run()

@@ -22,6 +22,7 @@ import numpy as np
 from mjexplore.episode.explorer import ExplorationState, Explorer
 from mjexplore.episode.metrics import KnownCounter
 from mjexplore.episode.nearest import NearestFrontier
+from mjexplore.errors import UserInputError
 from mjexplore.mapping.localization import FusedLocalizer, LocalizerConfig
 from mjexplore.mapping.occupancy import OccupancyMapper
 from mjexplore.mapping.scan_matching import ScanMatchingLocalizer, deskew_scan
@@ -94,19 +95,30 @@ class RobotAgent:
                 counter: KnownCounter) -> None:
         """Plans on ``mapper``'s map (with ``tracker``'s GVD and frontiers) from now on: a
         costmap of its own over it, with the moving bodies it knows in it (teammates,
-        people)."""
+        people). An explorer with a ``driving_costmap(grid)`` of its own drives on that
+        (alone, without people).
+
+        Raises:
+            UserInputError: such an explorer in a team or among people."""
         self.mapper = mapper
         self.tracker = tracker
         self.counter = counter
         cfg = self.config
         team, crowd = self.episode.team, self.episode.crowd
+        drives_own = hasattr(self.explorer, "driving_costmap")
+        if drives_own and (team is not None or crowd is not None):
+            raise UserInputError(f"{self.explorer.name} drives on a costmap of its own, "
+                                 "without moving bodies in it: run it alone, without "
+                                 "--robots or --people.")
         knows_truth = getattr(self.explorer, "plans_on_ground_truth", False)
         # A robot alone plans on the map; among moving bodies on the map with them in it. An
         # explorer that knows the ground truth also navigates on it (alone or among people:
         # without them in it; in a team: with the teammates in it).
         if team is None and (crowd is None or knows_truth):
             self._costmap: Costmap = Costmap(mapper.grid, tracker.gvd.distance2, cfg.planner)
-            if knows_truth:
+            if drives_own:
+                self._static_costmap = cast(Any, self.explorer).driving_costmap(mapper.grid)
+            elif knows_truth:
                 gt = self.scene.ground_truth
                 assert gt is not None  # The episode checked the scene.
                 self._static_costmap = cast(Any, self.explorer).ground_truth_costmap(

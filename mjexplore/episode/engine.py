@@ -389,6 +389,10 @@ class Episode:
         for a in self.agents:
             if a.mapper is mapper:
                 a._costmap.update(cells)
+                # An explorer that drives on a costmap of its own over the map (the
+                # prediction-driving ones) hears of the cells mapped.
+                if hasattr(a.explorer, "map_changed"):
+                    a.explorer.map_changed(grid, cells, tracker.gvd.distance2)
 
     def _integrate(self, index: int, scan) -> None:
         """Maps robot ``index``'s scan."""

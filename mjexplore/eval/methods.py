@@ -51,6 +51,12 @@ METHODS: dict[str, str] = {
                       "followed on the robot's map",
     "predicted_plan_inpainting": "predicted_plan with inpainting as the prediction (ablation)",
     "predicted_plan_truth": "predicted_plan with the true map as the prediction (privileged)",
+    "predicted_drive": "predicted_plan driving on the map plus the learned prediction within "
+                       "5 m, as oracle_5m drives on the truth",
+    "predicted_drive_inpainting": "predicted_drive with inpainting as the prediction "
+                                  "(ablation)",
+    "predicted_drive_truth": "predicted_drive with the true map as the prediction "
+                             "(privileged)",
     "pocket_predicted": "pocket_nearest's rule with the pockets read from the learned map "
                         "prediction (no pocket classifier)",
     "pocket_predicted_inpainting": "pocket_predicted with inpainting as the prediction "

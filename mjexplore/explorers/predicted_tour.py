@@ -13,6 +13,11 @@ by the path to it plus the tour that is left after it
 ``pocket_nearest``'s node unless the best one is shorter by more than ``margin_m``. It
 drives on its own map, as every explorer does.
 
+Beside it, the other explorers on a prediction: :class:`PredictedPlan` (the horizon
+oracle's plan on the prediction, followed on the robot's map), :class:`PredictedDrive` (the
+same, driving on the prediction) and :class:`PredictedPocketNearest` (pockets read from
+the predicted map).
+
 The prediction's ``source``:
 
 * ``learned``: the map predictor (:mod:`mjexplore.mapping.prediction`, ``mjexplore
@@ -31,10 +36,11 @@ import numpy as np
 
 from mjexplore.episode.explorer import ExplorationState
 from mjexplore.errors import UserInputError
-from mjexplore.explorers.map_planner import PlanningMapOracle
+from mjexplore.explorers.map_planner import PlanningMapOracle, _distance_to
 from mjexplore.explorers.oracle import LOOKAHEAD_MARGIN
 from mjexplore.explorers.pocket_nearest import PocketNearest, TruePocketNearest
 from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
+from mjexplore.navigation.planner import Costmap, PlannerConfig
 
 SOURCES = ("learned", "inpainting", "truth")
 MAP_PREDICTOR = "models/map_predictor/predictor.safetensors"
@@ -195,8 +201,6 @@ class PredictedPlan(PredictedMapPlanner):
         self.steered = 0
 
     def planning_data(self, state: ExplorationState) -> np.ndarray:
-        from mjexplore.explorers.map_planner import _distance_to
-
         data = super().planning_data(state)
         grid = state.grid
         outside = _distance_to(grid.known) * grid.resolution > self.horizon
@@ -237,6 +241,66 @@ class PredictedPlan(PredictedMapPlanner):
             return None
         self.steered += 1
         return goals[int(np.argmin(cost))].copy()
+
+
+class PredictedDrive(PredictedPlan):
+    """:class:`PredictedPlan` that also drives on the prediction, as the horizon oracle
+    drives on the truth.
+
+    It drives on a costmap of its own (:meth:`driving_costmap`): the robot's map on its
+    cells (0.05 m) with the unknown cells within ``horizon`` filled from the prediction where
+    it is confident, made afresh at each decision and overwritten, scan by scan, wherever
+    the robot's map has mapped a cell since (:meth:`map_changed`), so that the navigator
+    re-plans as soon as a predicted corridor turns out to be a wall. Its viewpoints in
+    predicted space are driven to directly. It explores alone and without people (its
+    costmap holds no moving bodies).
+
+    Args:
+        horizon: How far beyond the mapped cells the prediction is planned and driven on,
+            metres.
+        source: The prediction: ``learned``, ``inpainting`` or ``truth``.
+        **kwargs: :class:`PredictedMapPlanner`'s settings.
+    """
+
+    def __init__(self, horizon: float = 5.0, source: str = "learned", **kwargs) -> None:
+        super().__init__(horizon, source, **kwargs)
+        self.name = "predicted_drive" if source == "learned" else f"predicted_drive_{source}"
+        self._drive: Costmap | None = None
+
+    def driving_costmap(self, grid: GridMap) -> Costmap:
+        """The costmap the robot drives on, over cells like ``grid``'s (the robot's map):
+        all unknown until the first decision."""
+        self._drive_map = GridMap(np.full(grid.shape, UNKNOWN, np.int8), grid.resolution,
+                                  grid.origin)
+        self._drive_d2 = np.zeros(grid.shape, np.float32)
+        self._predicted_d2 = np.zeros(grid.shape, np.float32)
+        self._drive = Costmap(self._drive_map, self._drive_d2, PlannerConfig())
+        return self._drive
+
+    def planning_data(self, state: ExplorationState) -> np.ndarray:
+        data = super().planning_data(state)
+        if self._drive is not None:  # The driving costmap follows each decision's map.
+            self._drive_map.data[...] = data
+            self._predicted_d2[...] = np.rint(_distance_to(data == OCCUPIED) ** 2)
+            self._drive_d2[...] = self._predicted_d2
+            tracker = state.extras.get("tracker")
+            if tracker is not None:  # Walls mapped since the decision's map are in it.
+                np.minimum(self._drive_d2, tracker.gvd.distance2, out=self._drive_d2)
+            self._drive.update(None)
+        return data
+
+    def map_changed(self, grid: GridMap, cells: np.ndarray, distance2: np.ndarray) -> None:
+        """Writes the robot's map's ``cells`` (flat indices) that it knows over the
+        prediction, with their squared distances in cells to the nearest wall (the least of
+        the prediction's and ``distance2``, the robot's map's), and updates their costs."""
+        if self._drive is None:
+            return
+        live = grid.data.reshape(-1)[cells]
+        mapped = live >= 0
+        self._drive_map.data.reshape(-1)[cells[mapped]] = live[mapped]
+        self._drive_d2.reshape(-1)[cells] = np.minimum(
+            self._predicted_d2.reshape(-1)[cells], distance2.reshape(-1)[cells])
+        self._drive.update(cells)
 
 
 class PredictedPocketNearest(TruePocketNearest):
