@@ -47,8 +47,15 @@ def _init() -> None:
 
 
 def _episode(job: tuple[str, str, str, str]) -> dict:
-    from mjexplore.episode import Episode
     from mjexplore.explorers import make_explorer
+
+    return episode_row(job, make_explorer)
+
+
+def episode_row(job: tuple[str, str, str, str], make) -> dict:
+    """The row of one episode: ``job`` is (config path, method, layout, revision), and
+    ``make(method)`` builds the explorer."""
+    from mjexplore.episode import Episode
     from mjexplore.learning.evaluation import heldout_env
     from mjexplore.learning.train_config import load_train_config
 
@@ -57,7 +64,7 @@ def _episode(job: tuple[str, str, str, str]) -> dict:
     env = heldout_env(config, scene)
     env.reset(seed=config.eval.seed)
     ep = env.episode
-    metrics = Episode(ep.scene, make_explorer(method), ep.sim.config.seed, ep.config).run().metrics
+    metrics = Episode(ep.scene, make(method), ep.sim.config.seed, ep.config).run().metrics
     return {"scene": scene, "method": method, "time": metrics["exploration_time_s"],
             "end_reason": metrics["end_reason"], "revision": revision}
 
@@ -107,7 +114,6 @@ def main() -> None:
     args = parser.parse_args()
     from mjexplore.errors import UserInputError
     from mjexplore.explorers import explorer_class
-    from mjexplore.io.provenance import git_revision
     from mjexplore.learning.train_config import load_train_config
 
     methods = [m for m in args.methods.split(",") if m]
@@ -121,28 +127,38 @@ def main() -> None:
         print(f"ladder: --baseline {args.baseline!r} is not among --methods", file=sys.stderr)
         raise SystemExit(2)
     scenes = _layouts(load_train_config(args.config), args.layouts)
-    out = Path(args.out)
+    print(json.dumps(run_ladder(Path(args.out), args.config, args.layouts, scenes, methods,
+                                args.baseline, args.workers, _episode)))
+
+
+def run_ladder(out: Path, config: str, layouts_drawn: str, scenes, methods: list[str],
+               baseline: str, workers: int, episode) -> dict:
+    """Runs ``episode((config, method, scene, revision))`` for each method and scene not in
+    ``out/rows.jsonl`` at this revision (``workers`` processes), appending its row as it
+    finishes, then writes and returns the summary (:func:`summarise`)."""
+    from mjexplore.io.provenance import git_revision
+
     out.mkdir(parents=True, exist_ok=True)
     rows_path = out / "rows.jsonl"
     revision = git_revision()
     rows = [json.loads(line) for line in rows_path.open()] if rows_path.exists() else []
     rows = [r for r in rows if r["revision"] == revision]
     done = {(r["method"], r["scene"]) for r in rows}
-    jobs = [(args.config, m, s, revision) for s in scenes for m in methods if (m, s) not in done]
-    with mp.get_context("spawn").Pool(args.workers, initializer=_init) as pool, \
+    jobs = [(config, m, s, revision) for s in scenes for m in methods if (m, s) not in done]
+    with mp.get_context("spawn").Pool(workers, initializer=_init) as pool, \
             rows_path.open("a") as log:
-        for row in pool.imap_unordered(_episode, jobs):
+        for row in pool.imap_unordered(episode, jobs):
             rows.append(row)
             log.write(json.dumps(row) + "\n")
             log.flush()
             print(f"{len(rows)}/{len(scenes) * len(methods)} {row['method']} "
                   f"{Path(row['scene']).name} {row['time']:.1f} s", file=sys.stderr, flush=True)
-    summary = {"config": args.config, "layouts_drawn": args.layouts,
-               **summarise(rows, methods, args.baseline)}
+    summary = {"config": config, "layouts_drawn": layouts_drawn,
+               **summarise(rows, methods, baseline)}
     tmp = out / "summary.json.tmp"
     tmp.write_text(json.dumps(summary, indent=1) + "\n")
     tmp.replace(out / "summary.json")
-    print(json.dumps(summary))
+    return summary
 
 
 if __name__ == "__main__":
