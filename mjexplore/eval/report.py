@@ -17,6 +17,7 @@ from typing import Any
 
 from mjexplore.errors import UserInputError
 from mjexplore.eval.experiments import EXPERIMENTS
+from mjexplore.eval.predictor_report import predictor_section
 from mjexplore.eval.report_sections import Section, group_runs
 from mjexplore.eval.summaries import read_summary
 from mjexplore.eval.sweep import MEAN_STD_NOTE, markdown_table
@@ -108,6 +109,7 @@ def _report_lines(summaries: dict[str, dict[str, Any]], data: Path, out: Path, f
                       "Seed 0 on each scene: the map at the end, the trajectory and the TER.", ""]
             lines += [f"![{scene}: final map, trajectory and TER]({rel}/{still})"
                       for scene, still in stills.items()] + [""]
+    lines += predictor_section(data)
     lines += training_section(data, figures, rel)
     lines += revisions_section(summaries)
     if missing:

@@ -1,0 +1,48 @@
+"""The report's map predictor section: one row per training seed and per non-learned
+predictor, from DATA/predictor/quality.json; what it says follows the figures."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from mjexplore.errors import UserInputError
+from mjexplore.eval.predictor_report import predictor_section
+
+
+def _quality(bce, accuracy):
+    return {"cells": 1000, "bce": bce, "accuracy": accuracy, "iou_free": 0.5, "ece": 0.05,
+            "free_share": 0.47}
+
+
+def _write(tmp_path, seed1_bce):
+    data = {"revision": "abcdef0123", "held_maps": 975, "held_episodes": 60,
+            "models": {"seed0": {"weights_sha256": "268e003c" * 8, "fitted_at": "e545d49xx",
+                                 **_quality(0.53, 0.71)},
+                       "seed1": {"weights_sha256": "5942f135" * 8, "fitted_at": "9e74436xx",
+                                 **_quality(seed1_bce, 0.70)}},
+            "baselines": {"inpainting": _quality(1.9, 0.47),
+                          "unknown_as_free": _quality(4.9, 0.47)}}
+    (tmp_path / "predictor").mkdir(exist_ok=True)
+    (tmp_path / "predictor" / "quality.json").write_text(json.dumps(data))
+
+
+def test_the_section_lists_each_seed_and_baseline_and_says_whether_all_beat_them(tmp_path):
+    assert predictor_section(tmp_path) == []  # Nothing measured: no section.
+    _write(tmp_path, 0.52)
+    text = "\n".join(predictor_section(tmp_path))
+    assert "learned, seed0 (weights `268e003c`, fitted at `e545d49`) | 0.530 | 0.710" in text
+    assert "| inpainting (cv2.inpaint) | 1.900 | 0.470" in text
+    assert "revision `abcdef0`" in text and "975 partial maps of 60 held-out" in text
+    assert "bce 0.520-0.530" in text
+    assert "Every seed beats each non-learned predictor" in text
+    _write(tmp_path, 2.5)  # Seed 1 worse than inpainting in cross-entropy.
+    assert "Not every seed beats" in "\n".join(predictor_section(tmp_path))
+
+
+def test_a_damaged_file_is_refused_with_how_to_fix_it(tmp_path):
+    (tmp_path / "predictor").mkdir()
+    (tmp_path / "predictor" / "quality.json").write_text('{"models": {}}')
+    with pytest.raises(UserInputError, match="predictor_quality.py"):
+        predictor_section(tmp_path)
