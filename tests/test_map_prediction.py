@@ -25,6 +25,7 @@ from mjexplore.mapping.prediction import (
     unknown_as_free,
     unknown_as_occupied,
     unknown_cells,
+    unknown_within,
 )
 from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
 
@@ -76,6 +77,19 @@ def test_baselines_and_the_quality_scores():
     filled = inpainted(channels)
     assert (filled[4:6, 8:12] > 0.5).all() and (filled[0, 8:12] < 0.5).all()
     assert prediction_quality([(filled, channels, target)])["accuracy"] > free["accuracy"]
+
+
+def test_scoring_near_the_known_cells_keeps_the_unknown_cells_within_the_distance():
+    """The unknown band (coarse columns 8-11) lies between known columns 7 and 12: within
+    0.2 m (one cell) keeps its two edge columns, within 0.4 m all of it."""
+    truth, partial = _corridor()
+    channels, target = coarse_channels(partial), coarse_truth(truth)
+    near = unknown_within(channels, 0.2)
+    assert near[:, [8, 11]].all() and not near[:, 9:11].any() and not near[:, :8].any()
+    assert (unknown_within(channels, 0.4) == unknown_cells(channels)).all()
+    p = np.where(np.arange(channels.shape[2])[None, :] < 10, 1.0, 0.0) * np.ones(
+        channels.shape[1:])
+    assert prediction_quality([(p, channels, target)], within_m=0.2)["cells"] == near.sum()
 
 
 def test_weights_round_trip_and_monte_carlo_dropout(tmp_path):

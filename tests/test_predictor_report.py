@@ -23,7 +23,9 @@ def _write(tmp_path, seed1_bce):
                        "seed1": {"weights_sha256": "5942f135" * 8, "fitted_at": "9e74436xx",
                                  **_quality(seed1_bce, 0.70)}},
             "baselines": {"inpainting": _quality(1.9, 0.47),
-                          "unknown_as_free": _quality(4.9, 0.47)}}
+                          "unknown_as_free": _quality(4.9, 0.47)},
+            "within_m": {"1": {"seed0": {**_quality(0.3, 0.91), "cells": 100},
+                               "inpainting": {**_quality(0.9, 0.62), "cells": 100}}}}
     (tmp_path / "predictor").mkdir(exist_ok=True)
     (tmp_path / "predictor" / "quality.json").write_text(json.dumps(data))
 
@@ -37,6 +39,8 @@ def test_the_section_lists_each_seed_and_baseline_and_says_whether_all_beat_them
     assert "revision `abcdef0`" in text and "975 partial maps of 60 held-out" in text
     assert "bce 0.520-0.530" in text
     assert "Every seed beats each non-learned predictor" in text
+    assert "| learned, seed0 | 0.910 (10%) |" in text  # 100 of the 1000 unknown cells.
+    assert "| inpainting (cv2.inpaint) | 0.620 (10%) |" in text
     _write(tmp_path, 2.5)  # Seed 1 worse than inpainting in cross-entropy.
     assert "Not every seed beats" in "\n".join(predictor_section(tmp_path))
 

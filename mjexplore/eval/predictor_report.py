@@ -47,6 +47,21 @@ def predictor_section(data_dir: Path) -> list[str]:
         raise UserInputError(f"{path} is damaged ({exc!r}): measure again with "
                              "tools/predictor_quality.py.") from None
     spread = ", ".join(f"{m} {low[m]:.3f}-{high[m]:.3f}" for m in MEASURES)
+    near = data.get("within_m") or {}
+    near_lines: list[str] = []
+    if near:
+        try:
+            names = list(next(iter(near.values())))
+            near_lines = [
+                "Accuracy on the unknown cells within r of a known cell (the cells a planner "
+                "on the prediction meets first), and the share of the unknown cells there:", "",
+                markdown_table(["predictor"] + [f"within {r} m" for r in near], [
+                    [BASELINE_NAMES.get(n, f"learned, {n}")] +
+                    [f"{near[r][n]['accuracy']:.3f} ({near[r][n]['cells'] / cells:.0%})"
+                     for r in near] for n in names]), ""]
+        except (KeyError, TypeError, ValueError, StopIteration) as exc:
+            raise UserInputError(f"{path} is damaged ({exc!r}): measure again with "
+                                 "tools/predictor_quality.py.") from None
     return [
         "## The map predictor: quality on held-out partial maps", "",
         "Each unknown cell's probability of being free, predicted from the partial map on "
@@ -69,4 +84,4 @@ def predictor_section(data_dir: Path) -> list[str]:
         + ("Every seed beats each non-learned predictor in cross-entropy and accuracy."
            if beaten else "Not every seed beats each non-learned predictor in "
                           "cross-entropy and accuracy."),
-        ""]
+        "", *near_lines]

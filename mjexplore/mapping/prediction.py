@@ -282,13 +282,28 @@ BASELINES = {"unknown_as_free": unknown_as_free, "unknown_as_occupied": unknown_
              "inpainting": inpainted}
 
 
-def prediction_quality(pairs, bins: int = 10) -> dict[str, float]:
+def unknown_within(channels: np.ndarray, within_m: float) -> np.ndarray:
+    """(H, W) bool: the unknown cells (:func:`unknown_cells`) whose centre lies within
+    ``within_m`` metres of a known cell's centre inside the map."""
+    unknown = unknown_cells(channels)
+    known = (channels[2] > 0) & ~unknown
+    if not known.any():
+        return np.zeros_like(unknown)
+    distance = cv2.distanceTransform((~known).astype(np.uint8), cv2.DIST_L2,
+                                     cv2.DIST_MASK_PRECISE) * CELL_M
+    return unknown & (distance <= within_m + 1e-6)
+
+
+def prediction_quality(pairs, bins: int = 10, within_m: float | None = None
+                       ) -> dict[str, float]:
     """Scores free probabilities on the unknown cells of many maps together.
 
     Args:
         pairs: Iterable of (probability (H, W), channels (3, H, W), truth (H, W) uint8
             free share): each map's prediction, input and target.
         bins: Probability bins of the calibration error.
+        within_m: Score only the unknown cells within this many metres of a known cell
+            (:func:`unknown_within`); None: every unknown cell.
 
     Returns:
         ``cells`` scored; ``bce`` (nats, probabilities clipped to [1e-4, 1 - 1e-4]);
@@ -298,7 +313,8 @@ def prediction_quality(pairs, bins: int = 10) -> dict[str, float]:
     """
     probability, target = [], []
     for p, channels, truth in pairs:
-        unknown = unknown_cells(channels)
+        unknown = unknown_cells(channels) if within_m is None else \
+            unknown_within(channels, within_m)
         probability.append(np.asarray(p, np.float64)[unknown])
         target.append(truth[unknown] >= 128)
     p = np.concatenate(probability) if probability else np.zeros(0)
