@@ -7,13 +7,15 @@ grid world for the v3 recipe). The prediction at each decision is the truth's fr
 each 0.2 m cell, and with ``flip`` > 0 each cell's share is replaced by one minus it with
 that probability (drawn afresh at each decision, seeded per episode): the salt-and-pepper
 error of a predictor with accuracy about 1 - ``flip``. ``flip`` 0 separates what the coarse
-cells cost from what the errors cost.
+cells cost from what the errors cost. With ``--fixed`` the flipped cells are drawn once per
+episode and stay flipped (until mapped): errors as many, but the same at every decision, so
+the plan does not change for them.
 
 Rows go to ``OUT/rows.jsonl`` (resumed at the same revision), the summary (each setting's
 paired ratio to pocket_nearest) to ``OUT/summary.json`` and stdout.
 
 Usage: python -m tools.research.prediction_noise --out runs/prediction_noise
-    [--flips 0,0.05,0.1] [--layouts validation:8] [--workers 1]
+    [--flips 0,0.05,0.1] [--fixed] [--layouts validation:8] [--workers 1]
 """
 
 from __future__ import annotations
@@ -29,8 +31,9 @@ from tools.ladder import _layouts, episode_row, run_ladder
 BASELINE = "pocket_nearest"
 
 
-def _noisy_truth(flip: float):
-    """A ``predicted_drive`` whose prediction is the coarse truth, ``flip`` of it flipped."""
+def _noisy_truth(flip: float, fixed: bool):
+    """A ``predicted_drive`` whose prediction is the coarse truth, ``flip`` of it flipped
+    (the same cells all episode when ``fixed``)."""
     from mjexplore.explorers.predicted_tour import PredictedDrive
     from mjexplore.mapping.prediction import block_shares, block_size
     from mjexplore.maps import is_free
@@ -38,18 +41,21 @@ def _noisy_truth(flip: float):
     class NoisyTruthDrive(PredictedDrive):
         def __init__(self) -> None:
             super().__init__(source="inpainting")  # Replaced below: no predictor loaded.
-            self.name = f"coarse_truth_flip{flip:g}"
+            self.name = f"coarse_truth_{'fixed' if fixed else 'flip'}{flip:g}"
 
         def reset(self, rng: np.random.Generator) -> None:
             super().reset(rng)
             self._rng = np.random.default_rng(0)
+            self._flipped: np.ndarray | None = None
 
         def free_probability(self, state):
             truth = state.ground_truth
             k = block_size(truth)
             share = block_shares(is_free(truth.data), k)
             if flip:
-                share = np.where(self._rng.random(share.shape) < flip, 1.0 - share, share)
+                if self._flipped is None or not fixed:
+                    self._flipped = self._rng.random(share.shape) < flip
+                share = np.where(self._flipped, 1.0 - share, share)
             return np.repeat(np.repeat(share, k, 0), k, 1)[:truth.shape[0], :truth.shape[1]]
 
     return NoisyTruthDrive()
@@ -60,7 +66,10 @@ def _explorer(method: str):
 
     if method == BASELINE:
         return make_explorer(method)
-    return _noisy_truth(float(method.removeprefix("coarse_truth_flip")))
+    kind, _, flip = method.removeprefix("coarse_truth_").partition("flip")
+    if kind:  # coarse_truth_fixedF
+        return _noisy_truth(float(kind.removeprefix("fixed")), fixed=True)
+    return _noisy_truth(float(flip), fixed=False)
 
 
 def _episode(job: tuple[str, str, str, str]) -> dict:
@@ -73,6 +82,8 @@ def main() -> None:
     parser.add_argument("--layouts", default="validation:8",
                         help="validation:N (the first N), validation, unseen:N or test:N")
     parser.add_argument("--flips", default="0,0.05,0.1")
+    parser.add_argument("--fixed", action="store_true",
+                        help="flip the same cells at every decision of an episode")
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
@@ -83,7 +94,8 @@ def main() -> None:
     scenes = _layouts(config, which if which == "validation" else args.layouts)
     if which == "validation" and first:
         scenes = scenes[:int(first)]
-    methods = [BASELINE] + [f"coarse_truth_flip{float(f):g}" for f in args.flips.split(",")]
+    kind = "fixed" if args.fixed else "flip"
+    methods = [BASELINE] + [f"coarse_truth_{kind}{float(f):g}" for f in args.flips.split(",")]
     print(json.dumps(run_ladder(Path(args.out), args.config, args.layouts, scenes, methods,
                                 BASELINE, args.workers, _episode)))
 
