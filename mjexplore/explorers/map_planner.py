@@ -89,10 +89,6 @@ class PlanningMapOracle(OracleExplorer):
     def ground_truth_costmap(self, state: ExplorationState) -> Costmap:
         """The costmap of the planning map: all unknown until the first decision, then
         updated in place at each (what :class:`HorizonOracle` drives on)."""
-        return self.planning_costmap(state)
-
-    def planning_costmap(self, state: ExplorationState) -> Costmap:
-        """A fresh costmap of the planning map, all unknown (filled by :meth:`prepare`)."""
         grid = state.ground_truth if state.ground_truth is not None else state.grid
         k = self._block(grid)
         shape = (-(-grid.shape[0] // k), -(-grid.shape[1] // k))
@@ -137,7 +133,7 @@ class PlanningMapOracle(OracleExplorer):
         if (self._costmap is None or self._plan.resolution != state.grid.resolution * k
                 or self._plan.shape != (-(-state.grid.shape[0] // k),
                                         -(-state.grid.shape[1] // k))):
-            self.planning_costmap(state)
+            self.ground_truth_costmap(state)
         assert self._costmap is not None  # Made just above when missing.
         plan_map = self._plan
         plan_map.data[...] = self._planning_map(state)
