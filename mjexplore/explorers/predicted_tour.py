@@ -284,7 +284,7 @@ class PredictedDrive(PredictedPlan):
             self._predicted_d2[...] = np.rint(_distance_to(data == OCCUPIED) ** 2)
             self._drive_d2[...] = self._predicted_d2
             tracker = state.extras.get("tracker")
-            if tracker is not None:  # Walls mapped since the decision's map are in it.
+            if tracker is not None:  # The robot's map's own distances where shorter.
                 np.minimum(self._drive_d2, tracker.gvd.distance2, out=self._drive_d2)
             self._drive.update(None)
         return data
