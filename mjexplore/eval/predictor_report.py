@@ -42,31 +42,24 @@ def predictor_section(data_dir: Path) -> list[str]:
         low = {m: min(q[m] for q in models.values()) for m in MEASURES}
         high = {m: max(q[m] for q in models.values()) for m in MEASURES}
         cells, maps = next(iter(models.values()))["cells"], data["held_maps"]
-        free = next(iter(models.values()))["free_share"]
+        free, episodes = next(iter(models.values()))["free_share"], data["held_episodes"]
+        near = data.get("within_m") or {}
+        near_lines = [
+            "Accuracy on the unknown cells within r of a known cell (the cells a planner on "
+            "the prediction meets first), and the share of the unknown cells there:", "",
+            markdown_table(["predictor"] + [f"within {r} m" for r in near], [
+                [BASELINE_NAMES.get(n, f"learned, {n}")] +
+                [f"{near[r][n]['accuracy']:.3f} ({near[r][n]['cells'] / cells:.0%})"
+                 for r in near] for n in next(iter(near.values()))]), ""] if near else []
     except (KeyError, TypeError, ValueError, StopIteration) as exc:
         raise UserInputError(f"{path} is damaged ({exc!r}): measure again with "
                              "tools/predictor_quality.py.") from None
     spread = ", ".join(f"{m} {low[m]:.3f}-{high[m]:.3f}" for m in MEASURES)
-    near = data.get("within_m") or {}
-    near_lines: list[str] = []
-    if near:
-        try:
-            names = list(next(iter(near.values())))
-            near_lines = [
-                "Accuracy on the unknown cells within r of a known cell (the cells a planner "
-                "on the prediction meets first), and the share of the unknown cells there:", "",
-                markdown_table(["predictor"] + [f"within {r} m" for r in near], [
-                    [BASELINE_NAMES.get(n, f"learned, {n}")] +
-                    [f"{near[r][n]['accuracy']:.3f} ({near[r][n]['cells'] / cells:.0%})"
-                     for r in near] for n in names]), ""]
-        except (KeyError, TypeError, ValueError, StopIteration) as exc:
-            raise UserInputError(f"{path} is damaged ({exc!r}): measure again with "
-                                 "tools/predictor_quality.py.") from None
     return [
         "## The map predictor: quality on held-out partial maps", "",
         "Each unknown cell's probability of being free, predicted from the partial map on "
         "0.2 m cells (docs/guide/prediction.md), against the ground truth's free share, on "
-        f"the {maps:,} partial maps of {data['held_episodes']} held-out episodes "
+        f"the {maps:,} partial maps of {episodes} held-out episodes "
         f"({cells:,} unknown cells, {free:.0%} of them free). One row per training seed of "
         "the learned predictor, then the three non-learned predictors. BCE in nats (lower "
         "is better), accuracy and IoU of the free space at probability 0.5, calibration "
