@@ -19,8 +19,9 @@ current revision; ``OUT/summary.json`` holds each method's mean and its paired r
 ``--baseline`` per layout (mean, bootstrap 95 % interval, faster/slower,
 :func:`mjexplore.eval.stats.compare_paired`), over the layouts every method finished.
 
-Layouts: ``validation`` (the config's model-selection layouts), ``unseen:N`` (N after them)
-or ``test:N`` (N with the test generator seeds, apart from every choice).
+Layouts: ``validation`` (the config's model-selection layouts; ``validation:N`` the first N),
+``unseen:N`` (N after them) or ``test:N`` (N with the test generator seeds, apart from every
+choice).
 
 Usage: python tools/ladder.py --out runs/ladder/validation [--config training/gvn_v3.yaml]
     [--layouts validation] [--methods nearest,pocket_nearest,...] [--workers 2]
@@ -71,12 +72,14 @@ def episode_row(job: tuple[str, str, str, str], make) -> dict:
 
 def _layouts(config, which: str) -> tuple[str, ...]:
     kind, _, count = which.partition(":")
-    if kind == "validation" and not count:
-        return config.eval.scene_list()
+    if kind == "validation" and (not count or count.isdigit()):
+        scenes = tuple(config.eval.scene_list())
+        return scenes[:int(count)] if count else scenes
     if kind in ("unseen", "test") and count.isdigit():
         return (config.eval.unseen_scenes if kind == "unseen" else config.eval.test_scenes)(
             int(count))
-    raise SystemExit(f"--layouts {which!r}: use validation, unseen:N or test:N")
+    raise SystemExit(f"--layouts {which!r}: use validation, validation:N (the first N), "
+                     "unseen:N or test:N")
 
 
 def summarise(rows: list[dict], methods: list[str], baseline: str) -> dict:

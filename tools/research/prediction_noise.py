@@ -34,7 +34,7 @@ BASELINE = "pocket_nearest"
 def _noisy_truth(flip: float, fixed: bool):
     """A ``predicted_drive`` whose prediction is the coarse truth, ``flip`` of it flipped
     (the same cells all episode when ``fixed``)."""
-    from mjexplore.explorers.predicted_tour import PredictedDrive
+    from mjexplore.explorers.predicted_tour import PredictedDrive, free_probability
     from mjexplore.mapping.prediction import block_shares, block_size
     from mjexplore.maps import is_free
 
@@ -56,7 +56,7 @@ def _noisy_truth(flip: float, fixed: bool):
                 if self._flipped is None or not fixed:
                     self._flipped = self._rng.random(share.shape) < flip
                 share = np.where(self._flipped, 1.0 - share, share)
-            return np.repeat(np.repeat(share, k, 0), k, 1)[:truth.shape[0], :truth.shape[1]]
+            return free_probability(state.grid, lambda channels: share)
 
     return NoisyTruthDrive()
 
@@ -90,10 +90,7 @@ def main() -> None:
     from mjexplore.learning.train_config import load_train_config
 
     config = load_train_config(args.config)
-    which, _, first = args.layouts.partition(":")
-    scenes = _layouts(config, which if which == "validation" else args.layouts)
-    if which == "validation" and first:
-        scenes = scenes[:int(first)]
+    scenes = _layouts(config, args.layouts)
     kind = "fixed" if args.fixed else "flip"
     methods = [BASELINE] + [f"coarse_truth_{kind}{float(f):g}" for f in args.flips.split(",")]
     print(json.dumps(run_ladder(Path(args.out), args.config, args.layouts, scenes, methods,
