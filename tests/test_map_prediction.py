@@ -77,6 +77,15 @@ def test_baselines_and_the_quality_scores():
     filled = inpainted(channels)
     assert (filled[4:6, 8:12] > 0.5).all() and (filled[0, 8:12] < 0.5).all()
     assert prediction_quality([(filled, channels, target)])["accuracy"] > free["accuracy"]
+    # The confident cells: every cell of a 0/1 prediction, none of a 0.5 one; a wrong
+    # confident cell counts against their accuracy, an unsure one not.
+    assert best["confident_share"] == 1.0 and best["confident_accuracy"] == 1.0
+    unsure = prediction_quality([(np.full(target.shape, 0.5), channels, target)])
+    assert unsure["confident_share"] == 0.0 and unsure["confident_accuracy"] is None
+    mixed = np.where(target >= 128, 0.6, 0.9)  # Walls called free, free cells unsure.
+    q = prediction_quality([(mixed, channels, target)])
+    assert q["confident_share"] == pytest.approx(1 - q["free_share"])
+    assert q["confident_accuracy"] == 0.0
 
 
 def test_scoring_near_the_known_cells_keeps_the_unknown_cells_within_the_distance():

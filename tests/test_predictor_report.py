@@ -41,6 +41,7 @@ def test_the_section_lists_each_seed_and_baseline_and_says_whether_all_beat_them
     assert "Every seed beats each non-learned predictor" in text
     assert "| learned, seed0 | 0.910 (10%) |" in text  # 100 of the 1000 unknown cells.
     assert "| inpainting (cv2.inpaint) | 0.620 (10%) |" in text
+    assert "confident cells" not in text  # Measured before their scores existed.
     _write(tmp_path, 2.5)  # Seed 1 worse than inpainting in cross-entropy.
     assert "Not every seed beats" in "\n".join(predictor_section(tmp_path))
 
@@ -50,3 +51,18 @@ def test_a_damaged_file_is_refused_with_how_to_fix_it(tmp_path):
     (tmp_path / "predictor" / "quality.json").write_text('{"models": {}}')
     with pytest.raises(UserInputError, match="predictor_quality.py"):
         predictor_section(tmp_path)
+
+
+def test_the_confident_cells_table_gives_each_seed_in_every_band(tmp_path):
+    _write(tmp_path, 0.52)
+    path = tmp_path / "predictor" / "quality.json"
+    data = json.loads(path.read_text())
+    for band in [data["models"], data["baselines"], *data["within_m"].values()]:
+        for q in band.values():
+            q.update(confident_share=0.25, confident_accuracy=0.9)
+    data["within_m"]["1"]["seed0"].update(confident_share=0.0, confident_accuracy=None)
+    path.write_text(json.dumps(data))
+    text = "\n".join(predictor_section(tmp_path))
+    assert "| predictor | all unknown | within 1 m |" in text
+    assert "| learned, seed0 | 0.900 (25%) | - (0%) |" in text
+    assert "learned, seed1 | 0.900" not in text  # Not scored within 1 m.

@@ -21,6 +21,14 @@ def _row(name: str, q: dict) -> list[str]:
     return [name] + [f"{q[m]:.3f}" for m in MEASURES]
 
 
+def _confident(q: dict) -> str:
+    """The accuracy on the confident cells and their share, or a dash when there are
+    none."""
+    if q["confident_accuracy"] is None:
+        return "- (0%)"
+    return f"{q['confident_accuracy']:.3f} ({q['confident_share']:.0%})"
+
+
 def predictor_section(data_dir: Path) -> list[str]:
     """The section's lines ([] when ``DATA/predictor/quality.json`` is not there).
 
@@ -51,6 +59,18 @@ def predictor_section(data_dir: Path) -> list[str]:
                 [BASELINE_NAMES.get(n, f"learned, {n}")] +
                 [f"{near[r][n]['accuracy']:.3f} ({near[r][n]['cells'] / cells:.0%})"
                  for r in near] for n in next(iter(near.values()))]), ""] if near else []
+        scored = {"all unknown": {**models, **baselines},
+                  **{f"within {r} m": near[r] for r in near}}
+        sure_lines = [
+            "Accuracy on the confident cells (free probability at least 0.7 or at most 0.3: "
+            "those `predicted_drive` plans and drives on), and their share of the cells "
+            "scored:", "",
+            markdown_table(["predictor", *scored], [
+                [BASELINE_NAMES.get(n, f"learned, {n}")] +
+                [_confident(q[n]) for q in scored.values()] for n in models
+                if all(n in q for q in scored.values())]), ""
+        ] if all("confident_share" in q for band in scored.values()
+                 for q in band.values()) else []
     except (KeyError, TypeError, ValueError, StopIteration) as exc:
         raise UserInputError(f"{path} is damaged ({exc!r}): measure again with "
                              "tools/predictor_quality.py.") from None
@@ -77,4 +97,4 @@ def predictor_section(data_dir: Path) -> list[str]:
         + ("Every seed beats each non-learned predictor in cross-entropy and accuracy."
            if beaten else "Not every seed beats each non-learned predictor in "
                           "cross-entropy and accuracy."),
-        "", *near_lines]
+        "", *near_lines, *sure_lines]

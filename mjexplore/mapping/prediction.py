@@ -294,8 +294,8 @@ def unknown_within(channels: np.ndarray, within_m: float) -> np.ndarray:
     return unknown & (distance <= within_m + 1e-6)
 
 
-def prediction_quality(pairs, bins: int = 10, within_m: float | None = None
-                       ) -> dict[str, float]:
+def prediction_quality(pairs, bins: int = 10, within_m: float | None = None,
+                       confident: tuple[float, float] = (0.3, 0.7)) -> dict[str, float]:
     """Scores free probabilities on the unknown cells of many maps together.
 
     Args:
@@ -304,12 +304,17 @@ def prediction_quality(pairs, bins: int = 10, within_m: float | None = None
         bins: Probability bins of the calibration error.
         within_m: Score only the unknown cells within this many metres of a known cell
             (:func:`unknown_within`); None: every unknown cell.
+        confident: (greatest probability called a wall, least called free): the cells a
+            planner on the prediction trusts (``predicted_drive``'s defaults); the others
+            it leaves unknown.
 
     Returns:
         ``cells`` scored; ``bce`` (nats, probabilities clipped to [1e-4, 1 - 1e-4]);
         ``accuracy`` at 0.5; ``iou_free`` of the predicted and true free cells;
         ``ece``: the cells' share-weighted gap between mean probability and free share per
-        bin; ``free_share`` of the scored cells.
+        bin; ``free_share`` of the scored cells; ``confident_share``, the share of them
+        at or beyond ``confident``, and ``confident_accuracy``, the accuracy on those
+        (None when there are none).
     """
     probability, target = [], []
     for p, channels, truth in pairs:
@@ -325,6 +330,7 @@ def prediction_quality(pairs, bins: int = 10, within_m: float | None = None
     bce = -np.mean(np.where(t, np.log(clipped), np.log1p(-clipped)))
     called = p >= 0.5
     union = (called | t).sum()
+    sure = (p <= confident[0]) | (p >= confident[1])
     which = np.minimum((p * bins).astype(int), bins - 1)
     count = np.bincount(which, minlength=bins)
     gap = np.abs(np.bincount(which, p, bins) - np.bincount(which, t.astype(float), bins))
@@ -332,4 +338,7 @@ def prediction_quality(pairs, bins: int = 10, within_m: float | None = None
             "accuracy": round(float((called == t).mean()), 4),
             "iou_free": round(float((called & t).sum() / union), 4) if union else 1.0,
             "ece": round(float(gap.sum() / count.sum()), 4),
-            "free_share": round(float(t.mean()), 4)}
+            "free_share": round(float(t.mean()), 4),
+            "confident_share": round(float(sure.mean()), 4),
+            "confident_accuracy": (round(float((called == t)[sure].mean()), 4)
+                                   if sure.any() else None)}
