@@ -33,6 +33,9 @@ def test_each_crowd_is_paired_with_the_same_seeds_without_people():
     assert ten["IoU change"] == f"{((0.83 - 0.84) + (0.78 - 0.84)) / 2:.4f}"
     assert ten["contacts"] == 1 and ten["least gap (m)"] == "0.020"
     assert by_count[20]["explored"] == 1 and by_count[0]["contacts"] == "-"
+    # The time stood still to a tenth of a second whatever its size.
+    assert ten["stood still (s)"] == "2.0 +- 1.0" and by_count[20]["stood still (s)"] == \
+        "3.0 +- 3.0"
 
 
 def test_the_checks_name_what_failed():

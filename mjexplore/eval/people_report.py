@@ -87,8 +87,8 @@ def people_table(crowds: dict[int, Runs]) -> tuple[list[str], list[list[Any]]]:
                     "-" if count == 0 else _mean(_iou_changes(runs, base), 4),
                     "-" if count == 0 else sum(int(m.get("people_collisions", 0)) for m in ms),
                     f"{min(gaps):.3f}" if gaps else "-",
-                    "-" if count == 0 else format_mean_std([m.get("time_stopped_s")
-                                                            for m in ms])])
+                    "-" if count == 0 else format_mean_std(
+                        [m.get("time_stopped_s") for m in ms], digits=1)])
     return header, rows
 
 

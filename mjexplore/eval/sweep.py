@@ -323,13 +323,15 @@ def read_kinematics(folder: Path) -> KinematicsLog:
                          cmd_angular=table[:, 6], pose=table[:, 7:10], odom_pose=table[:, 10:13])
 
 
-def format_mean_std(values: list) -> str:
-    """``mean +- std`` of the values that are not None, with ``(k/n)`` when some are None."""
+def format_mean_std(values: list, digits: int | None = None) -> str:
+    """``mean +- std`` of the values that are not None, with ``(k/n)`` when some are None;
+    to ``digits`` decimals (None: 3 when every value is below 10, else 1)."""
     vals = [v for v in values if v is not None]
     if not vals:
         return "-"
-    text = f"{np.mean(vals):.3f} +- {np.std(vals):.3f}" if max(abs(v) for v in vals) < 10 else \
-        f"{np.mean(vals):.1f} +- {np.std(vals):.1f}"
+    if digits is None:
+        digits = 3 if max(abs(v) for v in vals) < 10 else 1
+    text = f"{np.mean(vals):.{digits}f} +- {np.std(vals):.{digits}f}"
     return text + (f" ({len(vals)}/{len(values)})" if len(vals) < len(values) else "")
 
 
