@@ -299,7 +299,8 @@ def predict_maps(net, held: list[dict[str, np.ndarray]]) -> list[np.ndarray]:
     return [free_probability(net, channels) for part in held for channels in part["inputs"]]
 
 
-def quality_table(net, held: list[dict[str, np.ndarray]]) -> dict[str, dict[str, float]]:
+def quality_table(net, held: list[dict[str, np.ndarray]]
+                  ) -> dict[str, dict[str, float | None]]:
     """:func:`~mjexplore.mapping.prediction.prediction_quality` of the net and of each
     non-learned predictor on the held-out maps."""
     from mjexplore.mapping.prediction import BASELINES, prediction_quality

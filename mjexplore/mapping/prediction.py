@@ -295,7 +295,8 @@ def unknown_within(channels: np.ndarray, within_m: float) -> np.ndarray:
 
 
 def prediction_quality(pairs, bins: int = 10, within_m: float | None = None,
-                       confident: tuple[float, float] = (0.3, 0.7)) -> dict[str, float]:
+                       confident: tuple[float, float] = (0.3, 0.7)
+                       ) -> dict[str, float | None]:
     """Scores free probabilities on the unknown cells of many maps together.
 
     Args:
