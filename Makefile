@@ -30,7 +30,7 @@ demo: install
 	@echo "demo outputs in runs/demo/: scene/ (scene.xml, map, preview.png) and explore/ (metrics.json, video.mp4, ter.png, scene.png, ratio.png, map.png, kinematics.png, episode.mcap)"
 
 test: system-deps $(VENV)/.installed-test
-	$(BIN)/python -m pytest -n 2 -q
+	$(BIN)/python -m pytest -n 2 --dist worksteal -q
 
 bench: system-deps $(VENV)/.installed-test
 	$(BIN)/python tools/bench_sim.py
