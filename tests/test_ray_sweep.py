@@ -51,12 +51,12 @@ def test_a_ray_sweep_writes_the_run_folders_the_process_pool_writes(tmp_path):
     mine = tmp_path / "mine"  # Weights given by path travel with the tasks.
     mine.mkdir()
     shutil.copy(MODELS_DIR / "gvn_v3" / WEIGHTS_NAME, mine / WEIGHTS_NAME)
-    sweep = SWEEP + ["--explorers", f"nearest,potential,gvn:{mine}"]
+    sweep = SWEEP + ["--explorers", f"nearest,gvn:{mine}"]
     assert main(sweep + ["--workers", "2", "--out", str(tmp_path / "pool")]) == 0
     assert main(sweep + ["--workers", "2", "--ray", "--out", str(tmp_path / "ray")]) == 0
     assert not ray.is_initialized()  # The instance it started is shut down.
     pool, on_ray = _files(tmp_path / "pool"), _files(tmp_path / "ray")
-    assert len(pool) == 6 * 8 and sorted(pool) == sorted(on_ray)
+    assert len(pool) == 4 * 8 and sorted(pool) == sorted(on_ray)
     different = [name for name in pool if pool[name] != on_ray[name]]
     assert not different  # Metrics, curves, config (the scene as given), figures.
     for name in ("results.md", "results.csv"):
