@@ -61,5 +61,6 @@ def test_a_sweep_table_among_people_counts_contacts_and_the_least_gap():
     header, rows = summary_table({("office", "nearest"): among})
     row = dict(zip(header, rows[0]))
     assert row["people contacts"] == 3 and row["least gap (m)"] == "0.020"
+    assert row["stood still (s)"] == "2.0 +- 0.0"
     header, rows = summary_table({("office", "nearest"): [alone]})
     assert "people contacts" not in header and len(rows[0]) == len(header)

@@ -393,7 +393,7 @@ def summary_table(groups: dict[tuple[str, str], list[dict[str, Any]]]
                     if m.get("people_min_distance_m") is not None]
             row += [sum(int(m.get("people_collisions", 0)) for m in ms),
                     f"{min(gaps):.3f}" if gaps else "-",
-                    format_mean_std([m.get("time_stopped_s") for m in ms])]
+                    format_mean_std([m.get("time_stopped_s") for m in ms], digits=1)]
         rows.append(row)
     return header, rows
 
