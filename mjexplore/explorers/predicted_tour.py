@@ -39,6 +39,7 @@ from mjexplore.errors import UserInputError
 from mjexplore.explorers.map_planner import PlanningMapOracle, _distance_to
 from mjexplore.explorers.oracle import LOOKAHEAD_MARGIN
 from mjexplore.explorers.pocket_nearest import PocketNearest, TruePocketNearest
+from mjexplore.mapping.prediction import CONFIDENT
 from mjexplore.maps import FREE, OCCUPIED, UNKNOWN, GridMap
 from mjexplore.navigation.planner import Costmap, PlannerConfig
 
@@ -78,7 +79,8 @@ class PredictedMapPlanner(PlanningMapOracle):
     """
 
     def __init__(self, source: str = "learned", predictor: str | os.PathLike = MAP_PREDICTOR,
-                 free_above: float = 0.7, occupied_below: float = 0.3, **kwargs) -> None:
+                 free_above: float = CONFIDENT[1], occupied_below: float = CONFIDENT[0],
+                 **kwargs) -> None:
         if source not in SOURCES:
             raise UserInputError(f"prediction source {source!r} is unknown: use one of "
                                  f"{', '.join(SOURCES)}.")
@@ -127,8 +129,9 @@ class PredictedTour(PocketNearest):
     """
 
     def __init__(self, margin_m: float = 5.0, source: str = "learned",
-                 predictor: str | os.PathLike = MAP_PREDICTOR, free_above: float = 0.7,
-                 occupied_below: float = 0.3, resolution: float | None = PLAN_RESOLUTION,
+                 predictor: str | os.PathLike = MAP_PREDICTOR,
+                 free_above: float = CONFIDENT[1], occupied_below: float = CONFIDENT[0],
+                 resolution: float | None = PLAN_RESOLUTION,
                  **kwargs) -> None:
         if margin_m < 0:
             raise ValueError("margin_m must be >= 0 (metres)")

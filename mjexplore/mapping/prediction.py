@@ -294,8 +294,13 @@ def unknown_within(channels: np.ndarray, within_m: float) -> np.ndarray:
     return unknown & (distance <= within_m + 1e-6)
 
 
+# (greatest free probability called a wall, least called free): the cells a planner on the
+# prediction trusts; it leaves the others unknown.
+CONFIDENT = (0.3, 0.7)
+
+
 def prediction_quality(pairs, bins: int = 10, within_m: float | None = None,
-                       confident: tuple[float, float] = (0.3, 0.7)
+                       confident: tuple[float, float] = CONFIDENT
                        ) -> dict[str, float | None]:
     """Scores free probabilities on the unknown cells of many maps together.
 
@@ -306,8 +311,7 @@ def prediction_quality(pairs, bins: int = 10, within_m: float | None = None,
         within_m: Score only the unknown cells within this many metres of a known cell
             (:func:`unknown_within`); None: every unknown cell.
         confident: (greatest probability called a wall, least called free): the cells a
-            planner on the prediction trusts (``predicted_drive``'s defaults); the others
-            it leaves unknown.
+            planner on the prediction trusts (:data:`CONFIDENT`, the planners' defaults).
 
     Returns:
         ``cells`` scored; ``bce`` (nats, probabilities clipped to [1e-4, 1 - 1e-4]);

@@ -66,10 +66,9 @@ def _explorer(method: str):
 
     if method == BASELINE:
         return make_explorer(method)
-    kind, _, flip = method.removeprefix("coarse_truth_").partition("flip")
-    if kind:  # coarse_truth_fixedF
-        return _noisy_truth(float(kind.removeprefix("fixed")), fixed=True)
-    return _noisy_truth(float(flip), fixed=False)
+    setting = method.removeprefix("coarse_truth_")  # flipF or fixedF
+    fixed = setting.startswith("fixed")
+    return _noisy_truth(float(setting.removeprefix("fixed" if fixed else "flip")), fixed)
 
 
 def _episode(job: tuple[str, str, str, str]) -> dict:
